@@ -1,0 +1,34 @@
+"""jko_cvx: Fisher-regularised JKO collision steps for the granular kinetic equation.
+
+Following Carrillo, Shu, Wang and Xu, "To blow-up or not to blow-up for a granular
+kinetic equation".  The public contract::
+
+    from jko_cvx import Grid, PowerKernel, CollisionProblem, solve_collision
+    grid = Grid(points)                      # also Grid.uniform(a, b, n)
+    prob = CollisionProblem(grid, PowerKernel(gamma), f_star, dt, strength=1.0, beta=..., fisher="perspective")
+    res = solve_collision(prob, method="conic")   # or "sqp"
+    res.f, res.m, res.status, res.success, res.iterations, res.kkt_residual, res.objective
+"""
+
+from importlib.metadata import PackageNotFoundError, version
+
+from .collision import CollisionProblem, CollisionResult, KKTResidual, Status, conic_solvers, solve_collision
+from .grid import Grid
+from .kernels import PowerKernel
+
+try:
+    __version__ = version("jko_cvx")
+except PackageNotFoundError:  # running from a source tree
+    __version__ = "0.0.0+unknown"
+
+__all__ = [
+    "CollisionProblem",
+    "CollisionResult",
+    "Grid",
+    "KKTResidual",
+    "PowerKernel",
+    "Status",
+    "__version__",
+    "conic_solvers",
+    "solve_collision",
+]

@@ -1,0 +1,100 @@
+"""Solver results and statuses (modelled on diffrax's RESULTS and scipy's OptimizeResult)."""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ["CollisionResult", "Status"]
+
+
+class Status(enum.Enum):
+    """Outcome of a collision solve; the value is the human-readable message."""
+
+    CONVERGED = "converged: KKT residual within tolerance"
+    LINEARIZED = (
+        "solved the linearised-energy (semi-implicit) problem; its KKT residual against the full "
+        "problem is reported but not certified"
+    )
+    INACCURATE = "the solver reports reduced accuracy (e.g. CVXPY OPTIMAL_INACCURATE); not certified"
+    NOT_CERTIFIED = "the solver stopped but the KKT residual is above tolerance"
+    MAX_ITERATIONS = "iteration limit reached before convergence (the paper's exit flag e_f = 1)"
+    NONCONVEX = "loss of convexity: the reduced Hessian is not positive definite"
+    NUMERICAL_ERROR = "numerical breakdown (non-finite values or a failed factorisation)"
+    INFEASIBLE = "the solver reports the problem infeasible or unbounded"
+    SOLVER_ERROR = "the external solver failed"
+
+    @property
+    def success(self) -> bool:
+        """True for the statuses that deliver what was asked for."""
+        return self in (Status.CONVERGED, Status.LINEARIZED)
+
+
+@dataclass
+class CollisionResult:
+    """Result of one collision solve (or a batch of them).
+
+    Attributes
+    ----------
+    f : ndarray, shape (N,) or (B, N)
+        Density after the collision step, :math:`f^{n+1}`; feasible and mass-conserving.
+    m : ndarray, shape (N-1,) or (B, N-1)
+        Fluxes at the half points.
+    status : Status or ndarray of Status
+        Outcome; ``status.value`` is the message.  One per slice for a batch.
+    method : str
+        ``"conic"``, ``"sqp"`` or ``"newton"``.
+    iterations : int or ndarray
+        Iterations (SQP/Newton) or interior-point iterations summed over conic solves.
+    objective : float or ndarray
+        :math:`J(f, m)` of the returned point.
+    kkt_residual : float or ndarray
+        Total scaled KKT residual (see :meth:`CollisionProblem.kkt_residual`).
+    mass_error : float or ndarray
+        Relative mass error against ``f_star``.
+    seconds : float
+        Wall time of the solve (CVXPY compile time excluded; see ``info``).
+    info : dict
+        Method-specific details (e.g. conic ``passes``, ``solver_status``, ``compile_seconds``;
+        SQP ``exit_flag`` and ``zeta``).
+    """
+
+    f: NDArray[np.float64]
+    m: NDArray[np.float64]
+    status: Any
+    method: str
+    iterations: Any
+    objective: Any
+    kkt_residual: Any
+    mass_error: Any
+    seconds: float
+    info: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def success(self) -> bool | NDArray[np.bool_]:
+        """True when the status is a success (per slice for a batch)."""
+        if isinstance(self.status, Status):
+            return self.status.success
+        return np.array([s.success for s in np.ravel(self.status)]).reshape(np.shape(self.status))
+
+    @property
+    def message(self) -> str | list[str]:
+        """Human-readable status message(s)."""
+        if isinstance(self.status, Status):
+            return self.status.value
+        return [s.value for s in np.ravel(self.status)]
+
+    def __repr__(self) -> str:
+        if isinstance(self.status, Status):
+            return (
+                f"CollisionResult(method={self.method!r}, status={self.status.name}, "
+                f"iterations={self.iterations}, objective={self.objective:.12g}, "
+                f"kkt_residual={self.kkt_residual:.2e}, mass_error={self.mass_error:.1e}, "
+                f"seconds={self.seconds:.4f})"
+            )
+        ok = int(np.sum(self.success))
+        return f"CollisionResult(method={self.method!r}, batch={len(self.status)}, success={ok}/{len(self.status)})"

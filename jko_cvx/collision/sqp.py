@@ -1,0 +1,246 @@
+"""The paper's SQP for the collision step (Algorithm ``alg:non_uni_JKO``).
+
+Each iteration solves the equality-constrained QP
+
+.. math::
+
+    z^{(l+1)} = \\arg\\min_z \\tfrac12 (z - u^{(l)})^\\top \\mathsf H^{(l)} (z - u^{(l)})
+                + \\nabla J(u^{(l)})^\\top (z - u^{(l)}) \\quad \\text{s.t. } A z = b,
+
+with :math:`\\mathsf H^{(l)}` the *diagonal* of :math:`\\nabla^2 F(u^{(l)})` (F = Wasserstein +
+Fisher terms; the energy Hessian is left out, as in the paper) and the gradient of the
+full :math:`J`.  It then relaxes, :math:`u^{(l+1)} = u^{(l)} + \\lambda (z^{(l+1)} - u^{(l)})`,
+and stops when :math:`\\zeta = \\|u^{(l+1)} - u^{(l)}\\| / \\|u^{(l)}\\| \\le \\epsilon` or
+:math:`l = I_{max}` (exit flag :math:`e_f = 1`).
+
+The QP in O(N): every iterate is feasible (it starts at :math:`(f^*, 0)`), so the step
+:math:`p = z - u` has :math:`p_f = -D p_m / h` and the QP reduces to the tridiagonal system
+
+.. math::  \\big(D^\\top \\operatorname{diag}(H_f/h^2) D + \\operatorname{diag}(H_m)\\big)\\,p_m
+           = -\\big(\\nabla_m J - D^\\top(\\nabla_f J / h)\\big),
+
+positive definite because :math:`H_m = 4\\Delta v/s > 0`.  With ``qp="osqp"`` the same QP
+is solved by OSQP with the bound :math:`z_f \\ge` ``floor`` added (the paper's QP has no
+bound; the floor is the option the issue asks for).
+
+Additions to the paper, each documented in the result: a positivity safeguard
+(fraction-to-the-boundary on the relaxation step, so iterates stay positive, which
+the log Fisher form needs), and a final certification by the KKT residual (the
+paper's :math:`\\zeta` test measures step length only; a small step with a large KKT
+residual is reported ``NOT_CERTIFIED``, never as success).
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+import scipy.sparse as sp
+
+from .linalg import divergence, divergence_adjoint, solve_sym_tridiagonal
+from .problem import CollisionProblem
+from .result import CollisionResult, Status
+
+__all__ = ["solve_sqp"]
+
+_FRACTION_TO_BOUNDARY = 0.995
+
+
+def _diag_hessian(problem: CollisionProblem, f: np.ndarray, m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Diagonal of the Hessian of F (Wasserstein + Fisher) in f and in m."""
+    e = problem.edge_hessian(f, m)
+    hf = np.zeros_like(f)
+    hf[..., :-1] += e["xx"]
+    hf[..., 1:] += e["yy"]
+    return hf, e["mm"]
+
+
+def _qp_step_banded(problem: CollisionProblem, f, m, gf, gm) -> tuple[np.ndarray, np.ndarray]:
+    h = problem.grid.h
+    hf, hm = _diag_hessian(problem, f, m)
+    a = hf / h**2
+    diag = a[..., :-1] + a[..., 1:] + hm
+    off = -a[..., 1:-1]
+    rhs = -(gm - divergence_adjoint(gf / h))
+    pm = solve_sym_tridiagonal(diag, off, rhs)
+    pf = -divergence(pm) / h
+    return pf, pm
+
+
+class _OsqpStep:
+    """The SQP subproblem solved by OSQP, with the bound ``z_f >= floor``."""
+
+    def __init__(self, problem: CollisionProblem, floor: float, eps: float, max_iter: int) -> None:
+        import osqp
+
+        n = problem.n
+        self.n = n
+        self.floor = floor
+        A_eq = problem.constraint_matrix()
+        A_lb = sp.hstack([sp.eye(n), sp.csr_matrix((n, n - 1))])
+        self.A = sp.vstack([A_eq, A_lb]).tocsc()
+        self.P = sp.diags(np.ones(2 * n - 1)).tocsc()
+        self.solver = osqp.OSQP()
+        lo = np.r_[np.zeros(n), np.full(n, -np.inf)]
+        hi = np.r_[np.zeros(n), np.full(n, np.inf)]
+        self.solver.setup(
+            P=sp.triu(self.P).tocsc(),
+            q=np.zeros(2 * n - 1),
+            A=self.A,
+            l=lo,
+            u=hi,
+            eps_abs=eps,
+            eps_rel=eps,
+            max_iter=max_iter,
+            polishing=True,
+            verbose=False,
+        )
+        self.status = "unset"
+
+    def __call__(self, problem: CollisionProblem, f, m, gf, gm) -> tuple[np.ndarray, np.ndarray]:
+        n = self.n
+        hf, hm = _diag_hessian(problem, f, m)
+        # OSQP needs a strictly convex diagonal for a unique step; the constraint fixes p_f anyway.
+        pdiag = np.r_[np.maximum(hf, 1e-14 * max(float(hm.max()), 1.0)), hm]
+        lo = np.r_[np.zeros(n), self.floor - f]
+        hi = np.r_[np.zeros(n), np.full(n, np.inf)]
+        self.solver.update(Px=pdiag, q=np.r_[gf, gm], l=lo, u=hi)
+        res = self.solver.solve()
+        self.status = str(res.info.status)
+        if res.x is None or not np.all(np.isfinite(res.x)):
+            raise FloatingPointError(f"OSQP failed: {self.status}")
+        pm = res.x[n:]
+        # Re-impose the equality exactly so the iterate stays feasible to rounding.
+        return -divergence(pm) / problem.grid.h, pm
+
+
+def solve_sqp(
+    problem: CollisionProblem,
+    *,
+    step: float = 1.0,
+    tol: float = 1e-10,
+    max_iter: int = 20000,
+    kkt_tol: float = 1e-6,
+    qp: str = "banded",
+    floor: float | None = None,
+    osqp_eps: float = 1e-12,
+    check_convexity: bool = True,
+    callback: Any = None,
+) -> CollisionResult:
+    """Solve the collision step with the paper's SQP (Algorithm ``alg:non_uni_JKO``).
+
+    Parameters
+    ----------
+    problem : CollisionProblem
+        An unbatched problem (any Fisher form).
+    step : float, default 1.0
+        The relaxation step :math:`\\lambda \\in (0, 1]` of the algorithm (the paper's
+        "optimization step").
+    tol : float, default 1e-10
+        The stopping threshold :math:`\\epsilon` of the :math:`\\zeta` test.
+    max_iter : int, default 20000
+        :math:`I_{max}`; reaching it sets the exit flag :math:`e_f = 1`.
+    kkt_tol : float, default 1e-6
+        A run that passes the :math:`\\zeta` test is ``CONVERGED`` only if its scaled KKT
+        residual is at most this, else ``NOT_CERTIFIED``.
+    qp : {"banded", "osqp"}, default "banded"
+        How the QP of each iteration is solved: the O(N) tridiagonal reduction, or OSQP
+        with the positivity floor ``z_f >= floor``.
+    floor : float, optional
+        Positivity floor of the OSQP path (absolute).  Default ``1e-10 * max(f_star)``,
+        the floor the paper applies after transport and remapping (``eqn:semi_update``);
+        a positive floor keeps the bound inactive for the positivity safeguard.
+    osqp_eps : float, default 1e-12
+        OSQP's absolute and relative tolerance.
+    check_convexity : bool, default True
+        Second-order test at a certified point; ``NONCONVEX`` if the reduced Hessian is
+        not positive definite (the point is stationary but not a minimiser).
+    callback : callable, optional
+        Called as ``callback(l, f, m, zeta)`` after each iteration.
+
+    Returns
+    -------
+    CollisionResult
+        ``info`` holds ``exit_flag`` (:math:`e_f`), ``zeta``, ``safeguard_steps`` (iterations
+        whose relaxation step the positivity safeguard shortened) and ``qp``.
+    """
+    if floor is None:
+        floor = 1e-10 * float(problem.f_star.max())
+    _check_sqp_args(problem, step, tol, max_iter, kkt_tol, qp, floor)
+    t0 = time.perf_counter()
+    f, m = problem.initial_point()
+    qp_step = _qp_step_banded if qp == "banded" else _OsqpStep(problem, floor, osqp_eps, 100000)
+    zeta, it, safeguarded = 1.0, 0, 0
+    status: Status | None = None
+    with np.errstate(all="ignore"):
+        while it < max_iter:
+            if not zeta > tol:
+                break
+            gf, gm = problem.gradient(f, m)
+            try:
+                pf, pm = qp_step(problem, f, m, gf, gm)
+            except FloatingPointError:
+                status = Status.NUMERICAL_ERROR
+                break
+            if not (np.all(np.isfinite(pf)) and np.all(np.isfinite(pm))):
+                status = Status.NUMERICAL_ERROR
+                break
+            lam, truncated = step, False
+            neg = pf < 0
+            if np.any(neg):
+                to_boundary = float(np.min(-f[neg] / pf[neg]))
+                if to_boundary * _FRACTION_TO_BOUNDARY < lam:
+                    lam, truncated = to_boundary * _FRACTION_TO_BOUNDARY, True
+                    safeguarded += 1
+            norm_u = np.sqrt(f @ f + m @ m)
+            f = f + lam * pf
+            m = m + lam * pm
+            zeta = lam * np.sqrt(pf @ pf + pm @ pm) / norm_u
+            if truncated:
+                # A step cut short by the safeguard says nothing about convergence:
+                # never let it pass the zeta test.
+                zeta = max(zeta, 2 * tol)
+            it += 1
+            if callback is not None:
+                callback(it, f, m, zeta)
+    exit_flag = int(it >= max_iter and zeta > tol)
+    # Remove the rounding drift of many feasible updates (rebuild f from m), then clip
+    # rounding negatives (~1e-25) and restore the mass exactly.
+    f, m = problem.project_feasible(problem.density_from_flux(m))
+    kkt = problem.kkt_residual(f, m)
+    if status is None:
+        if exit_flag:
+            status = Status.MAX_ITERATIONS
+        elif kkt.total <= kkt_tol:
+            status = Status.NONCONVEX if check_convexity and not problem.is_local_minimiser(f, m) else Status.CONVERGED
+        else:
+            status = Status.NOT_CERTIFIED
+    return CollisionResult(
+        f=f,
+        m=m,
+        status=status,
+        method="sqp",
+        iterations=it,
+        objective=float(problem.objective(f, m)),
+        kkt_residual=float(kkt.total),
+        mass_error=float(problem.mass_error(f)),
+        seconds=time.perf_counter() - t0,
+        info={"exit_flag": exit_flag, "zeta": float(zeta), "safeguard_steps": safeguarded, "qp": qp, "kkt": kkt},
+    )
+
+
+def _check_sqp_args(problem, step, tol, max_iter, kkt_tol, qp, floor) -> None:
+    if problem.batched:
+        raise ValueError("method='sqp' solves one problem at a time; pass problem.slice(i)")
+    if not (isinstance(step, (int, float)) and 0 < step <= 1):
+        raise ValueError(f"step (the relaxation step lambda) must lie in (0, 1], got {step!r}")
+    for name, val in (("tol", tol), ("kkt_tol", kkt_tol)):
+        if not (isinstance(val, (int, float)) and np.isfinite(val) and 0 < val < 1):
+            raise ValueError(f"{name} must lie in (0, 1), got {val!r}")
+    if not (isinstance(max_iter, (int, np.integer)) and max_iter >= 1):
+        raise ValueError(f"max_iter (I_max) must be an integer >= 1, got {max_iter!r}")
+    if qp not in ("banded", "osqp"):
+        raise ValueError(f"qp must be 'banded' or 'osqp', got {qp!r}")
+    if not (isinstance(floor, (int, float)) and np.isfinite(floor) and floor >= 0):
+        raise ValueError(f"floor must be a finite number >= 0, got {floor!r}")

@@ -1,0 +1,133 @@
+"""One-dimensional non-uniform grids (the velocity grid of the paper's JKO step).
+
+The paper (``\\subsubsection{Non-uniform velocity discretization}``) places the
+density at grid points :math:`v_1 < \\dots < v_N` and the flux at the half points.
+With :math:`\\Delta v_j = v_j - v_{j-1}` and :math:`h_j = (\\Delta v_j + \\Delta v_{j+1})/2`
+in the interior, the end cells are :math:`h_1 = \\Delta v_2 / 2` and
+:math:`h_N = \\Delta v_N / 2`: the grid points include the end points :math:`\\pm L`
+of the domain, so :math:`\\sum_j h_j = v_N - v_1` and the quadrature
+:math:`\\int g \\approx \\sum_j g(v_j) h_j` is the trapezoidal rule.  This is the
+single quadrature used everywhere in the package (collision mass, the
+mass-rescaling formulas ``eqn:semi_update`` and ``eqn:mass_conserv_v``, and the
+diagnostics); DESIGN.md asks for one consistent choice and this is it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+__all__ = ["Grid"]
+
+
+@dataclass(frozen=True, eq=False)
+class Grid:
+    """A frozen, strictly increasing 1-D grid with trapezoidal cell widths.
+
+    Parameters
+    ----------
+    points : array_like, shape (N,)
+        Finite, strictly increasing grid points, ``N >= 3``.
+
+    Attributes
+    ----------
+    points : ndarray, shape (N,)
+        The grid points :math:`v_j` (read-only copy).
+    dv : ndarray, shape (N-1,)
+        Spacings :math:`\\Delta v_{j+1/2} = v_{j+1} - v_j` between neighbours.
+    h : ndarray, shape (N,)
+        Cell widths :math:`h_j` (trapezoidal weights), ``h.sum() == points[-1] - points[0]``.
+
+    Examples
+    --------
+    >>> g = Grid.uniform(-2.0, 2.0, 5)
+    >>> g.h
+    array([0.5, 1. , 1. , 1. , 0.5])
+    """
+
+    points: NDArray[np.float64]
+    dv: NDArray[np.float64] = field(init=False, repr=False)
+    h: NDArray[np.float64] = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        try:
+            pts = np.array(self.points, dtype=float, copy=True)
+        except (TypeError, ValueError) as exc:
+            raise TypeError(f"points must be a 1-D array of real numbers, got {self.points!r}") from exc
+        if pts.ndim != 1:
+            raise ValueError(f"points must be one-dimensional, got shape {pts.shape}")
+        if pts.size < 3:
+            raise ValueError(f"points must hold at least 3 grid points, got {pts.size}")
+        if not np.all(np.isfinite(pts)):
+            raise ValueError("points must be finite (no NaN or inf)")
+        dv = np.diff(pts)
+        if not np.all(dv > 0):
+            bad = int(np.argmin(dv))
+            raise ValueError(
+                "points must be strictly increasing; "
+                f"points[{bad + 1}] = {pts[bad + 1]!r} <= points[{bad}] = {pts[bad]!r}"
+            )
+        h = np.empty_like(pts)
+        h[0] = dv[0] / 2
+        h[-1] = dv[-1] / 2
+        h[1:-1] = (dv[:-1] + dv[1:]) / 2
+        for arr in (pts, dv, h):
+            arr.flags.writeable = False
+        object.__setattr__(self, "points", pts)
+        object.__setattr__(self, "dv", dv)
+        object.__setattr__(self, "h", h)
+
+    @classmethod
+    def uniform(cls, a: float, b: float, n: int) -> Grid:
+        """Uniform grid of ``n`` points on ``[a, b]`` (end points included).
+
+        Raises
+        ------
+        ValueError
+            If ``a >= b``, either end is not finite, or ``n < 3``.
+        """
+        if not (np.isfinite(a) and np.isfinite(b)):
+            raise ValueError(f"a and b must be finite, got a={a!r}, b={b!r}")
+        if not a < b:
+            raise ValueError(f"a must be smaller than b, got a={a!r}, b={b!r}")
+        if int(n) != n or n < 3:
+            raise ValueError(f"n must be an integer >= 3, got {n!r}")
+        return cls(np.linspace(a, b, int(n)))
+
+    @property
+    def n(self) -> int:
+        """Number of grid points N."""
+        return int(self.points.size)
+
+    @property
+    def length(self) -> float:
+        """Length of the domain, ``points[-1] - points[0]``."""
+        return float(self.points[-1] - self.points[0])
+
+    @property
+    def spacing_ratio(self) -> float:
+        """Largest over smallest spacing, ``max(dv) / min(dv)`` (1 for a uniform grid)."""
+        return float(self.dv.max() / self.dv.min())
+
+    def integrate(self, values: ArrayLike, axis: int = -1) -> NDArray[np.float64] | float:
+        """Trapezoidal integral :math:`\\sum_j g_j h_j` along ``axis``."""
+        vals = np.asarray(values, dtype=float)
+        if vals.shape[axis] != self.n:
+            raise ValueError(f"values must have length {self.n} along axis {axis}, got shape {vals.shape}")
+        return np.moveaxis(vals, axis, -1) @ self.h
+
+    def mass(self, f: ArrayLike) -> NDArray[np.float64] | float:
+        """Discrete mass :math:`\\sum_j f_j h_j` (last axis)."""
+        return self.integrate(f)
+
+    def moment(self, f: ArrayLike, order: int) -> NDArray[np.float64] | float:
+        """Discrete moment :math:`\\sum_j v_j^k f_j h_j` (last axis)."""
+        return self.integrate(np.asarray(f, dtype=float) * self.points**order)
+
+    def __repr__(self) -> str:
+        return (
+            f"Grid(n={self.n}, [{self.points[0]:.6g}, {self.points[-1]:.6g}], "
+            f"min dv={self.dv.min():.3g}, max dv={self.dv.max():.3g})"
+        )
