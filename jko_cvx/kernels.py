@@ -92,6 +92,27 @@ class EnergyOperator:
         """DC split of K restricted to mass-free directions (cached)."""
         raise NotImplementedError
 
+    def flux_block(self) -> NDArray[np.float64]:
+        """:math:`T^\\top K T` with :math:`T = -\\operatorname{diag}(1/h) D` (cached): K seen by the fluxes.
+
+        The energy's contribution to the reduced Hessian of the collision step, in the
+        flux variables (see :mod:`jko_cvx.collision.newton`); (N-1) x (N-1), dense.
+        """
+        cached = getattr(self, "_flux_block", None)
+        if cached is None:
+            h = self.grid.h
+            A = self.dense()
+            a, b = -1 / h[:-1], 1 / h[1:]
+            cached = (
+                np.outer(a, a) * A[:-1, :-1]
+                + np.outer(a, b) * A[:-1, 1:]
+                + np.outer(b, a) * A[1:, :-1]
+                + np.outer(b, b) * A[1:, 1:]
+            )
+            cached.flags.writeable = False
+            self._flux_block = cached
+        return cached
+
 
 class DenseEnergy(EnergyOperator):
     """Dense K for a general power kernel."""

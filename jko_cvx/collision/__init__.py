@@ -1,6 +1,7 @@
 """The collision step: problem, solvers, results."""
 
 from .conic import conic_solvers, solve_conic
+from .newton import solve_newton
 from .problem import CollisionProblem, KKTResidual
 from .result import CollisionResult, Status
 from .solve import METHODS, solve_collision
@@ -15,5 +16,6 @@ __all__ = [
     "conic_solvers",
     "solve_collision",
     "solve_conic",
+    "solve_newton",
     "solve_sqp",
 ]

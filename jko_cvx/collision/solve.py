@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 
 from .conic import solve_conic
+from .newton import solve_newton
 from .problem import CollisionProblem
 from .result import CollisionResult
 from .sqp import solve_sqp
@@ -19,6 +20,7 @@ __all__ = ["METHODS", "solve_collision"]
 METHODS: dict[str, Callable[..., CollisionResult]] = {
     "conic": solve_conic,
     "sqp": solve_sqp,
+    "newton": solve_newton,
 }
 
 
@@ -35,9 +37,11 @@ def solve_collision(problem: CollisionProblem, method: str = "conic", **options:
         The discrete JKO step.  A batched problem (``f_star`` of shape ``(B, N)``) is
         solved slice by slice for methods without a batched form, and the result
         holds one row / one status per slice.
-    method : {"conic", "sqp"}
+    method : {"conic", "sqp", "newton"}
         ``"conic"``: the CVXPY reference (:func:`jko_cvx.collision.conic.solve_conic`);
-        ``"sqp"``: the paper's Algorithm 1 (:func:`jko_cvx.collision.sqp.solve_sqp`).
+        ``"sqp"``: the paper's Algorithm 1 (:func:`jko_cvx.collision.sqp.solve_sqp`);
+        ``"newton"``: damped Newton on the reduced KKT system, batched over slices
+        (:func:`jko_cvx.collision.newton.solve_newton`).
     **options
         Keyword options of the chosen method (see its docstring).  Unknown options
         raise ``TypeError`` before any work is done.
