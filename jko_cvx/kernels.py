@@ -40,6 +40,22 @@ _EIG_REL_TOL = 1e-12
 
 
 @dataclass(frozen=True)
+class FluxBlock:
+    """Structure of the energy block :math:`T^\\top K T` seen by the fluxes.
+
+    ``kind`` is ``"diagonal"`` (:math:`\\gamma = 1`: :math:`W'' = 2\\delta`, so the block is
+    :math:`-2\\operatorname{diag}(\\Delta v)`), ``"rank1"`` (:math:`\\gamma = 2`: the block is
+    :math:`-\\Delta v \\Delta v^\\top`) or ``"dense"``.  ``diag``, ``u`` and ``dense`` hold the
+    data of each kind (block = ``diag(diag)``, ``-u u'`` or ``dense``).
+    """
+
+    kind: str
+    diag: NDArray[np.float64] | None = None
+    u: NDArray[np.float64] | None = None
+    dense: NDArray[np.float64] | None = None
+
+
+@dataclass(frozen=True)
 class EnergySplit:
     """Difference-of-convex split of the energy on mass-free directions.
 
@@ -92,6 +108,29 @@ class EnergyOperator:
         """DC split of K restricted to mass-free directions (cached)."""
         raise NotImplementedError
 
+    def flux_structure(self) -> FluxBlock:
+        """:meth:`flux_block` in its cheapest exact form (cached): diagonal, rank one or dense."""
+        cached = getattr(self, "_flux_structure", None)
+        if cached is None:
+            if isinstance(self, LowRankEnergy):
+                # T'h = 0 and T'(h v) = dv, so T'KT = -(dv)(dv)^T exactly.
+                cached = FluxBlock("rank1", u=self.grid.dv.copy())
+            elif getattr(self, "gamma", None) == 1.0:
+                # W = |v|: the mixed second difference of |v_i - v_j| vanishes off the
+                # diagonal (W'' = 2 delta) and equals -2 dv_k on it.
+                cached = FluxBlock("diagonal", diag=-2 * self.grid.dv)
+            else:
+                E = self.flux_block()
+                d = np.diag(E).copy()
+                # each entry combines four kernel values: rounding ~ 8 eps max|W|
+                W = self.dense() / np.outer(self.grid.h, self.grid.h)
+                if np.abs(E - np.diag(d)).max() <= 8 * np.finfo(float).eps * np.abs(W).max():
+                    cached = FluxBlock("diagonal", diag=d)
+                else:
+                    cached = FluxBlock("dense", dense=E)
+            self._flux_structure = cached
+        return cached
+
     def flux_block(self) -> NDArray[np.float64]:
         """:math:`T^\\top K T` with :math:`T = -\\operatorname{diag}(1/h) D` (cached): K seen by the fluxes.
 
@@ -119,6 +158,7 @@ class DenseEnergy(EnergyOperator):
 
     def __init__(self, grid: Grid, kernel: PowerKernel) -> None:
         self.grid = grid
+        self.gamma = kernel.gamma
         v = grid.points
         self.K = kernel(v[:, None] - v[None, :]) * np.outer(grid.h, grid.h)
         self.K.flags.writeable = False

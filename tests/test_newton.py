@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from jko_cvx import CollisionProblem, PowerKernel, Status, solve_collision
-from jko_cvx.collision.newton import _fused
+from jko_cvx.collision.newton import _direction, _fused, _newton_direction
+from jko_cvx.collision.problem import add_pentadiagonal
 from jko_cvx.testing import random_problem
 
 from .test_extremes import CASES, _w
@@ -21,12 +22,35 @@ def test_fused_derivatives_match_the_problem(gamma, fisher):
     prob = random_problem(rng, gamma, n=17, fisher=fisher)
     m = rng.normal(size=16) * 1e-3
     f = prob.density_from_flux(m)
-    g, H = _fused(prob, f[None], m[None], 2 * prob.energy_coef * prob.energy.flux_block())
+    g, bands, parts = _fused(prob, f[None], m[None])
+    H = add_pentadiagonal(2 * prob.energy_coef * prob.energy.flux_block(), *bands)
+    ref = prob.gradient_parts(f, m)
+    for mine, theirs in zip(
+        (parts.wasserstein, parts.fisher, parts.energy), (ref.wasserstein, ref.fisher, ref.energy), strict=True
+    ):
+        assert np.allclose(mine[0][0], theirs[0], rtol=1e-12, atol=1e-15)
+        assert np.allclose(mine[1][0], theirs[1], rtol=1e-12, atol=1e-15)
     Z = prob.null_space_basis()
     gf, gm = prob.gradient(f, m)
     Hd = Z.T @ (Z.T @ prob.hessian(f, m)).T  # from the dense (2N-1)^2 Hessian
     assert np.allclose(g[0], Z.T @ np.r_[gf, gm], rtol=1e-12, atol=1e-14 * np.abs(g).max())
     assert np.allclose(H[0], Hd, rtol=1e-12, atol=1e-13 * np.abs(Hd).max())
+
+
+@pytest.mark.parametrize("gamma", [1.0, 2.0])
+def test_structured_direction_equals_the_dense_one(gamma):
+    """gamma = 1 (diagonal energy block) and gamma = 2 (rank one) take the O(N) path: same answer."""
+    rng = np.random.default_rng(8)
+    prob = random_problem(rng, gamma, n=40)
+    m = rng.normal(size=(2, 39)) * 1e-3
+    f = prob.density_from_flux(m)
+    batch = prob.with_f_star(np.stack([prob.f_star, prob.f_star]))
+    g, bands, _ = _fused(batch, f, m)
+    p_fast, pd_fast = _direction(batch, bands, g)
+    H = add_pentadiagonal(2 * prob.energy_coef * prob.energy.flux_block(), *bands)
+    p_dense, pd_dense = _newton_direction(H, g)
+    assert pd_fast.all() and pd_dense.all()
+    assert np.allclose(p_fast, p_dense, rtol=1e-8, atol=1e-12 * np.abs(p_dense).max())
 
 
 @pytest.mark.parametrize("gamma", [1.0, 1.5, 2.0, 3.0])

@@ -87,7 +87,7 @@ class KKTResidual:
 
 
 @dataclass(frozen=True)
-class _Parts:
+class TermParts:
     """Objective, gradient or Hessian split by term (Wasserstein, Fisher, energy)."""
 
     wasserstein: object
@@ -109,13 +109,14 @@ def _check_positive_finite(name: str, value: object, allow_inf: bool = False) ->
 def add_pentadiagonal(dense: NDArray[np.float64], diag: NDArray, off1: NDArray, off2: NDArray) -> NDArray[np.float64]:
     """``dense`` (broadcast over the bands' batch axes) plus a symmetric pentadiagonal matrix."""
     n1 = dense.shape[-1]
-    H = np.broadcast_to(dense, (*diag.shape[:-1], n1, n1)).copy()
-    k = np.arange(n1)
-    H[..., k, k] += diag
-    H[..., k[:-1], k[1:]] += off1
-    H[..., k[1:], k[:-1]] += off1
-    H[..., k[:-2], k[2:]] += off2
-    H[..., k[2:], k[:-2]] += off2
+    H = np.empty((*diag.shape[:-1], n1, n1))
+    H[...] = dense
+    flat = H.reshape(*diag.shape[:-1], n1 * n1)  # a view: strided diagonals, no fancy indexing
+    flat[..., :: n1 + 1] += diag
+    flat[..., 1 :: n1 + 1] += off1
+    flat[..., n1 :: n1 + 1] += off1
+    flat[..., 2 : n1 * (n1 - 2) : n1 + 1] += off2
+    flat[..., 2 * n1 :: n1 + 1] += off2
     return H
 
 
@@ -283,7 +284,7 @@ class CollisionProblem:
         x, y = f[..., :-1], f[..., 1:]
         return x, y, x + y
 
-    def objective_parts(self, f: ArrayLike, m: ArrayLike) -> _Parts:
+    def objective_parts(self, f: ArrayLike, m: ArrayLike) -> TermParts:
         """The three terms of :math:`J`: Wasserstein, Fisher and energy (``dt*strength*f'Kf``)."""
         f = np.asarray(f, dtype=float)
         m = np.asarray(m, dtype=float)
@@ -304,14 +305,14 @@ class CollisionProblem:
                 psi = np.where(ok, 0.5 * L**2 * s, np.inf)
                 fis = psi @ self.fisher_coef
         en = self.energy_coef * self.energy.quadratic(f)
-        return _Parts(wass, fis, en)
+        return TermParts(wass, fis, en)
 
     def objective(self, f: ArrayLike, m: ArrayLike) -> NDArray[np.float64] | float:
         """:math:`J(f, m)` (``inf`` outside the domain of the Wasserstein or Fisher term)."""
         p = self.objective_parts(f, m)
         return p.wasserstein + p.fisher + p.energy
 
-    def gradient_parts(self, f: ArrayLike, m: ArrayLike) -> _Parts:
+    def gradient_parts(self, f: ArrayLike, m: ArrayLike) -> TermParts:
         """Gradient of each term as ``(grad_f, grad_m)`` pairs; energy has ``grad_m = 0``."""
         f = np.asarray(f, dtype=float)
         m = np.asarray(m, dtype=float)
@@ -340,7 +341,7 @@ class CollisionProblem:
                 gff[..., :-1] += gx
                 gff[..., 1:] += gy
         gfe = 2 * self.energy_coef * self.energy.matvec(f)
-        return _Parts((gfw, gm), (gff, np.zeros_like(m)), (gfe, np.zeros_like(m)))
+        return TermParts((gfw, gm), (gff, np.zeros_like(m)), (gfe, np.zeros_like(m)))
 
     def gradient(self, f: ArrayLike, m: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """:math:`(\\nabla_f J, \\nabla_m J)`."""
@@ -477,12 +478,16 @@ class CollisionProblem:
         return True
 
     # ------------------------------------------------------------ KKT residual
-    def kkt_residual(self, f: ArrayLike, m: ArrayLike) -> KKTResidual:
-        """Scaled KKT residual of ``(f, m)``; see the module docstring for the definition."""
+    def kkt_residual(self, f: ArrayLike, m: ArrayLike, parts: TermParts | None = None) -> KKTResidual:
+        """Scaled KKT residual of ``(f, m)``; see the module docstring for the definition.
+
+        ``parts`` may pass :meth:`gradient_parts` at ``(f, m)`` when the caller has it already.
+        """
         f = np.asarray(f, dtype=float)
         m = np.asarray(m, dtype=float)
         h = self.grid.h
-        parts = self.gradient_parts(f, m)
+        if parts is None:
+            parts = self.gradient_parts(f, m)
         gf = parts.wasserstein[0] + parts.fisher[0] + parts.energy[0]
         gm = parts.wasserstein[1]
         fpos = np.maximum(f, 0.0)

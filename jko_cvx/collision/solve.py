@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import inspect
 import time
 from collections.abc import Callable
@@ -24,6 +25,7 @@ METHODS: dict[str, Callable[..., CollisionResult]] = {
 }
 
 
+@functools.cache
 def _options_of(func: Callable[..., Any]) -> list[str]:
     return [p.name for p in inspect.signature(func).parameters.values() if p.kind is p.KEYWORD_ONLY]
 
