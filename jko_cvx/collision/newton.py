@@ -194,12 +194,6 @@ def _objective_interior(problem: CollisionProblem, f: NDArray, m: NDArray) -> ND
     return val + problem.energy_coef * np.einsum("...i,...i->...", f, problem.energy.matvec(f))
 
 
-def _reduced_gradient(problem, f, m) -> NDArray[np.float64]:
-    gf, gm = problem.gradient(f, m)
-    # d phi/dm = grad_m J + T' grad_f J with T = -diag(1/h) D, i.e. grad_m J - D'(grad_f J / h).
-    return gm - divergence_adjoint(gf / problem.grid.h)
-
-
 def _newton_direction(H: NDArray, g: NDArray | None) -> tuple[NDArray | None, NDArray[np.bool_]]:
     """Solve ``H p = -g`` slice by slice after Jacobi scaling; flag slices whose H is not PD.
 
@@ -290,6 +284,8 @@ def solve_newton(
     if start not in ("explicit", "zero"):
         raise ValueError(f"start must be 'explicit' or 'zero', got {start!r}")
     t0 = time.perf_counter()
+    if not problem.batched:
+        return _solve_single(problem, tol, max_iter, m0, start, check_convexity, t0)
     batched = problem.batched
     F_star = np.atleast_2d(problem.f_star)
     B, n = F_star.shape
@@ -308,7 +304,7 @@ def solve_newton(
     status[~positive] = Status.NUMERICAL_ERROR
     if start == "explicit" and positive.any():
         with np.errstate(all="ignore"):
-            _explicit_start(P, F_star, m, ~warm & positive)
+            m = _explicit_start(P, F_star, m, ~warm & positive)
     f = F_star - divergence(m) / h
     kkt_last = np.full(B, np.nan)
     # "near": the last Newton decrement -g.p/|phi| was small, so the KKT residual (the
@@ -423,33 +419,124 @@ def solve_newton(
     )
 
 
-def _diag_matrix(H: NDArray) -> NDArray:
-    """The diagonal of each matrix of a stack, as a stack of diagonal matrices."""
-    d = np.einsum("...ii->...i", H)
-    return d[..., :, None] * np.eye(H.shape[-1])
-
-
 solve_newton.batched = True  # type: ignore[attr-defined]
 
 
-def _explicit_start(P: CollisionProblem, F_star: NDArray, m: NDArray, use: NDArray[np.bool_]) -> None:
-    """Replace ``m`` (zeros) by the damped explicit step where ``use`` and where it lowers J."""
+def _explicit_start(P: CollisionProblem, F_star: NDArray, m: NDArray, use: NDArray[np.bool_] | bool) -> NDArray:
+    """The damped explicit step (first SQP step) where ``use`` and where it lowers J, else ``m``.
+
+    Works on one problem (1-D arrays) or a batch (2-D); the step is damped to keep
+    ``f >= f*/2``.
+    """
     from .sqp import _qp_step_banded
 
-    f0, m0 = F_star, np.zeros_like(m)
-    gf, gm = P.gradient(f0, m0)
-    pf, pm = _qp_step_banded(P, f0, m0, gf, gm)
-    ratio = np.where(pf < 0, -f0 / np.where(pf < 0, pf, -1.0), np.inf).min(axis=-1)
-    alpha = np.minimum(1.0, 0.5 * ratio)[:, None]
-    cand = alpha * pm
+    zero = np.zeros_like(m)
+    gf, gm = P.gradient(F_star, zero)
+    pf, pm = _qp_step_banded(P, F_star, zero, gf, gm)
+    ratio = np.where(pf < 0, -F_star / np.where(pf < 0, pf, -1.0), np.inf).min(axis=-1)
+    alpha = np.minimum(1.0, 0.5 * ratio)
+    cand = np.asarray(alpha)[..., None] * pm
     fc = F_star - divergence(cand) / P.grid.h
     better = (
         use
         & np.all(np.isfinite(cand), axis=-1)
         & np.all(fc > 0, axis=-1)
-        & (_objective_interior(P, fc, cand) < _objective_interior(P, f0, m0))
+        & (_objective_interior(P, fc, cand) < _objective_interior(P, F_star, zero))
     )
-    m[better] = cand[better]
+    return np.where(np.asarray(better)[..., None], cand, m)
+
+
+def _solve_single(
+    P: CollisionProblem, tol: float, max_iter: int, m0: Any, start: str, check_convexity: bool, t0: float
+) -> CollisionResult:
+    """The same algorithm as the batched loop of :func:`solve_newton`, on plain 1-D arrays.
+
+    At N ~ 100 a Newton iteration costs tens of NumPy calls of ~1 microsecond each; the
+    per-slice bookkeeping of the batched loop would double that, so one problem takes
+    this path (tests check that both paths agree).
+    """
+    h = P.grid.h
+    f_star = P.f_star
+    n = P.n
+    m = np.zeros(n - 1)
+    warm = False
+    if m0 is not None:
+        cand = np.asarray(m0, dtype=float).reshape(n - 1)
+        fc = f_star - divergence(cand) / h
+        if np.all(np.isfinite(cand)) and np.all(fc > 0):
+            m, warm = cand.copy(), True
+    status, iters, kkt = None, 0, np.nan
+    if not np.all(f_star > 0):
+        status = Status.NUMERICAL_ERROR
+    tiny = np.finfo(float).tiny
+    with np.errstate(all="ignore"):
+        if status is None and start == "explicit" and not warm:
+            m = _explicit_start(P, f_star, m, True)
+        f = f_star - divergence(m) / h
+        phi = float(_objective_interior(P, f, m))
+        near = False
+        for it in range(max_iter + 1):
+            if status is not None:
+                break
+            check = near or it == max_iter
+            g, bands, parts = _fused(P, f, m, want_parts=check)
+            p, pd = _direction(P, tuple(b[None] for b in bands), g[None])
+            p, pd = p[0], bool(pd[0])
+            if check:
+                kkt = float(P.kkt_residual(f, m, parts).total)
+                if kkt <= tol:
+                    status = Status.CONVERGED if (pd or not check_convexity) else Status.NONCONVEX
+                    break
+            if it == max_iter:
+                status = Status.MAX_ITERATIONS
+                break
+            if not pd:
+                status = Status.NONCONVEX
+                break
+            if not np.all(np.isfinite(p)):
+                status = Status.NUMERICAL_ERROR
+                break
+            pf = -divergence(p) / h
+            neg = pf < 0
+            alpha = min(1.0, _FRACTION_TO_BOUNDARY * float(np.min(-f[neg] / pf[neg]))) if neg.any() else 1.0
+            slope = float(g @ p)
+            dec = -slope / max(abs(phi), tiny)
+            near = dec <= max(tol, 1e-13)
+            if dec <= 1e-12:  # decrease below the rounding of phi: full, boundary-safe step
+                m = m + alpha * p
+                f = f_star - divergence(m) / h
+                phi = float(_objective_interior(P, f, m))
+            else:
+                for _ in range(_MAX_BACKTRACKS):
+                    trial = m + alpha * p
+                    ft = f_star - divergence(trial) / h
+                    phit = float(_objective_interior(P, ft, trial))
+                    if np.all(ft > 0) and phit <= phi + _ARMIJO * alpha * slope:
+                        m, f, phi = trial, ft, phit
+                        break
+                    alpha *= 0.5
+                else:
+                    status = Status.NUMERICAL_ERROR  # no decrease even along a tiny step
+                    break
+            iters += 1
+        f_out, m_out = P.project_feasible(f)
+        if not np.isfinite(kkt) or np.abs(f_out - f).max() > 1e-14 * f_star.max():
+            kkt = float(P.kkt_residual(f_out, m_out).total)
+        if status is Status.CONVERGED and not kkt <= 10 * tol:
+            status = Status.NOT_CERTIFIED
+        objective = float(P.objective(f_out, m_out))
+    return CollisionResult(
+        f_out,
+        m_out,
+        status,
+        "newton",
+        iters,
+        objective,
+        kkt,
+        float(P.mass_error(f_out)),
+        time.perf_counter() - t0,
+        {"warm_started": warm},
+    )
 
 
 def _check_newton_args(problem: CollisionProblem, tol: float, max_iter: int) -> None:
