@@ -131,3 +131,65 @@ class Grid:
             f"Grid(n={self.n}, [{self.points[0]:.6g}, {self.points[-1]:.6g}], "
             f"min dv={self.dv.min():.3g}, max dv={self.dv.max():.3g})"
         )
+
+
+@dataclass(frozen=True, eq=False)
+class PeriodicGrid:
+    """A strictly increasing grid on a periodic interval ``[x0, x0 + period)``.
+
+    Cell widths wrap around: :math:`h_i = (x_{i+1} - x_{i-1})/2` with
+    :math:`x_N = x_0 + P` and :math:`x_{-1} = x_{N-1} - P`, so ``h.sum() == period``: the
+    trapezoidal rule of a periodic function (the quadrature of ``eqn:semi_update``).
+    """
+
+    points: NDArray[np.float64]
+    period: float
+    h: NDArray[np.float64] = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        pts = np.array(self.points, dtype=float, copy=True)
+        if pts.ndim != 1 or pts.size < 3:
+            raise ValueError(f"points must be one-dimensional with at least 3 entries, got shape {pts.shape}")
+        if not np.all(np.isfinite(pts)) or not np.all(np.diff(pts) > 0):
+            raise ValueError("points must be finite and strictly increasing")
+        P = float(self.period)
+        if not (np.isfinite(P) and pts[-1] - pts[0] < P):
+            raise ValueError(
+                f"period must be finite and exceed points[-1] - points[0] = {pts[-1] - pts[0]!r}, got {P!r}"
+            )
+        ext = np.concatenate([[pts[-1] - P], pts, [pts[0] + P]])
+        h = (ext[2:] - ext[:-2]) / 2
+        for arr in (pts, h):
+            arr.flags.writeable = False
+        object.__setattr__(self, "points", pts)
+        object.__setattr__(self, "period", P)
+        object.__setattr__(self, "h", h)
+
+    @classmethod
+    def uniform(cls, half_width: float, n: int) -> PeriodicGrid:
+        """``n`` cell-centred points on ``[-L, L)``: :math:`x_i = -L + (i + 1/2)\\,2L/n`."""
+        if not (np.isfinite(half_width) and half_width > 0):
+            raise ValueError(f"half_width must be a finite number > 0, got {half_width!r}")
+        if int(n) != n or n < 3:
+            raise ValueError(f"n must be an integer >= 3, got {n!r}")
+        dx = 2 * half_width / n
+        return cls(-half_width + (np.arange(n) + 0.5) * dx, 2 * half_width)
+
+    @property
+    def n(self) -> int:
+        return int(self.points.size)
+
+    @property
+    def lower(self) -> float:
+        """Left end of the period, chosen symmetric: ``points[0] - (gap across the wrap)/2``."""
+        gap = self.points[0] + self.period - self.points[-1]
+        return float(self.points[0] - gap / 2)
+
+    @property
+    def dx(self) -> NDArray[np.float64]:
+        """Spacings including the one across the wrap (length n)."""
+        return np.diff(np.concatenate([self.points, [self.points[0] + self.period]]))
+
+    def integrate(self, values: ArrayLike, axis: int = 0) -> NDArray[np.float64] | float:
+        vals = np.asarray(values, dtype=float)
+        return np.moveaxis(vals, axis, -1) @ self.h

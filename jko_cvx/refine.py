@@ -1,0 +1,245 @@
+"""Adaptive mesh refinement: the mesh maps of ``sec:mr`` and mass-conserving remapping.
+
+A map :math:`v = \\mu(s)` from uniform :math:`s \\in [-1, 1]` onto :math:`[-L, L]` packs about
+:math:`\\delta N` of the N grid points into the concentration set
+:math:`S = \\{v > 0 : f(v) > \\delta_0 \\max f\\}` (odd extension to negative s).
+
+One bump (``mu1``): linear :math:`\\mu = (r/\\delta) s` on :math:`[0, \\delta]`, then to
+:math:`(1, L)` by :math:`a s^5 + b s` if :math:`r/\\delta < L` (concave up) or by the logistic
+:math:`a/(1 + e^{-bs})` otherwise (concave down), constants from continuity at
+:math:`s = \\delta` and :math:`\\mu(1) = L`.
+
+Two bumps (``mu2``): linear between :math:`(\\tfrac12 - \\tfrac\\delta2, r_1)` and
+:math:`(\\tfrac12 + \\tfrac\\delta2, r_2)`; outer piece to :math:`(1, L)` as for one bump; inner
+piece from the origin.
+
+Decisions where the paper is ambiguous (DESIGN.md):
+
+* ``eqn:Sr`` writes :math:`r = \\min S`, which would put r at the first positive grid point;
+  the map needs the half-width of the concentrated set, so **r = max S** (the largest
+  positive v at which f exceeds :math:`\\delta_0 \\max f`).  With S empty (the peak sits
+  at v <= 0) r is the smallest positive grid point.
+* ``mu2``'s logistic cannot pass through the origin (it is :math:`a/2` at s = 0), which would
+  break the odd extension, so the **inner piece is** :math:`a s^5 + b s` **matched to the
+  linear piece in value and slope** (C^1); it needs :math:`k s_1 < 5 r_1` (k the slope of the
+  linear piece) to be increasing, else the map cannot be built.
+* A two-bump set resolved by a single grid point is widened to that point's cell.
+* Remapping interpolates with PCHIP, floors at 1e-10 (the paper's floor) and rescales to
+  the old mass with the grid's trapezoidal quadrature (``eqn:mass_conserv_v`` with one
+  consistent quadrature).
+
+A map that cannot be built (not increasing, or no logistic through the two end values)
+raises ``ValueError`` saying why and which parameter to change.  The paper's logistic
+piece has a limited range: through :math:`(s_0, v_0)` and :math:`(1, L)` it exists only for
+:math:`L/v_0 \\le \\max_b (1 + e^{-b s_0})/(1 + e^{-b})` (about 1.2 for :math:`s_0 = 1/2`), so
+e.g. ``OneBumpMap(L=2, r=1.5, delta=0.5)`` cannot be built.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.interpolate import PchipInterpolator
+from scipy.optimize import brentq, minimize_scalar
+
+from .grid import Grid
+
+__all__ = ["OneBumpMap", "TwoBumpMap", "concentration_set", "remap"]
+
+
+def _check_fraction(name: str, x: float) -> float:
+    x = float(x)
+    if not 0 < x < 1:
+        raise ValueError(f"{name} must lie in (0, 1), got {x!r}")
+    return x
+
+
+class _Piece:
+    """One monotone piece of a map on [s0, s1] (absolute s)."""
+
+    def __init__(self, kind: str, a: float, b: float, s0: float = 0.0, v0: float = 0.0) -> None:
+        self.kind, self.a, self.b, self.s0, self.v0 = kind, a, b, s0, v0
+
+    def __call__(self, s: NDArray) -> NDArray:
+        if self.kind == "linear":  # v0 + a (s - s0)
+            return self.v0 + self.a * (s - self.s0)
+        if self.kind == "quintic":
+            return self.a * s**5 + self.b * s
+        return self.a / (1 + np.exp(-self.b * s))
+
+
+def _outer_piece(s0: float, v0: float, L: float, concave_up: bool) -> _Piece:
+    """A piece through (s0, v0) and (1, L): a s^5 + b s (concave up) or a/(1+e^{-bs})."""
+    if concave_up:
+        a = (L * s0 - v0) / (s0 - s0**5)
+        b = L - a
+        if 5 * a * s0**4 + b <= 0:
+            raise ValueError(
+                f"the a*s^5 + b*s piece through (s={s0:.4g}, v={v0:.4g}) and (1, L={L:.4g}) is not increasing; "
+                "increase delta or decrease delta0"
+            )
+        return _Piece("quintic", a, b)
+    target = L / v0
+
+    def q(b: float) -> float:  # mu(s0)/mu(1) ratio of the logistic, inverted
+        return (1 + np.exp(-b * s0)) / (1 + np.exp(-b))
+
+    # q rises from 1 at b = 0 to a maximum and falls back to 1: locate the maximum on a
+    # log grid, then refine (a bounded search over a wide range stalls on the flat tail).
+    bs = np.geomspace(1e-6, 1e4, 801)
+    k = int(np.argmax(q(bs)))
+    lo, hi = bs[max(k - 1, 0)], bs[min(k + 1, bs.size - 1)]
+    best = minimize_scalar(lambda b: -q(b), bounds=(lo, hi), method="bounded")
+    if target > q(best.x) or target <= 1:
+        raise ValueError(
+            f"no logistic a/(1+exp(-b s)) joins (s={s0:.4g}, v={v0:.4g}) to (1, L={L:.4g}) "
+            f"(needs L/v in (1, {q(best.x):.4g}], got {target:.4g}); decrease delta or increase delta0"
+        )
+    b = brentq(lambda x: q(x) - target, 1e-12, best.x)
+    return _Piece("logistic", L * (1 + np.exp(-b)), b)
+
+
+@dataclass(frozen=True)
+class OneBumpMap:
+    """The one-bump map ``mu1`` (concentration centred at 0).
+
+    Parameters
+    ----------
+    L : float
+        Half-width of the domain, ``mu(+-1) = +-L``.
+    r : float
+        Half-width of the concentration set, ``0 < r < L``.
+    delta : float
+        Fraction of s in the linear (concentrated) part, ``0 < delta < 1``.
+    """
+
+    L: float
+    r: float
+    delta: float
+
+    def __post_init__(self) -> None:
+        _check_fraction("delta", self.delta)
+        if not (np.isfinite(self.L) and self.L > 0):
+            raise ValueError(f"L must be a finite number > 0, got {self.L!r}")
+        if not 0 < self.r < self.L:
+            raise ValueError(f"r must lie in (0, L) = (0, {self.L}), got {self.r!r}")
+        outer = _outer_piece(self.delta, self.r, self.L, concave_up=self.r / self.delta <= self.L)
+        object.__setattr__(self, "_outer", outer)
+
+    def __call__(self, s: ArrayLike) -> NDArray[np.float64]:
+        s = np.asarray(s, dtype=float)
+        a = np.abs(s)
+        out = np.where(a <= self.delta, self.r / self.delta * a, self._outer(a))  # type: ignore[attr-defined]
+        return np.sign(s) * out
+
+    @property
+    def outer_kind(self) -> str:
+        """``"quintic"`` (concave up) or ``"logistic"`` (concave down)."""
+        return self._outer.kind  # type: ignore[attr-defined]
+
+    def grid(self, n: int) -> Grid:
+        """The refined grid ``mu(s_j)``, s_j uniform on [-1, 1], n points."""
+        return Grid(self(np.linspace(-1.0, 1.0, int(n))))
+
+    @classmethod
+    def from_density(cls, grid: Grid, f: ArrayLike, delta0: float, delta: float) -> OneBumpMap:
+        """The map for density ``f`` on ``grid`` (symmetric domain ``[-L, L]``)."""
+        _check_fraction("delta0", delta0)
+        r, _ = concentration_set(grid, f, delta0)
+        return cls(L=float(grid.points[-1]), r=r, delta=delta)
+
+
+@dataclass(frozen=True)
+class TwoBumpMap:
+    """The two-bump map ``mu2`` (concentrations at +-c, symmetric about 0).
+
+    ``mu(1/2 - delta/2) = r1``, ``mu(1/2 + delta/2) = r2``, ``mu(1) = L``, odd extension.
+    """
+
+    L: float
+    r1: float
+    r2: float
+    delta: float
+
+    def __post_init__(self) -> None:
+        _check_fraction("delta", self.delta)
+        if not (np.isfinite(self.L) and self.L > 0):
+            raise ValueError(f"L must be a finite number > 0, got {self.L!r}")
+        if not 0 < self.r1 < self.r2 < self.L:
+            raise ValueError(f"need 0 < r1 < r2 < L, got r1={self.r1!r}, r2={self.r2!r}, L={self.L!r}")
+        s1, s2 = 0.5 - self.delta / 2, 0.5 + self.delta / 2
+        k = (self.r2 - self.r1) / self.delta
+        if not k * s1 < 5 * self.r1:
+            raise ValueError(
+                f"the inner piece cannot be increasing (slope {k:.4g} of the linear part times {s1:.4g} "
+                f">= 5 r1 = {5 * self.r1:.4g}); decrease delta"
+            )
+        a_in = (k * s1 - self.r1) / (4 * s1**5)
+        inner = _Piece("quintic", a_in, k - 5 * a_in * s1**4)
+        outer_slope = (self.L - self.r2) / (1 - s2)
+        outer = _outer_piece(s2, self.r2, self.L, concave_up=outer_slope >= k)
+        object.__setattr__(self, "_pieces", (s1, s2, inner, _Piece("linear", k, 0.0, s1, self.r1), outer))
+
+    def __call__(self, s: ArrayLike) -> NDArray[np.float64]:
+        s = np.asarray(s, dtype=float)
+        a = np.abs(s)
+        s1, s2, inner, mid, outer = self._pieces  # type: ignore[attr-defined]
+        out = np.where(a < s1, inner(a), np.where(a <= s2, mid(a), outer(a)))
+        return np.sign(s) * out
+
+    def grid(self, n: int) -> Grid:
+        return Grid(self(np.linspace(-1.0, 1.0, int(n))))
+
+    @classmethod
+    def from_density(cls, grid: Grid, f: ArrayLike, delta0: float, delta: float) -> TwoBumpMap:
+        _check_fraction("delta0", delta0)
+        r1, r2 = concentration_set(grid, f, delta0, both_ends=True)
+        if r1 == r2:
+            # A set resolved by one grid point: take that point's cell (midpoints to its
+            # neighbours), which is what the grid can say about the bump's width.
+            v = grid.points
+            k = int(np.searchsorted(v, r1))
+            r1 = 0.5 * (v[k - 1] + v[k]) if v[k - 1] > 0 else 0.5 * v[k]
+            r2 = 0.5 * (v[k] + v[k + 1]) if k + 1 < v.size else v[k]
+        return cls(L=float(grid.points[-1]), r1=r1, r2=r2, delta=delta)
+
+
+def concentration_set(grid: Grid, f: ArrayLike, delta0: float, both_ends: bool = False):
+    """Extent of :math:`S = \\{v_j > 0 : f_j > \\delta_0 \\max f\\}`.
+
+    Returns ``(r, None)`` with r = max S (the half-width; smallest positive grid point if S
+    is empty) or, with ``both_ends``, ``(min S, max S)``.
+    """
+    f = np.asarray(f, dtype=float)
+    v = grid.points
+    pos = v > 0
+    if not pos.any():
+        raise ValueError("the grid has no positive points: the maps assume a domain [-L, L]")
+    sel = pos & (f > delta0 * f.max())
+    if not sel.any():
+        r = float(v[pos].min())
+        return (r, r) if both_ends else (r, None)
+    if both_ends:
+        return float(v[sel].min()), float(v[sel].max())
+    return float(v[sel].max()), None
+
+
+def remap(old: Grid, f: ArrayLike, new: Grid, floor: float = 1e-10, axis: int = -1) -> NDArray[np.float64]:
+    """PCHIP-interpolate ``f`` from ``old`` to ``new`` along ``axis``, floor, restore each line's mass.
+
+    Implements ``eqn:mass_conserv_v``: :math:`f \\leftarrow \\max(f, \\text{floor})\\, M_{old}/M_{new}`
+    with the trapezoidal quadrature of each grid, so the mass is conserved to rounding.
+    """
+    f = np.moveaxis(np.asarray(f, dtype=float), axis, -1)
+    if f.shape[-1] != old.n:
+        raise ValueError(f"f must have length {old.n} along axis {axis}, got shape {f.shape}")
+    if new.points[0] < old.points[0] - 1e-12 * old.length or new.points[-1] > old.points[-1] + 1e-12 * old.length:
+        raise ValueError("the new grid must lie within the old grid's interval")
+    g = PchipInterpolator(old.points, f, axis=-1, extrapolate=True)(np.clip(new.points, old.points[0], old.points[-1]))
+    g = np.maximum(g, floor)
+    m_old = f @ old.h
+    m_new = g @ new.h
+    g = g * (m_old / m_new)[..., None]
+    return np.moveaxis(g, -1, axis)

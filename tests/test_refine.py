@@ -1,0 +1,87 @@
+"""Mesh maps (mu1, mu2) and mass-conserving remapping."""
+
+import numpy as np
+import pytest
+
+from jko_cvx import Grid
+from jko_cvx.refine import OneBumpMap, TwoBumpMap, remap
+
+S = np.linspace(-1, 1, 2001)
+
+
+def _check_map(mu, L, n_conc_frac, n=121, inside=None):
+    v = mu(S)
+    assert np.all(np.diff(v) > 0), "strictly increasing"
+    assert v[0] == pytest.approx(-L, abs=1e-12) and v[-1] == pytest.approx(L, abs=1e-12)
+    assert np.allclose(mu(-S), -v), "odd"
+    # continuity: no jumps larger than the local slope allows
+    jumps = np.abs(np.diff(v))
+    assert jumps.max() < 20 * np.median(jumps) * 10
+    g = mu.grid(n)
+    frac = np.mean(inside(g.points))
+    assert frac == pytest.approx(n_conc_frac, abs=2.5 / n)
+
+
+@pytest.mark.parametrize("r, delta", [(0.3, 0.5), (0.1, 0.2), (1.8, 0.5), (1.2, 0.8), (1.0, 0.5)])
+def test_one_bump_map_properties(r, delta):
+    L = 2.0
+    mu = OneBumpMap(L, r, delta)
+    assert mu.outer_kind == ("quintic" if r / delta <= L else "logistic")
+    _check_map(mu, L, delta, inside=lambda v: np.abs(v) <= r + 1e-12)
+    # continuity at the interface
+    assert mu(delta) == pytest.approx(r) and mu(delta + 1e-12) == pytest.approx(r, abs=1e-9)
+
+
+@pytest.mark.parametrize("r1, r2, delta", [(1.8, 2.2, 0.5), (1.0, 3.0, 0.5), (0.5, 0.9, 0.3)])
+def test_two_bump_map_properties(r1, r2, delta):
+    L = 4.0
+    mu = TwoBumpMap(L, r1, r2, delta)
+    _check_map(mu, L, delta, inside=lambda v: (np.abs(v) >= r1 - 1e-12) & (np.abs(v) <= r2 + 1e-12))
+    s1 = 0.5 - delta / 2
+    assert mu(s1) == pytest.approx(r1) and mu(s1 - 1e-10) == pytest.approx(r1, abs=1e-8)
+
+
+def test_maps_from_densities_put_points_where_the_mass_is():
+    g = Grid.uniform(-2, 2, 121)
+    f = np.exp(-30 * g.points**2)
+    mu = OneBumpMap.from_density(g, f, delta0=0.5, delta=0.5)
+    # half-width of {f > 0.5 max f} on the grid
+    assert mu.r == pytest.approx(np.sqrt(np.log(2) / 30), abs=g.dv.max())
+    new = mu.grid(121)
+    assert new.dv.min() < g.dv.min() / 5
+    g4 = Grid.uniform(-4, 4, 161)
+    f2 = np.exp(-50 * (g4.points - 2) ** 2) + np.exp(-50 * (g4.points + 2) ** 2)
+    mu2 = TwoBumpMap.from_density(g4, f2, delta0=0.2, delta=0.5)
+    assert 1.7 < mu2.r1 < 2 < mu2.r2 < 2.3
+
+
+def test_impossible_maps_raise_clear_errors():
+    with pytest.raises(ValueError, match="delta must lie in"):
+        OneBumpMap(2.0, 0.5, 1.5)
+    with pytest.raises(ValueError, match=r"r must lie in \(0, L\)"):
+        OneBumpMap(2.0, 2.5, 0.5)
+    with pytest.raises(ValueError, match="no logistic"):
+        OneBumpMap(2.0, 1.5, 0.5)  # needs L/r = 1.33 > 1.2, the logistic's largest ratio
+    with pytest.raises(ValueError, match="inner piece cannot be increasing"):
+        TwoBumpMap(4.0, 0.1, 2.0, 0.5)  # slope 3.8 * s1 0.25 >= 5 r1 = 0.5
+    # a set resolved by one grid point is widened to that point's cell
+    g = Grid.uniform(-4, 4, 61)
+    f = np.exp(-50 * (g.points - 2) ** 2) + np.exp(-50 * (g.points + 2) ** 2)
+    mu = TwoBumpMap.from_density(g, f, 0.8, 0.5)
+    assert mu.r1 == pytest.approx(2 - g.dv[0] / 2) and mu.r2 == pytest.approx(2 + g.dv[0] / 2)
+
+
+def test_remap_conserves_mass_and_is_accurate():
+    old = Grid.uniform(-2, 2, 121)
+    f = np.exp(-30 * old.points**2) + 1e-3
+    new = OneBumpMap.from_density(old, f, 0.5, 0.5).grid(121)
+    g = remap(old, f, new)
+    assert abs(g @ new.h - f @ old.h) <= 1e-12 * (f @ old.h)
+    exact = np.exp(-30 * new.points**2) + 1e-3
+    # PCHIP from dv = 0.033 onto a peak of width 0.13: a few 1e-3
+    assert np.abs(g - exact).max() < 1e-2 * exact.max()
+    # batched along the first axis (x-lines of a phase-space density)
+    F = np.stack([f, 2 * f])
+    G = remap(old, F, new)
+    assert np.allclose(G @ new.h, F @ old.h, rtol=1e-12)
+    assert np.all(g >= 1e-10 * (f @ old.h) / (g @ new.h) - 1e-25)
