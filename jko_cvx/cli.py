@@ -1,16 +1,15 @@
 """The ``jko-cvx`` command.
 
-``jko-cvx run`` runs the built-in default scene: the homogeneous equation with
-W = |v| and f0 = g1 = exp(-2 v^2) (the paper's first test, ``sec31``) on a fixed
-velocity grid up to t = 0.45, just before the exact blow-up time T = 0.5, and compares
-every step with the exact Burgers solution.  ``jko-cvx solve`` solves one collision
-step with every method and prints the comparison.
+``jko-cvx run [SCENE.toml] [--out DIR] [--resume]`` runs a scene (default: the built-in
+homogeneous gamma = 1, g1 = exp(-2 v^2) scene of Table ``tab:bu``, with mesh refinement,
+run until the blow-up criterion min dv < eps_v fires; exact T = 0.5), writes the run
+directory and prints the verdict.  ``jko-cvx solve`` solves one collision step with
+every method; ``jko-cvx solvers`` lists the installed conic solvers.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -19,103 +18,74 @@ import numpy as np
 
 from . import __version__
 from .collision import CollisionProblem, conic_solvers, solve_collision
-from .evolve import evolve_fixed_grid
-from .exact import GaussianMixture, blowup_time_gamma1, exact_gamma1
 from .grid import Grid
 from .kernels import PowerKernel
 
-DEFAULT_SCENE = {
-    "description": "homogeneous gamma = 1, f0 = g1 = exp(-2 v^2), fixed grid (paper sec31)",
-    "gamma": 1.0,
-    "strength": 1.0,
-    "v_min": -2.0,
-    "v_max": 2.0,
-    "n_v": 121,
-    "dt": 0.01,
-    "t_end": 0.45,
-    "beta": 30.0,
-    "fisher": "perspective",
-    "method": "conic",
-}
 
+def _run_scene(scene_path: Path | None, out: Path | None, resume: bool, quiet: bool) -> int:
+    from .scene import default_scene, load_scene
+    from .simulate import simulate
 
-def _run_default(out: Path, method: str, quiet: bool) -> int:
-    import pandas as pd
-
-    sc = dict(DEFAULT_SCENE, method=method)
-    grid = Grid.uniform(sc["v_min"], sc["v_max"], sc["n_v"])
-    f0 = GaussianMixture([1.0], [2.0], [0.0], sc["v_min"], sc["v_max"])
+    scene = default_scene() if scene_path is None else load_scene(scene_path)
+    out = out if out is not None else Path("runs") / scene.name
     t0 = time.perf_counter()
-    run = evolve_fixed_grid(
-        grid,
-        PowerKernel(sc["gamma"]),
-        f0.pdf(grid.points),
-        sc["dt"],
-        sc["t_end"],
-        strength=sc["strength"],
-        beta=sc["beta"],
-        fisher=sc["fisher"],
-        method=method,
-        progress=not quiet,
-    )
+    run = simulate(scene, out=out, resume=resume, progress=not quiet)
     wall = time.perf_counter() - t0
-    rows = []
-    for k, res in enumerate(run.results):
-        t = run.times[k + 1]
-        ex = exact_gamma1(f0, t, grid.points)
-        f = run.f[k + 1]
-        rows.append(
-            {
-                "t": t,
-                "status": res.status.name,
-                "iterations": res.iterations,
-                "kkt_residual": res.kkt_residual,
-                "mass_error": res.mass_error,
-                "max_f": f.max(),
-                "exact_max_f": ex.max(),
-                "l1_error": float(grid.h @ np.abs(f - ex) / (grid.h @ ex)),
-                "seconds": res.seconds,
-            }
+    _plot_run(run, out)
+    d = run.diagnostics
+    print(f"jko-cvx {__version__}: {scene.name} -- {scene.description}")
+    print(f"  {run.summary()}")
+    print(
+        f"  wall {wall:.2f} s (collision {run.seconds['collision']:.2f} s, transport {run.seconds['transport']:.2f} s, "
+        f"refinement {run.seconds['refine']:.2f} s); steps with a failed collision solve: {int((d.failed > 0).sum())}"
+    )
+    print(
+        f"  mass drift {abs(d.mass.iloc[-1] - d.mass.iloc[0]) / d.mass.iloc[0]:.1e} (relative), "
+        f"momentum drift {abs(d.momentum.iloc[-1] - d.momentum.iloc[0]):.1e}, max f {d.max_f.max():.4g}, "
+        f"min dv {d.min_dv.min():.3g}" + ("" if scene.homogeneous else f", min dx {d.min_dx.min():.3g}")
+    )
+    if scene.gamma == 1.0 and scene.homogeneous and run.blowup:
+        print(
+            f"  exact blow-up time 1/(2 max f0) = {1 / (2 * d.max_f.iloc[0] * scene.strength):.4f} (max f0 on the grid)"
         )
-    table = pd.DataFrame(rows)
-    out.mkdir(parents=True, exist_ok=True)
-    table.to_csv(out / "diagnostics.csv", index=False)
-    (out / "scene.json").write_text(json.dumps(sc, indent=2))
-    _plot_default(out, grid, run, f0, table)
-    last = table.iloc[-1]
-    print(f"jko-cvx {__version__}: {sc['description']}")
-    print(f"  method={method}, N={sc['n_v']}, dt={sc['dt']}, beta={sc['beta']}, {len(table)} steps in {wall:.2f} s")
-    print(f"  exact blow-up time T = 1/(2 max f0) = {blowup_time_gamma1(f0):.4f}")
-    print(
-        f"  at t = {last.t:.2f}: max f = {last.max_f:.4f} (exact {last.exact_max_f:.4f}), "
-        f"relative L1 error {last.l1_error:.2e}"
-    )
-    print(
-        f"  steps certified: {int((table.status == 'CONVERGED').sum())}/{len(table)}, "
-        f"max KKT residual {table.kkt_residual.max():.1e}, max mass error {table.mass_error.max():.1e}"
-    )
-    print(f"  wrote {out / 'diagnostics.csv'}, {out / 'solution.png'}")
-    return 0 if run.completed else 1
+    print(f"  wrote {out}/ (diagnostics.csv, snapshots/, checkpoint.npz, verdict.json, solution.png, records.png)")
+    return 0
 
 
-def _plot_default(out: Path, grid: Grid, run, f0: GaussianMixture, table) -> None:
+def _plot_run(run, out: Path) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, (a, b) = plt.subplots(1, 2, figsize=(10, 4))
-    for k in np.linspace(0, len(run.times) - 1, 4).astype(int):
-        t = run.times[k]
-        (line,) = a.plot(grid.points, run.f[k], label=f"t = {t:.2f}")
-        a.plot(grid.points, exact_gamma1(f0, t, grid.points), "--", color=line.get_color(), lw=1)
-    a.set_xlabel("v"), a.set_ylabel("f"), a.set_title("JKO (solid) vs exact Burgers solution (dashed)")
-    a.legend()
-    b.semilogy(table.t, table.l1_error, "o-", label="relative L1 error")
-    b.semilogy(table.t, table.kkt_residual, "s-", label="KKT residual")
-    b.set_xlabel("t"), b.legend(), b.set_title("error and solver certification")
+    d = run.diagnostics
+    fig, ax = plt.subplots(1, 2 if run.xgrid is None else 1, figsize=(10 if run.xgrid is None else 6, 4))
+    if run.xgrid is None:
+        a, b = ax
+        a.plot(run.vgrid.points, run.f, ".-", ms=2)
+        a.set_xlabel("v"), a.set_ylabel("f"), a.set_title(f"f at t = {run.t:.4g}")
+        k = int(np.argmax(run.f))
+        w = max(20 * run.vgrid.dv.min(), 1e-3)
+        sel = np.abs(run.vgrid.points - run.vgrid.points[k]) <= w
+        b.plot(run.vgrid.points[sel], run.f[sel], ".-", ms=3)
+        b.set_xlabel("v"), b.set_title("zoom at the maximum")
+    else:
+        X, V = np.meshgrid(run.xgrid.points, run.vgrid.points, indexing="ij")
+        pc = ax.pcolormesh(X, V, run.f, shading="auto")
+        fig.colorbar(pc, ax=ax)
+        ax.set_xlabel("x"), ax.set_ylabel("v"), ax.set_title(f"f(t = {run.t:.4g}, x, v)")
     fig.tight_layout()
-    fig.savefig(out / "solution.png", dpi=120)
+    fig.savefig(out / "solution.png", dpi=110)
+    plt.close(fig)
+    fig, a = plt.subplots(figsize=(6, 4))
+    a.semilogy(d.t, d.min_dv, label="min dv")
+    if run.xgrid is not None:
+        a.semilogy(d.t, d.min_dx, label="min dx")
+    a.semilogy(d.t, d.max_f, label="max f")
+    a.set_xlabel("t"), a.legend()
+    a.set_title(f"{run.scene.name}: " + (f"blow-up at T_b = {run.verdict['T_b']:.4g}" if run.blowup else "no blow-up"))
+    fig.tight_layout()
+    fig.savefig(out / "records.png", dpi=110)
     plt.close(fig)
 
 
@@ -133,9 +103,10 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="jko-cvx", description=__doc__.split("\n")[0])
     parser.add_argument("--version", action="version", version=f"jko-cvx {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
-    p_run = sub.add_parser("run", help="run the built-in default scene (homogeneous gamma = 1, g1)")
-    p_run.add_argument("--out", type=Path, default=Path("runs/default"), help="output directory")
-    p_run.add_argument("--method", default="conic", choices=["conic", "sqp"], help="collision solver")
+    p_run = sub.add_parser("run", help="run a scene (default: the built-in homogeneous gamma = 1, g1 scene)")
+    p_run.add_argument("scene", nargs="?", type=Path, help="scene TOML file (studies/scenes/*.toml)")
+    p_run.add_argument("--out", type=Path, default=None, help="run directory (default runs/<scene name>)")
+    p_run.add_argument("--resume", action="store_true", help="continue a killed run from its checkpoint")
     p_run.add_argument("--quiet", action="store_true", help="no progress bar")
     p_solve = sub.add_parser("solve", help="one collision step with every method, side by side")
     p_solve.add_argument("--gamma", type=float, default=1.0)
@@ -147,12 +118,12 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         if args.command == "run":
-            return _run_default(args.out, args.method, args.quiet)
+            return _run_scene(args.scene, args.out, args.resume, args.quiet)
         if args.command == "solve":
             return _solve_one(args)
         print("\n".join(conic_solvers()))
         return 0
-    except (ValueError, TypeError) as exc:
+    except (ValueError, TypeError, FileNotFoundError) as exc:
         print(f"jko-cvx: error: {exc}", file=sys.stderr)
         return 2
 

@@ -23,7 +23,15 @@ Decisions where the paper is ambiguous (DESIGN.md):
   break the odd extension, so the **inner piece is** :math:`a s^5 + b s` **matched to the
   linear piece in value and slope** (C^1); it needs :math:`k s_1 < 5 r_1` (k the slope of the
   linear piece) to be increasing, else the map cannot be built.
-* A two-bump set resolved by a single grid point is widened to that point's cell.
+* The outer piece follows the paper's rule (quintic if :math:`r/\\delta \\le L`, else logistic);
+  where the logistic cannot join the points, a concave-down quintic is used while it is
+  increasing; between the two ranges no map of the family exists (the constructor raises,
+  ``widest_buildable`` gives the nearest r that works).  ``from_density`` caps r at the
+  uniform share :math:`L\\delta` (a wider set gains nothing from refinement: the map is the
+  identity there), and keeps :math:`r_2` clear of L.  A two-bump set
+  resolved by a single grid point is widened to that point's cell, and one reaching so
+  close to 0 that the inner piece cannot increase is trimmed at
+  :math:`r_1 = r_2 s_1/(5\\delta + s_1)`.
 * Remapping interpolates with PCHIP, floors at 1e-10 (the paper's floor) and rescales to
   the old mass with the grid's trapezoidal quadrature (``eqn:mass_conserv_v`` with one
   consistent quadrature).
@@ -70,12 +78,28 @@ class _Piece:
         return self.a / (1 + np.exp(-self.b * s))
 
 
+def _logistic_ratio_max(s0: float) -> tuple[float, float]:
+    """(max over b of (1 + e^{-b s0})/(1 + e^{-b}), argmax): the largest L/v a logistic piece can join."""
+
+    def q(b):
+        return (1 + np.exp(-b * s0)) / (1 + np.exp(-b))
+
+    # q rises from 1 at b = 0 to a maximum and falls back to 1: locate the maximum on a
+    # log grid, then refine (a bounded search over a wide range stalls on the flat tail).
+    bs = np.geomspace(1e-6, 1e4, 801)
+    k = int(np.argmax(q(bs)))
+    lo, hi = bs[max(k - 1, 0)], bs[min(k + 1, bs.size - 1)]
+    best = minimize_scalar(lambda b: -q(b), bounds=(lo, hi), method="bounded")
+    return float(q(best.x)), float(best.x)
+
+
 def _outer_piece(s0: float, v0: float, L: float, concave_up: bool) -> _Piece:
     """A piece through (s0, v0) and (1, L): a s^5 + b s (concave up) or a/(1+e^{-bs})."""
     if concave_up:
         a = (L * s0 - v0) / (s0 - s0**5)
         b = L - a
-        if 5 * a * s0**4 + b <= 0:
+        # mu' = 5 a s^4 + b is monotone in s: its minimum on [s0, 1] is at s0 (a >= 0) or 1 (a < 0)
+        if min(5 * a * s0**4 + b, 5 * a + b) <= 0:
             raise ValueError(
                 f"the a*s^5 + b*s piece through (s={s0:.4g}, v={v0:.4g}) and (1, L={L:.4g}) is not increasing; "
                 "increase delta or decrease delta0"
@@ -86,18 +110,13 @@ def _outer_piece(s0: float, v0: float, L: float, concave_up: bool) -> _Piece:
     def q(b: float) -> float:  # mu(s0)/mu(1) ratio of the logistic, inverted
         return (1 + np.exp(-b * s0)) / (1 + np.exp(-b))
 
-    # q rises from 1 at b = 0 to a maximum and falls back to 1: locate the maximum on a
-    # log grid, then refine (a bounded search over a wide range stalls on the flat tail).
-    bs = np.geomspace(1e-6, 1e4, 801)
-    k = int(np.argmax(q(bs)))
-    lo, hi = bs[max(k - 1, 0)], bs[min(k + 1, bs.size - 1)]
-    best = minimize_scalar(lambda b: -q(b), bounds=(lo, hi), method="bounded")
-    if target > q(best.x) or target <= 1:
+    qmax, bmax = _logistic_ratio_max(s0)
+    if target > qmax or target <= 1:
         raise ValueError(
             f"no logistic a/(1+exp(-b s)) joins (s={s0:.4g}, v={v0:.4g}) to (1, L={L:.4g}) "
-            f"(needs L/v in (1, {q(best.x):.4g}], got {target:.4g}); decrease delta or increase delta0"
+            f"(needs L/v in (1, {qmax:.4g}], got {target:.4g}); decrease delta or increase delta0"
         )
-    b = brentq(lambda x: q(x) - target, 1e-12, best.x)
+    b = brentq(lambda x: q(x) - target, 1e-12, bmax)
     return _Piece("logistic", L * (1 + np.exp(-b)), b)
 
 
@@ -125,8 +144,25 @@ class OneBumpMap:
             raise ValueError(f"L must be a finite number > 0, got {self.L!r}")
         if not 0 < self.r < self.L:
             raise ValueError(f"r must lie in (0, L) = (0, {self.L}), got {self.r!r}")
-        outer = _outer_piece(self.delta, self.r, self.L, concave_up=self.r / self.delta <= self.L)
+        paper_quintic = self.r / self.delta <= self.L
+        try:
+            outer = _outer_piece(self.delta, self.r, self.L, concave_up=paper_quintic)
+        except ValueError:
+            if paper_quintic:
+                raise
+            # The paper's logistic cannot join these points; a concave-down quintic can
+            # while it stays increasing (r <= L delta + (L/4)(delta - delta^5)).
+            outer = _outer_piece(self.delta, self.r, self.L, concave_up=True)
         object.__setattr__(self, "_outer", outer)
+
+    @staticmethod
+    def widest_buildable(L: float, delta: float, r: float) -> float:
+        """r itself if a map can be built, else the nearest smaller r that can (the quintic limit)."""
+        r_quintic = L * delta + (L / 4) * (delta - delta**5)
+        r_logistic = L / _logistic_ratio_max(delta)[0]
+        if r <= r_quintic or r >= r_logistic:
+            return r
+        return r_quintic * (1 - 1e-9)
 
     def __call__(self, s: ArrayLike) -> NDArray[np.float64]:
         s = np.asarray(s, dtype=float)
@@ -147,8 +183,12 @@ class OneBumpMap:
     def from_density(cls, grid: Grid, f: ArrayLike, delta0: float, delta: float) -> OneBumpMap:
         """The map for density ``f`` on ``grid`` (symmetric domain ``[-L, L]``)."""
         _check_fraction("delta0", delta0)
+        _check_fraction("delta", delta)
         r, _ = concentration_set(grid, f, delta0)
-        return cls(L=float(grid.points[-1]), r=r, delta=delta)
+        L = float(grid.points[-1])
+        # A set wider than its uniform share (r > L delta) gains nothing from refinement:
+        # the map is then the identity (uniform grid) at r = L delta.
+        return cls(L=L, r=min(r, L * delta), delta=delta)
 
 
 @dataclass(frozen=True)
@@ -203,6 +243,13 @@ class TwoBumpMap:
             k = int(np.searchsorted(v, r1))
             r1 = 0.5 * (v[k - 1] + v[k]) if v[k - 1] > 0 else 0.5 * v[k]
             r2 = 0.5 * (v[k] + v[k + 1]) if k + 1 < v.size else v[k]
+        # The inner piece is increasing only for r1 > r2 s1 / (5 delta + s1): a set reaching
+        # closer to 0 is trimmed there (the points it loses lie between 0 and the bump).
+        _check_fraction("delta", delta)
+        s1, s2 = 0.5 - delta / 2, 0.5 + delta / 2
+        L = float(grid.points[-1])
+        r2 = min(r2, 0.5 * (L * s2 + L))  # keep room for the outer piece
+        r1 = min(max(r1, r2 * s1 / (5 * delta + s1) * (1 + 1e-6)), r2 * (1 - 1e-6))
         return cls(L=float(grid.points[-1]), r1=r1, r2=r2, delta=delta)
 
 
@@ -242,4 +289,25 @@ def remap(old: Grid, f: ArrayLike, new: Grid, floor: float = 1e-10, axis: int = 
     m_old = f @ old.h
     m_new = g @ new.h
     g = g * (m_old / m_new)[..., None]
+    return np.moveaxis(g, -1, axis)
+
+
+def periodic_map_grid(mu, n: int, period: float):
+    """A periodic x-grid from a map: cell-centred uniform s, :math:`x_i = \\mu(-1 + (i + 1/2) 2/n)`."""
+    from .grid import PeriodicGrid
+
+    s = -1 + (np.arange(int(n)) + 0.5) * 2 / n
+    return PeriodicGrid(mu(s), period)
+
+
+def remap_periodic(old, f: ArrayLike, new, floor: float = 1e-10, axis: int = 0) -> NDArray[np.float64]:
+    """:func:`remap` for periodic grids (``PeriodicGrid``): periodic PCHIP, floor, per-line mass."""
+    f = np.moveaxis(np.asarray(f, dtype=float), axis, -1)
+    x, P, k = old.points, old.period, 3
+    xe = np.concatenate([x[-k:] - P, x, x[:k] + P])
+    fe = np.concatenate([f[..., -k:], f, f[..., :k]], axis=-1)
+    lo = x[0] - (x[0] + P - x[-1]) / 2
+    g = PchipInterpolator(xe, fe, axis=-1)(lo + np.mod(new.points - lo, P))
+    g = np.maximum(g, floor)
+    g = g * ((f @ old.h) / (g @ new.h))[..., None]
     return np.moveaxis(g, -1, axis)

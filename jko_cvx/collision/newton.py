@@ -49,6 +49,10 @@ _MAX_BACKTRACKS = 60
 # Hessian: smallest eigenvalue >= -_PD_TOL counts as convex (the factorised matrix is
 # shifted by it, a relative perturbation of the Newton step of the same size).
 _PD_TOL = 1e-10
+# Consecutive residual checks without halving, with the Newton decrement at rounding level
+# (<= 1e-14), after which the residual counts as stalled at its rounding floor (status
+# NOT_CERTIFIED rather than iterating to max_iter).
+_STALL_CHECKS = 3
 
 
 _BAND_CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
@@ -310,6 +314,8 @@ def solve_newton(
     # "near": the last Newton decrement -g.p/|phi| was small, so the KKT residual (the
     # stopping test) is worth its cost at the new point.
     near = np.zeros(B, dtype=bool)
+    stall = np.zeros(B, dtype=int)
+    dec_last = np.full(B, np.inf)
     active = status == None  # noqa: E711 (object array): slices still iterating
     with np.errstate(all="ignore"):
         phi = _objective_interior(P, f, m)
@@ -326,8 +332,15 @@ def solve_newton(
             done = np.zeros(idx.size, dtype=bool)
             if check.any():
                 kk = Pa.kkt_residual(fa, ma, parts).total
+                prev = kkt_last[idx]
                 kkt_last[idx[check]] = kk[check]
                 done = check & (kk <= tol)
+                worse = check & ~done & (prev == prev) & (kk > 0.5 * prev) & (dec_last[idx] <= 1e-14)
+                stall[idx] = np.where(check, np.where(worse, stall[idx] + 1, 0), stall[idx])
+                stalled = check & ~done & (stall[idx] >= _STALL_CHECKS)  # the residual's rounding floor
+                if stalled.any():
+                    status[idx[stalled]] = Status.NOT_CERTIFIED
+                    active[idx[stalled]] = False
                 # pd is the (shifted) Cholesky of the reduced Hessian at this very point:
                 # the second-order test comes for free.
                 if done.any():
@@ -338,6 +351,8 @@ def solve_newton(
             if it == max_iter:
                 status[idx[~done]] = Status.MAX_ITERATIONS
                 break
+            if check.any():
+                done = done | stalled
             go = ~done & pd & np.all(np.isfinite(p), axis=-1)
             if not go.all():
                 status[idx[~done & ~pd]] = Status.NONCONVEX  # no Newton descent direction here
@@ -354,6 +369,7 @@ def solve_newton(
             phi0 = phi[sel]
             slope = np.einsum("bi,bi->b", g, p)
             dec = -slope / np.maximum(np.abs(phi0), np.finfo(float).tiny)
+            dec_last[sel] = dec
             # Quadratic convergence: after a step with decrement dec the next decrement is
             # ~dec^2 and the residual far below dec, so the KKT residual is checked once dec
             # reaches tol (or the rounding level 1e-13, below which it cannot fall further).
@@ -465,7 +481,7 @@ def _solve_single(
         fc = f_star - divergence(cand) / h
         if np.all(np.isfinite(cand)) and np.all(fc > 0):
             m, warm = cand.copy(), True
-    status, iters, kkt = None, 0, np.nan
+    status, iters, kkt, stall, dec_last = None, 0, np.nan, 0, np.inf
     if not np.all(f_star > 0):
         status = Status.NUMERICAL_ERROR
     tiny = np.finfo(float).tiny
@@ -483,9 +499,13 @@ def _solve_single(
             p, pd = _direction(P, tuple(b[None] for b in bands), g[None])
             p, pd = p[0], bool(pd[0])
             if check:
-                kkt = float(P.kkt_residual(f, m, parts).total)
+                prev, kkt = kkt, float(P.kkt_residual(f, m, parts).total)
                 if kkt <= tol:
                     status = Status.CONVERGED if (pd or not check_convexity) else Status.NONCONVEX
+                    break
+                stall = stall + 1 if (prev == prev and kkt > 0.5 * prev and dec_last <= 1e-14) else 0
+                if stall >= _STALL_CHECKS:  # the residual no longer falls: its rounding floor
+                    status = Status.NOT_CERTIFIED
                     break
             if it == max_iter:
                 status = Status.MAX_ITERATIONS
@@ -500,7 +520,7 @@ def _solve_single(
             neg = pf < 0
             alpha = min(1.0, _FRACTION_TO_BOUNDARY * float(np.min(-f[neg] / pf[neg]))) if neg.any() else 1.0
             slope = float(g @ p)
-            dec = -slope / max(abs(phi), tiny)
+            dec = dec_last = -slope / max(abs(phi), tiny)
             near = dec <= max(tol, 1e-13)
             if dec <= 1e-12:  # decrease below the rounding of phi: full, boundary-safe step
                 m = m + alpha * p
