@@ -390,17 +390,16 @@ def solve_conic(
             status = Status.NOT_CERTIFIED
         elif check_convexity and not problem.is_local_minimiser(f, m):
             status = Status.NONCONVEX
-    return CollisionResult(
-        f=f,
-        m=m,
-        status=status,
-        method="conic",
-        iterations=ipm_iters,
-        objective=float(problem.objective(f, m)),
-        kkt_residual=float(kkt.total),
-        mass_error=float(problem.mass_error(f)),
-        seconds=time.perf_counter() - t_start - (model.compile_seconds if compiled_now else 0.0),
-        info={
+    return CollisionResult.from_point(
+        problem,
+        f,
+        m,
+        status,
+        "conic",
+        ipm_iters,
+        kkt.total,
+        time.perf_counter() - t_start - (model.compile_seconds if compiled_now else 0.0),
+        {
             "compiled_now": compiled_now,
             "fisher_cone": "centred" if centred else ("raw" if with_fisher else None),
             "passes": passes,

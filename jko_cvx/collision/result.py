@@ -74,6 +74,33 @@ class CollisionResult:
     seconds: float
     info: dict[str, Any] = field(default_factory=dict)
 
+    @classmethod
+    def from_point(
+        cls,
+        problem: Any,
+        f: NDArray,
+        m: NDArray,
+        status: Status,
+        method: str,
+        iterations: int,
+        kkt_residual: float,
+        seconds: float,
+        info: dict[str, Any] | None = None,
+    ) -> CollisionResult:
+        """A single-problem result at ``(f, m)``: the objective and mass error are evaluated here."""
+        return cls(
+            f=f,
+            m=m,
+            status=status,
+            method=method,
+            iterations=iterations,
+            objective=float(problem.objective(f, m)),
+            kkt_residual=float(kkt_residual),
+            mass_error=float(problem.mass_error(f)),
+            seconds=seconds,
+            info=info or {},
+        )
+
     @property
     def success(self) -> bool | NDArray[np.bool_]:
         """True when the status is a success (per slice for a batch)."""

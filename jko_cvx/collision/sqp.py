@@ -216,17 +216,16 @@ def solve_sqp(
             status = Status.NONCONVEX if check_convexity and not problem.is_local_minimiser(f, m) else Status.CONVERGED
         else:
             status = Status.NOT_CERTIFIED
-    return CollisionResult(
-        f=f,
-        m=m,
-        status=status,
-        method="sqp",
-        iterations=it,
-        objective=float(problem.objective(f, m)),
-        kkt_residual=float(kkt.total),
-        mass_error=float(problem.mass_error(f)),
-        seconds=time.perf_counter() - t0,
-        info={"exit_flag": exit_flag, "zeta": float(zeta), "safeguard_steps": safeguarded, "qp": qp, "kkt": kkt},
+    return CollisionResult.from_point(
+        problem,
+        f,
+        m,
+        status,
+        "sqp",
+        it,
+        kkt.total,
+        time.perf_counter() - t0,
+        {"exit_flag": exit_flag, "zeta": float(zeta), "safeguard_steps": safeguarded, "qp": qp, "kkt": kkt},
     )
 
 
