@@ -93,7 +93,7 @@ def _solve_one(args) -> int:
     grid = Grid.uniform(-args.L, args.L, args.n)
     prob = CollisionProblem(grid, PowerKernel(args.gamma), np.exp(-2 * grid.points**2), args.dt, beta=args.beta)
     print(prob)
-    for method, opts in [("conic", {}), ("sqp", {})]:
+    for method, opts in [("conic", {}), ("sqp", {}), ("newton", {})]:
         res = solve_collision(prob, method=method, **opts)
         print(f"  {res!r}\n    {res.message}")
     return 0

@@ -1,9 +1,9 @@
 """Repeated collision steps on a fixed velocity grid (the homogeneous equation).
 
 This is the bare time loop of ``eqn: gke_hom`` without mesh refinement:
-:math:`f^{n+1} = \\text{JKO}(f^n)` with a fixed :math:`\\Delta t`.  It is what the
-exact-solution convergence tests run, and what the study engine's homogeneous path
-builds on (adding refinement, adaptive steps and blow-up detection).
+:math:`f^{n+1} = \\text{JKO}(f^n)` with a fixed :math:`\\Delta t`, for studies on a fixed grid
+such as the exact-solution convergence tests.  Scenes with refinement, adaptive steps,
+blow-up detection and run directories go through :func:`jko_cvx.simulate.simulate`.
 """
 
 from __future__ import annotations

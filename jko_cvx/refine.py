@@ -23,15 +23,14 @@ Decisions where the paper is ambiguous (DESIGN.md):
   break the odd extension, so the **inner piece is** :math:`a s^5 + b s` **matched to the
   linear piece in value and slope** (C^1); it needs :math:`k s_1 < 5 r_1` (k the slope of the
   linear piece) to be increasing, else the map cannot be built.
-* The outer piece follows the paper's rule (quintic if :math:`r/\\delta \\le L`, else logistic);
-  where the logistic cannot join the points, a concave-down quintic is used while it is
-  increasing; between the two ranges no map of the family exists (the constructor raises,
-  ``widest_buildable`` gives the nearest r that works).  ``from_density`` caps r at the
-  uniform share :math:`L\\delta` (a wider set gains nothing from refinement: the map is the
-  identity there), and keeps :math:`r_2` clear of L.  A two-bump set
-  resolved by a single grid point is widened to that point's cell, and one reaching so
-  close to 0 that the inner piece cannot increase is trimmed at
-  :math:`r_1 = r_2 s_1/(5\\delta + s_1)`.
+* The outer piece follows the paper's rule (quintic if :math:`r/\\delta \\le L`, else
+  logistic); where the logistic cannot join the points, a concave-down quintic is used
+  while it is increasing; between the two ranges no map of the family exists (the
+  constructor raises).  ``from_density`` caps r at the uniform share :math:`L\\delta` (a
+  wider set gains nothing from refinement: the map is the identity there) and keeps
+  :math:`r_2` clear of L.  A two-bump set resolved by a single grid point is widened to
+  that point's cell, and one reaching so close to 0 that the inner piece cannot increase
+  is trimmed at :math:`r_1 = r_2 s_1/(5\\delta + s_1)`.
 * Remapping interpolates with PCHIP, floors at 1e-10 (the paper's floor) and rescales to
   the old mass with the grid's trapezoidal quadrature (``eqn:mass_conserv_v`` with one
   consistent quadrature).
@@ -154,15 +153,6 @@ class OneBumpMap:
             # while it stays increasing (r <= L delta + (L/4)(delta - delta^5)).
             outer = _outer_piece(self.delta, self.r, self.L, concave_up=True)
         object.__setattr__(self, "_outer", outer)
-
-    @staticmethod
-    def widest_buildable(L: float, delta: float, r: float) -> float:
-        """r itself if a map can be built, else the nearest smaller r that can (the quintic limit)."""
-        r_quintic = L * delta + (L / 4) * (delta - delta**5)
-        r_logistic = L / _logistic_ratio_max(delta)[0]
-        if r <= r_quintic or r >= r_logistic:
-            return r
-        return r_quintic * (1 - 1e-9)
 
     def __call__(self, s: ArrayLike) -> NDArray[np.float64]:
         s = np.asarray(s, dtype=float)
