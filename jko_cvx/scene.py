@@ -30,6 +30,7 @@ A scene file (see ``studies/scenes/*.toml``)::
     bumps = 1                # 1 (mu1) or 2 (mu2)
     delta0 = 0.5
     delta = 0.5
+    tol = 0.0                # 0: remesh every step (paper); > 0: when the set moved by tol x width
 
     [collision]
     method = "newton"
@@ -91,9 +92,19 @@ class SceneError(ValueError):
 
 @dataclass(frozen=True)
 class RefineSpec:
+    """Mesh refinement on one axis: map type, delta0, delta, and the remeshing tolerance.
+
+    ``tol = 0`` remeshes every step (the paper's Algorithm ``alg:one_step_MR_JKO``); ``tol > 0``
+    remeshes only when the concentration set's extent has moved by more than ``tol`` times
+    its width.  Measured (``ibu_gamma3``): remeshing every step moves the bumps inward by as
+    much as their own motion per step (PCHIP remap bias), so the peaks ran ahead of the
+    point-mass law 1/(2Mt) after t ~ 5; with ``tol = 0.1`` they follow it to t = 20.
+    """
+
     bumps: int = 1
     delta0: float = 0.5
     delta: float = 0.5
+    tol: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -258,6 +269,7 @@ def scene_from_dict(d: dict[str, Any]) -> Scene:
                 bumps=_get(r, "bumps", f"refine.{axis}.", int, default=1, allowed={1, 2}),
                 delta0=_get(r, "delta0", f"refine.{axis}.", float, default=0.5, check=_FRAC),
                 delta=_get(r, "delta", f"refine.{axis}.", float, default=0.5, check=_FRAC),
+                tol=_get(r, "tol", f"refine.{axis}.", float, default=0.0, check=(lambda x: 0 <= x < 1, "in [0, 1)")),
             )
     if "x" in specs and x_n is None:
         raise SceneError("refine.x needs an [x] grid")

@@ -109,21 +109,43 @@ def _metadata(scene: Scene) -> dict[str, Any]:
     }
 
 
-def _new_vgrid(scene: Scene, vgrid: Grid, f: np.ndarray) -> Grid:
+def _map_params(mu) -> np.ndarray:
+    """The extent of the concentration set a map was built for: (r,) or (r1, r2)."""
+    return np.array([mu.r] if isinstance(mu, OneBumpMap) else [mu.r1, mu.r2])
+
+
+def _moved(spec, old: np.ndarray | None, new: np.ndarray) -> bool:
+    """Remesh when the set's extent moved by more than ``spec.tol`` times its width (always if tol = 0)."""
+    if old is None or old.size != new.size or spec.tol == 0:
+        return True
+    width = new[-1] - (new[0] if new.size == 2 else 0.0)
+    return bool(np.abs(new - old).max() > spec.tol * width)
+
+
+def _refine_v(scene: Scene, vgrid: Grid, f: np.ndarray, params):
     spec = scene.refine_v
     fv = f if f.ndim == 1 else f.max(axis=0)
     cls = OneBumpMap if spec.bumps == 1 else TwoBumpMap
-    return cls.from_density(vgrid, fv, spec.delta0, spec.delta).grid(vgrid.n)
+    mu = cls.from_density(vgrid, fv, spec.delta0, spec.delta)
+    new = _map_params(mu)
+    if not _moved(spec, params, new):
+        return f, vgrid, params
+    grid = mu.grid(vgrid.n)
+    return remap(vgrid, f, grid, axis=-1), grid, new
 
 
-def _new_xgrid(scene: Scene, xgrid: PeriodicGrid, f: np.ndarray) -> PeriodicGrid:
+def _refine_x(scene: Scene, xgrid: PeriodicGrid, f: np.ndarray, params):
     spec = scene.refine_x
     cls = OneBumpMap if spec.bumps == 1 else TwoBumpMap
     fx = f.max(axis=1)
     # the maps assume [-L, L]; x-grids are periodic cell-centred grids inside it
     proxy = Grid(np.concatenate([[-scene.x_L], xgrid.points, [scene.x_L]]))
     mu = cls.from_density(proxy, np.concatenate([[fx[0]], fx, [fx[-1]]]), spec.delta0, spec.delta)
-    return periodic_map_grid(mu, xgrid.n, xgrid.period)
+    new = _map_params(mu)
+    if not _moved(spec, params, new):
+        return f, xgrid, params
+    grid = periodic_map_grid(mu, xgrid.n, xgrid.period)
+    return remap_periodic(xgrid, f, grid, axis=0), grid, new
 
 
 def simulate(scene: Scene, out: str | Path | None = None, resume: bool = False, progress: bool = False) -> Run:
@@ -143,12 +165,11 @@ def simulate(scene: Scene, out: str | Path | None = None, resume: bool = False, 
     t, step, rows, snaps = 0.0, 0, [], []
     verdict = {"blowup": False, "T_b": None, "B_x": False, "B_v": False, "e_f": False, "reason": "reached t_end"}
     secs = {"collision": 0.0, "transport": 0.0, "refine": 0.0}
+    v_params = x_params = None  # extent of the set each refined grid was built for
     if scene.refine_v is not None:  # start on the refined grids, as the algorithms do
-        nv = _new_vgrid(scene, vgrid, f)
-        f, vgrid = remap(vgrid, f, nv, axis=-1), nv
+        f, vgrid, v_params = _refine_v(scene, vgrid, f, None)
     if scene.refine_x is not None:
-        nx = _new_xgrid(scene, xgrid, f)
-        f, xgrid = remap_periodic(xgrid, f, nx, axis=0), nx
+        f, xgrid, x_params = _refine_x(scene, xgrid, f, None)
     if out is not None and resume and (out / "checkpoint.npz").exists():
         ck = np.load(out / "checkpoint.npz", allow_pickle=False)
         t, step, f = float(ck["t"]), int(ck["step"]), ck["f"]
@@ -156,6 +177,8 @@ def simulate(scene: Scene, out: str | Path | None = None, resume: bool = False, 
         if xgrid is not None:
             xgrid = PeriodicGrid(ck["x"], xgrid.period)
         rows = json.loads(str(ck["rows"]))
+        v_params = ck["v_params"] if ck["v_params"].size else None
+        x_params = ck["x_params"] if ck["x_params"].size else None
         verdict = json.loads(str(ck["verdict"]))
         snaps = [
             dict(np.load(p, allow_pickle=False))
@@ -211,11 +234,9 @@ def simulate(scene: Scene, out: str | Path | None = None, resume: bool = False, 
         f = res.f
         t2 = time.perf_counter()
         if scene.refine_v is not None:
-            nv = _new_vgrid(scene, vgrid, f)
-            f, vgrid = remap(vgrid, f, nv, axis=-1), nv
+            f, vgrid, v_params = _refine_v(scene, vgrid, f, v_params)
         if scene.refine_x is not None:
-            nx = _new_xgrid(scene, xgrid, f)
-            f, xgrid = remap_periodic(xgrid, f, nx, axis=0), nx
+            f, xgrid, x_params = _refine_x(scene, xgrid, f, x_params)
         secs["refine"] += time.perf_counter() - t2
         t += dt
         step += 1
@@ -240,14 +261,14 @@ def simulate(scene: Scene, out: str | Path | None = None, resume: bool = False, 
         if step % scene.every == 0 or done:
             snaps.append(_snapshot(out, step, t, xgrid, vgrid, f))
         if out is not None and (step % scene.checkpoint_every == 0 or done):
-            _checkpoint(out, t, step, f, vgrid, xgrid, rows, verdict)
+            _checkpoint(out, t, step, f, vgrid, xgrid, rows, verdict, v_params, x_params)
     if bar is not None:
         bar.close()
     if verdict["blowup"] and verdict["reason"].startswith("collision"):
         snaps.append(_snapshot(out, step, t, xgrid, vgrid, f))
     run = Run(scene, pd.DataFrame(rows), snaps, f, vgrid, xgrid, t, verdict, secs)
     if out is not None:
-        _checkpoint(out, t, step, f, vgrid, xgrid, rows, verdict)
+        _checkpoint(out, t, step, f, vgrid, xgrid, rows, verdict, v_params, x_params)
         _text_save(out / "verdict.json", json.dumps({**verdict, "t": t, "steps": step, "seconds": secs}, indent=2))
     return run
 
@@ -261,9 +282,11 @@ def _snapshot(out: Path | None, step: int, t: float, xgrid, vgrid: Grid, f: np.n
     return snap
 
 
-def _checkpoint(out: Path, t, step, f, vgrid, xgrid, rows, verdict) -> None:
+def _checkpoint(out: Path, t, step, f, vgrid, xgrid, rows, verdict, v_params=None, x_params=None) -> None:
     _np_save(
         out / "checkpoint.npz",
+        v_params=np.array([]) if v_params is None else v_params,
+        x_params=np.array([]) if x_params is None else x_params,
         t=t,
         step=step,
         f=f,
