@@ -153,3 +153,13 @@ def test_newton_needs_positive_data():
     prob = CollisionProblem(_w, PowerKernel(1.0), np.where(_w.points > 1, 0.0, 1.0), 0.01)
     res = solve_collision(prob, method="newton")
     assert res.status is Status.NUMERICAL_ERROR and not res.success
+
+
+@pytest.mark.parametrize("method", ["conic", "sqp", "newton"])
+def test_reported_residual_is_that_of_the_returned_point(method):
+    rng = np.random.default_rng(42)
+    prob = random_problem(rng, 1.5, n=51)
+    res = solve_collision(prob, method=method)
+    assert res.kkt_residual == pytest.approx(prob.kkt_residual(res.f, res.m).total, rel=1e-9, abs=1e-15)
+    assert res.objective == pytest.approx(prob.objective(res.f, res.m), rel=1e-14)
+    assert np.abs(prob.constraint_residual(res.f, res.m)).max() <= 1e-14 * prob.mass

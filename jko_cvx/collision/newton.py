@@ -316,6 +316,7 @@ def solve_newton(
     near = np.zeros(B, dtype=bool)
     stall = np.zeros(B, dtype=int)
     dec_last = np.full(B, np.inf)
+    kkt_here = np.zeros(B, dtype=bool)  # kkt_last belongs to the current (f, m)
     active = status == None  # noqa: E711 (object array): slices still iterating
     with np.errstate(all="ignore"):
         phi = _objective_interior(P, f, m)
@@ -334,6 +335,7 @@ def solve_newton(
                 kk = Pa.kkt_residual(fa, ma, parts).total
                 prev = kkt_last[idx]
                 kkt_last[idx[check]] = kk[check]
+                kkt_here[idx[check]] = True
                 done = check & (kk <= tol)
                 worse = check & ~done & (prev == prev) & (kk > 0.5 * prev) & (dec_last[idx] <= 1e-14)
                 stall[idx] = np.where(check, np.where(worse, stall[idx] + 1, 0), stall[idx])
@@ -402,12 +404,20 @@ def solve_newton(
                 Pu = P.with_f_star(F_star[up]) if up.size < B else P
                 phi[up] = _objective_interior(Pu, f[up], m[up])
             iters[upd] += 1
+            kkt_here[upd] = False
         # Results: project (clip rounding, exact mass); re-evaluate the residual only where
         # the projection moved f beyond rounding or no residual was computed.
-        f_out, m_out = P.project_feasible(f)
-        moved = np.abs(f_out - f).max(axis=-1) > 1e-14 * F_star.max(axis=-1)
+        # Iterates are feasible and positive by construction: return them as they are (the
+        # reported residual is then that of the returned point); project only slices that
+        # are not strictly positive (data with zeros, which never iterate).
+        positive_rows = np.all(f > 0, axis=-1)
+        f_out, m_out = f.copy(), m.copy()
+        if not positive_rows.all():
+            bad = ~positive_rows
+            Pb = P.with_f_star(F_star[bad]) if bad.sum() < B else P
+            f_out[bad], m_out[bad] = Pb.project_feasible(f[bad])
         kkt_all = kkt_last.copy()
-        redo = moved | ~np.isfinite(kkt_all)
+        redo = ~positive_rows | ~kkt_here | ~np.isfinite(kkt_all)
         if redo.any():
             Pr = P.with_f_star(F_star[redo]) if redo.sum() < B else P
             kkt_all[redo] = Pr.kkt_residual(f_out[redo], m_out[redo]).total
@@ -481,7 +491,7 @@ def _solve_single(
         fc = f_star - divergence(cand) / h
         if np.all(np.isfinite(cand)) and np.all(fc > 0):
             m, warm = cand.copy(), True
-    status, iters, kkt, stall, dec_last = None, 0, np.nan, 0, np.inf
+    status, iters, kkt, stall, dec_last, kkt_here = None, 0, np.nan, 0, np.inf, False
     if not np.all(f_star > 0):
         status = Status.NUMERICAL_ERROR
     tiny = np.finfo(float).tiny
@@ -500,6 +510,7 @@ def _solve_single(
             p, pd = p[0], bool(pd[0])
             if check:
                 prev, kkt = kkt, float(P.kkt_residual(f, m, parts).total)
+                kkt_here = True  # the residual belongs to the current (f, m)
                 if kkt <= tol:
                     status = Status.CONVERGED if (pd or not check_convexity) else Status.NONCONVEX
                     break
@@ -539,8 +550,15 @@ def _solve_single(
                     status = Status.NUMERICAL_ERROR  # no decrease even along a tiny step
                     break
             iters += 1
-        f_out, m_out = P.project_feasible(f)
-        if not np.isfinite(kkt) or np.abs(f_out - f).max() > 1e-14 * f_star.max():
+            kkt_here = False
+        # The iterates are feasible by construction (f = f* - Dm/h) and strictly positive:
+        # return the last one itself, so the residual reported is that of the returned point.
+        if np.all(f > 0):
+            f_out, m_out = f, m
+        else:
+            f_out, m_out = P.project_feasible(f)
+            kkt_here = False
+        if not kkt_here:
             kkt = float(P.kkt_residual(f_out, m_out).total)
         if status is Status.CONVERGED and not kkt <= 10 * tol:
             status = Status.NOT_CERTIFIED
