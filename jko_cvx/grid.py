@@ -14,12 +14,15 @@ diagnostics); DESIGN.md asks for one consistent choice and this is it.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["Grid"]
+__all__ = ["Grid", "PeriodicGrid"]
+
+_PERIODIC_IMAGES = 3  # periodic images on each side for PCHIP's four-point stencils
 
 
 @dataclass(frozen=True, eq=False)
@@ -193,3 +196,24 @@ class PeriodicGrid:
     def integrate(self, values: ArrayLike, axis: int = 0) -> NDArray[np.float64] | float:
         vals = np.asarray(values, dtype=float)
         return np.moveaxis(vals, axis, -1) @ self.h
+
+    def pchip(self, values: ArrayLike, axis: int = -1) -> Callable[[ArrayLike], NDArray[np.float64]]:
+        """Periodic PCHIP interpolant of ``values`` (given at the points, along ``axis``).
+
+        Built on the data extended by three periodic images on each side (enough for
+        PCHIP's four-point stencils); the returned callable wraps any query point into
+        the period first.  Shared by transport and periodic remapping.
+        """
+        from scipy.interpolate import PchipInterpolator
+
+        vals = np.moveaxis(np.asarray(values, dtype=float), axis, -1)
+        x, P, k = self.points, self.period, _PERIODIC_IMAGES
+        xe = np.concatenate([x[-k:] - P, x, x[:k] + P])
+        ve = np.concatenate([vals[..., -k:], vals, vals[..., :k]], axis=-1)
+        interp = PchipInterpolator(xe, ve, axis=-1)
+        lo = self.lower
+
+        def evaluate(q: ArrayLike) -> NDArray[np.float64]:
+            return interp(lo + np.mod(np.asarray(q, dtype=float) - lo, P))
+
+        return evaluate

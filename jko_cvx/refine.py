@@ -119,8 +119,24 @@ def _outer_piece(s0: float, v0: float, L: float, concave_up: bool) -> _Piece:
     return _Piece("logistic", L * (1 + np.exp(-b)), b)
 
 
+class _OddMap:
+    """What both maps share: checks on L and delta, and the grid they generate."""
+
+    L: float
+    delta: float
+
+    def _check_domain(self) -> None:
+        _check_fraction("delta", self.delta)
+        if not (np.isfinite(self.L) and self.L > 0):
+            raise ValueError(f"L must be a finite number > 0, got {self.L!r}")
+
+    def grid(self, n: int) -> Grid:
+        """The refined grid ``mu(s_j)``, s_j uniform on [-1, 1], n points."""
+        return Grid(self(np.linspace(-1.0, 1.0, int(n))))  # type: ignore[operator]
+
+
 @dataclass(frozen=True)
-class OneBumpMap:
+class OneBumpMap(_OddMap):
     """The one-bump map ``mu1`` (concentration centred at 0).
 
     Parameters
@@ -138,9 +154,7 @@ class OneBumpMap:
     delta: float
 
     def __post_init__(self) -> None:
-        _check_fraction("delta", self.delta)
-        if not (np.isfinite(self.L) and self.L > 0):
-            raise ValueError(f"L must be a finite number > 0, got {self.L!r}")
+        self._check_domain()
         if not 0 < self.r < self.L:
             raise ValueError(f"r must lie in (0, L) = (0, {self.L}), got {self.r!r}")
         paper_quintic = self.r / self.delta <= self.L
@@ -165,10 +179,6 @@ class OneBumpMap:
         """``"quintic"`` (concave up) or ``"logistic"`` (concave down)."""
         return self._outer.kind  # type: ignore[attr-defined]
 
-    def grid(self, n: int) -> Grid:
-        """The refined grid ``mu(s_j)``, s_j uniform on [-1, 1], n points."""
-        return Grid(self(np.linspace(-1.0, 1.0, int(n))))
-
     @classmethod
     def from_density(cls, grid: Grid, f: ArrayLike, delta0: float, delta: float) -> OneBumpMap:
         """The map for density ``f`` on ``grid`` (symmetric domain ``[-L, L]``)."""
@@ -182,7 +192,7 @@ class OneBumpMap:
 
 
 @dataclass(frozen=True)
-class TwoBumpMap:
+class TwoBumpMap(_OddMap):
     """The two-bump map ``mu2`` (concentrations at +-c, symmetric about 0).
 
     ``mu(1/2 - delta/2) = r1``, ``mu(1/2 + delta/2) = r2``, ``mu(1) = L``, odd extension.
@@ -194,9 +204,7 @@ class TwoBumpMap:
     delta: float
 
     def __post_init__(self) -> None:
-        _check_fraction("delta", self.delta)
-        if not (np.isfinite(self.L) and self.L > 0):
-            raise ValueError(f"L must be a finite number > 0, got {self.L!r}")
+        self._check_domain()
         if not 0 < self.r1 < self.r2 < self.L:
             raise ValueError(f"need 0 < r1 < r2 < L, got r1={self.r1!r}, r2={self.r2!r}, L={self.L!r}")
         s1, s2 = 0.5 - self.delta / 2, 0.5 + self.delta / 2
@@ -218,9 +226,6 @@ class TwoBumpMap:
         s1, s2, inner, mid, outer = self._pieces  # type: ignore[attr-defined]
         out = np.where(a < s1, inner(a), np.where(a <= s2, mid(a), outer(a)))
         return np.sign(s) * out
-
-    def grid(self, n: int) -> Grid:
-        return Grid(self(np.linspace(-1.0, 1.0, int(n))))
 
     @classmethod
     def from_density(cls, grid: Grid, f: ArrayLike, delta0: float, delta: float) -> TwoBumpMap:
@@ -293,11 +298,7 @@ def periodic_map_grid(mu, n: int, period: float):
 def remap_periodic(old, f: ArrayLike, new, floor: float = 1e-10, axis: int = 0) -> NDArray[np.float64]:
     """:func:`remap` for periodic grids (``PeriodicGrid``): periodic PCHIP, floor, per-line mass."""
     f = np.moveaxis(np.asarray(f, dtype=float), axis, -1)
-    x, P, k = old.points, old.period, 3
-    xe = np.concatenate([x[-k:] - P, x, x[:k] + P])
-    fe = np.concatenate([f[..., -k:], f, f[..., :k]], axis=-1)
-    lo = x[0] - (x[0] + P - x[-1]) / 2
-    g = PchipInterpolator(xe, fe, axis=-1)(lo + np.mod(new.points - lo, P))
+    g = old.pchip(f, axis=-1)(new.points)
     g = np.maximum(g, floor)
     g = g * ((f @ old.h) / (g @ new.h))[..., None]
     return np.moveaxis(g, -1, axis)
