@@ -36,6 +36,7 @@ A scene file (see ``studies/scenes/*.toml``)::
     method = "newton"
     beta = inf               # Fisher weight (TOML inf)
     fisher = "perspective"
+    conserve_momentum = true # per-slice momentum constraint (default: true, false for sqp)
     options = {}
 
     [stop]
@@ -128,6 +129,7 @@ class Scene:
     method: str = "newton"
     beta: float = math.inf
     fisher: str | None = "perspective"
+    conserve_momentum: bool = True
     options: dict[str, Any] = field(default_factory=dict)
     eps_v: float = 0.0
     eps_x: float = 0.0
@@ -277,6 +279,14 @@ def scene_from_dict(d: dict[str, Any]) -> Scene:
     method = _get(c, "method", "collision.", str, default="newton", allowed={"newton", "sqp", "conic"})
     beta = _get(c, "beta", "collision.", float, default=math.inf, check=(lambda b: b > 0, "> 0 (inf allowed)"))
     fisher = _get(c, "fisher", "collision.", str, default="perspective", allowed={"perspective", "log", "none"})
+    # Momentum: the collision operator conserves it on each x-slice; the constrained step
+    # does so exactly (CollisionProblem.conserve_momentum).  The paper's SQP has no such
+    # constraint, so it defaults to false there.
+    conserve_momentum = _get(c, "conserve_momentum", "collision.", bool, default=method != "sqp")
+    if conserve_momentum and method == "sqp":
+        raise SceneError(
+            "collision.conserve_momentum = true needs method 'newton' or 'conic' (sqp has no such constraint)"
+        )
     options = c.get("options", {})
     if not isinstance(options, dict):
         raise SceneError(f"collision.options must be a table, got {options!r}")
@@ -305,6 +315,7 @@ def scene_from_dict(d: dict[str, Any]) -> Scene:
         method=method,
         beta=beta,
         fisher=None if fisher == "none" else fisher,
+        conserve_momentum=conserve_momentum,
         options=dict(options),
         eps_v=eps_v,
         eps_x=eps_x,

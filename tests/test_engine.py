@@ -91,7 +91,7 @@ def test_short_inhomogeneous_run_conserves_mass_and_dissipates():
     assert not run.blowup and run.t == pytest.approx(0.3)
     assert np.all(np.abs(d.mass - d.mass.iloc[0]) <= 1e-10 * d.mass.iloc[0])
     assert np.all(np.diff(d.moment2) <= 1e-10 * d.moment2.iloc[0])
-    assert np.abs(d.momentum).max() <= 1e-6  # symmetric datum: zero up to solver tolerance
+    assert np.abs(d.momentum).max() <= 1e-13  # the momentum-conserving step (scene default)
 
 
 def test_killed_run_resumes_to_the_uninterrupted_result(tmp_path):
@@ -161,15 +161,13 @@ def test_halving_policy_cures_a_failing_step():
 
 @pytest.mark.slow
 def test_inhomogeneous_gamma3_lambda4_to_t4():
-    """sec:sp_inhom_gamma_3, lambda = 4, N_x = N_v = 121, dt = 0.05, to t = 4 (about 25 s)."""
+    """sec:sp_inhom_gamma_3, lambda = 4, N_x = N_v = 121, dt = 0.05, to t = 4 (about 18 s)."""
     run = simulate(load_scene(SCENES / "inhom_gamma3_lambda4.toml"))
     d = run.diagnostics
     assert not run.blowup and run.t == pytest.approx(4.0)
     assert np.all(np.abs(d.mass - d.mass.iloc[0]) <= 1e-10 * d.mass.iloc[0])
     assert np.all(np.diff(d.moment2) <= 0)
-    # Issue 4 asks for momentum to 1e-10; measured 3e-9 (the discrete collision step changes
-    # momentum by sum_k m_k dv_k; the datum's symmetry keeps it at solver-tolerance level).
-    assert np.abs(d.momentum).max() <= 1e-8
+    assert np.abs(d.momentum).max() <= 1e-10  # measured 1.4e-15 (momentum-conserving step)
 
 
 def _peak_positions(run):
@@ -182,21 +180,37 @@ def _peak_positions(run):
     return np.array(ts), np.array(ps)
 
 
-def test_gamma3_bumps_follow_the_point_mass_law_with_lazy_remeshing():
-    """sec:ibu: two bumps of mass M/2 at +-p obey p' = -2 M p^2, p = p0/(1 + 2 M p0 t) (-> 1/(2 M t)).
+def test_gamma3_bumps_approach_zero_like_one_over_t():
+    """sec:ibu to t = 20: two bumps of mass M/2 at +-p obey p' = -2 M p^2, p = p0/(1 + 2 M p0 t).
 
-    With the remeshing tolerance 0.1 the peaks follow the law to t = 10 within 5 %; remeshing
-    every step (tol = 0, the paper's Algorithm 3) moves them inward by about their own motion
-    per step and fails the same check -- the reason the scene sets tol.
+    Issue 4's check: the peak positions (argmax of f, as the paper plots them) have a
+    fitted exponent -1 +- 0.15 over t in [10, 20] (measured -0.944; the law's own local
+    exponent there is about -0.98); the bumps' centres of mass follow the point-mass law
+    within 3 % over the same range (measured 2.2 %; earlier the bumps are too wide for a
+    point-mass law).  Remeshing every step (tol = 0, the paper's Algorithm 3) drags the
+    bumps inward each remap: the same run leaves the law or stalls.
     """
-    s = dataclasses.replace(load_scene(SCENES / "ibu_gamma3.toml"), t_end=10.0, every=100)
-    M = simulate(dataclasses.replace(s, t_end=0.01)).diagnostics.mass.iloc[0]
+    s = dataclasses.replace(load_scene(SCENES / "ibu_gamma3.toml"), every=50)
+    run = simulate(s)
+    assert not run.blowup and run.t == pytest.approx(20.0)
+    M = run.diagnostics.mass.iloc[0]
     law = lambda t: 1.5 / (1 + 2 * M * 1.5 * t)  # noqa: E731
-    ts, ps = _peak_positions(simulate(s))
-    late = ts >= 3
-    assert np.all(np.abs(ps[late] / law(ts[late]) - 1) <= 0.05), list(
-        zip(ts[late], ps[late], law(ts[late]), strict=True)
-    )
-    eager = dataclasses.replace(s, refine_v=dataclasses.replace(s.refine_v, tol=0.0))
-    ts0, ps0 = _peak_positions(simulate(eager))
-    assert np.any(np.abs(ps0[ts0 >= 3] / law(ts0[ts0 >= 3]) - 1) > 0.05)
+    ts, ps = _peak_positions(run)
+    late = ts >= 10
+    slope = np.polyfit(np.log(ts[late]), np.log(ps[late]), 1)[0]
+    assert abs(slope + 1) <= 0.15, slope
+    tc, cm = _centres_of_mass(run)
+    assert np.all(np.abs(cm[late] / law(tc[late]) - 1) <= 0.03), list(zip(tc, cm / law(tc), strict=True))
+    eager = simulate(dataclasses.replace(s, refine_v=dataclasses.replace(s.refine_v, tol=0.0)))
+    te, ce = _centres_of_mass(eager)
+    assert eager.blowup or np.any(np.abs(ce[te >= 10] / law(te[te >= 10]) - 1) > 0.05)
+
+
+def _centres_of_mass(run):
+    ts, cs = [], []
+    for sn in run.snapshots:
+        v, f = sn["v"], sn["f"]
+        pos = v > 0
+        ts.append(sn["t"])
+        cs.append((v[pos] * f[pos]).sum() / f[pos].sum())
+    return np.array(ts), np.array(cs)

@@ -46,9 +46,10 @@ def test_structured_direction_equals_the_dense_one(gamma):
     f = prob.density_from_flux(m)
     batch = prob.with_f_star(np.stack([prob.f_star, prob.f_star]))
     g, bands, _ = _fused(batch, f, m)
-    p_fast, pd_fast = _direction(batch, bands, g)
+    p_fast, pd_fast, _ = _direction(batch, bands, g)
     H = add_pentadiagonal(2 * prob.energy_coef * prob.energy.flux_block(), *bands)
-    p_dense, pd_dense = _newton_direction(H, g)
+    p_dense, pd_dense = _newton_direction(H, -g[..., None])
+    p_dense = p_dense[..., 0]
     assert pd_fast.all() and pd_dense.all()
     assert np.allclose(p_fast, p_dense, rtol=1e-8, atol=1e-12 * np.abs(p_dense).max())
 

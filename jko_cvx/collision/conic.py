@@ -102,10 +102,10 @@ _CENTRE_BELOW = 1e-4
 
 
 def _build_model(
-    n: int, with_fisher: bool, centred: bool, r_plus: int, diagonal: bool, solver: str
+    n: int, with_fisher: bool, centred: bool, r_plus: int, diagonal: bool, solver: str, momentum: bool = False
 ) -> tuple[ConicModel, bool]:
     """The cached model for this structure, and whether it was compiled by this call."""
-    key = (n, with_fisher, centred, r_plus, diagonal, solver)
+    key = (n, with_fisher, centred, r_plus, diagonal, solver, momentum)
     model = _MODEL_CACHE.get(key)
     if model is not None:
         return model, False
@@ -127,6 +127,9 @@ def _build_model(
         cp.multiply(p["h"], delta) + D @ m_hat == 0,
         f >= 0,
     ]
+    if momentum:  # sum_k m_k dv_k = 0: the step conserves momentum (CollisionProblem.conserve_momentum)
+        p["dv"] = cp.Parameter(n - 1, nonneg=True, name="dv")
+        cons.append(p["dv"] @ m_hat == 0)
     obj = p["wass"] @ t_hat + p["lin"] @ delta
     if with_fisher:
         p["fisher"] = cp.Parameter(n - 1, nonneg=True, name="fisher")
@@ -307,12 +310,14 @@ def solve_conic(
     mu, varsigma = _flux_scale(problem)
     with_fisher = problem.fisher is not None
     centred = with_fisher and fisher_cone == "centred"
-    model, compiled_now = _build_model(n, with_fisher, centred, r_plus, diagonal, solver)
+    model, compiled_now = _build_model(n, with_fisher, centred, r_plus, diagonal, solver, problem.conserve_momentum)
     ec = problem.energy_coef
     prm = model.params
     prm["f_star"].value = problem.f_star
     prm["h"].value = problem.grid.h
     prm["mu"].value = mu
+    if problem.conserve_momentum:
+        prm["dv"].value = problem.grid.dv / problem.grid.dv.max()
     prm["wass"].value = problem.wass_coef * mu**2 / varsigma
     fs = problem.f_star
     if centred:

@@ -12,15 +12,17 @@ unconstrained problem in the N-1 fluxes, :math:`\\\\phi(m) = J(f(m), m)`, with d
 
 where the Wasserstein and Fisher terms give a pentadiagonal :math:`B(m)` (formed from its
 bands) and the energy a constant dense block, formed once per problem.  Each iteration
-costs one (N-1) x (N-1) Cholesky factorisation (after Jacobi scaling), batched over
-slices.  The step is damped by the fraction to the boundary (iterates stay strictly
-positive) and an Armijo backtracking line search on :math:`\\\\phi` itself (the merit
-function: iterates are exactly feasible).  The solver terminates on the KKT residual of
+costs one (N-1) x (N-1) Cholesky factorisation per slice (O(N) banded ones for gamma = 1
+and 2).  Where the reduced Hessian is not positive definite (the energy is concave in
+some directions) a diagonally shifted one gives the step (modified Newton).  The step is
+damped by the fraction to the boundary (iterates stay strictly positive) and an Armijo
+backtracking line search on :math:`\\\\phi` itself (the merit function: iterates are
+exactly feasible).  The solver terminates on the KKT residual of
 :class:`~jko_cvx.collision.problem.CollisionProblem`, never on step length alone.
 
 Statuses: ``CONVERGED`` (KKT residual within tolerance and the reduced Hessian positive
 definite), ``NONCONVEX`` (the reduced Hessian is not positive definite at the final
-point, or at a point where no descent was possible: loss of convexity),
+point -- a stationary point that is not a minimiser -- or no shift gave a descent direction),
 ``MAX_ITERATIONS``, ``NUMERICAL_ERROR`` (non-finite values, or the line search
 stalled with the residual above tolerance).
 """
@@ -33,7 +35,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.linalg import lapack, solve_triangular
+from scipy.linalg import lapack
 
 from ..kernels import FluxBlock
 from .linalg import divergence, divergence_adjoint
@@ -142,46 +144,100 @@ def _banded_cholesky(diag, off1, off2) -> tuple[NDArray | None, bool]:
     return c, info == 0 and bool(np.isfinite(c[0, -1]))
 
 
-def _structured_direction(fb: FluxBlock, scale: float, bands, g: NDArray) -> tuple[NDArray, NDArray[np.bool_]]:
-    """Newton direction when the energy block is diagonal (gamma = 1) or rank one (gamma = 2).
+def _structured_direction(fb: FluxBlock, scale: float, bands, rhs: NDArray) -> tuple[NDArray, NDArray[np.bool_]]:
+    """``H^-1 rhs`` when the energy block is diagonal (gamma = 1) or rank one (gamma = 2).
 
-    The reduced Hessian is then pentadiagonal, or pentadiagonal minus ``scale * u u'``:
-    a banded Cholesky (O(N)) and, for the rank-one case, Sherman-Morrison.  By the
-    matrix determinant lemma ``B - s u u'`` is positive definite iff ``B`` is and
-    ``1 - s u' B^-1 u > 0``.
+    ``rhs`` has shape ``(B, N-1, k)``.  The reduced Hessian is then pentadiagonal, or
+    pentadiagonal minus ``scale * u u'``: a banded Cholesky (O(N)) and, for the rank-one
+    case, Sherman-Morrison.  By the matrix determinant lemma ``B - s u u'`` is positive
+    definite iff ``B`` is and ``1 - s u' B^-1 u > 0``.
     """
     diag, off1, off2 = bands
     if fb.kind == "diagonal":
         diag = diag + scale * fb.diag
-    p = np.zeros_like(g)
-    pd = np.zeros(g.shape[0], dtype=bool)
-    for i in range(g.shape[0]):
+    x = np.zeros_like(rhs)
+    pd = np.zeros(rhs.shape[0], dtype=bool)
+    k = rhs.shape[-1]
+    for i in range(rhs.shape[0]):
         if not (np.all(diag[i] > 0) and np.all(np.isfinite(diag[i]))):
             continue
         c, ok = _banded_cholesky(diag[i], off1[i], off2[i])
         if not ok:
             continue
         if fb.kind == "diagonal":
-            p[i], _ = lapack.dpbtrs(c, -g[i], lower=1)
+            x[i], _ = lapack.dpbtrs(c, rhs[i], lower=1)
             pd[i] = True
             continue
-        rhs = np.stack([-g[i], fb.u], axis=1)
-        x, _ = lapack.dpbtrs(c, rhs, lower=1)
-        sigma = 1 - scale * (fb.u @ x[:, 1])
+        y, _ = lapack.dpbtrs(c, np.concatenate([rhs[i], fb.u[:, None]], axis=1), lower=1)
+        sigma = 1 - scale * (fb.u @ y[:, k])
         if sigma > _PD_TOL:
-            p[i] = x[:, 0] + x[:, 1] * (scale * (fb.u @ x[:, 0]) / sigma)
+            x[i] = y[:, :k] + np.outer(y[:, k], scale * (fb.u @ y[:, :k]) / sigma)
             pd[i] = True
-    return p, pd
+    return x, pd
 
 
-def _direction(problem: CollisionProblem, bands, g: NDArray) -> tuple[NDArray, NDArray[np.bool_]]:
-    """Newton direction ``-H^-1 g`` and the per-slice positive-definiteness of H."""
+def _direction(problem: CollisionProblem, bands, g: NDArray) -> tuple[NDArray, NDArray[np.bool_], NDArray[np.bool_]]:
+    """Newton direction ``-H^-1 g``, the per-slice positive-definiteness of H, and validity.
+
+    With ``conserve_momentum`` the direction is the equality-constrained one: with
+    ``a = dv`` (the constraint ``a'm = 0``), ``p = p0 - w (a'p0)/(a'w)``, ``p0 = -H^-1 g``,
+    ``w = H^-1 a`` -- one more back-substitution with the same factorisation.
+
+    Where H is not positive definite (the step problem is locally non-convex: the
+    interaction energy is concave in some directions, more so for large dt * strength)
+    the direction is taken with ``H + tau diag(H)``, tau = 1e-6, 1e-4, ..., 1e2, the first
+    that factorises: a descent direction, so the iteration can still reach a local
+    minimiser, which the final second-order test certifies (modified Newton).
+    ``valid`` is False only where no shift helped.
+    """
     fb = problem.energy.flux_structure()
     scale = 2 * problem.energy_coef
+    cols = [-g]
+    a = problem.grid.dv
+    if problem.conserve_momentum:
+        cols.append(np.broadcast_to(a, g.shape))
+    rhs = np.stack(cols, axis=-1)
+    H = None
     if fb.kind in ("diagonal", "rank1"):
-        return _structured_direction(fb, scale, bands, g)
-    H = add_pentadiagonal(scale * fb.dense, *bands)
-    return _newton_direction(H, g)
+        x, pd = _structured_direction(fb, scale, bands, rhs)
+    else:
+        H = add_pentadiagonal(scale * fb.dense, *bands)
+        x, pd = _newton_direction(H, rhs)
+    valid = pd.copy()
+    bad = np.flatnonzero(~pd)
+    if bad.size:
+        Hb = (
+            H[bad]
+            if H is not None
+            else add_pentadiagonal(scale * problem.energy.flux_block(), *(b[bad] for b in bands))
+        )
+        d = np.einsum("...ii->...i", Hb)
+        finite = np.all(np.isfinite(Hb), axis=(-2, -1)) & np.all(d > 0, axis=-1)
+        todo = finite.copy()
+        for tau in (1e-6, 1e-4, 1e-2, 1.0, 1e2):
+            if not todo.any():
+                break
+            idx = np.flatnonzero(todo)
+            Hs = Hb[idx].copy()
+            Hs[:, np.arange(Hs.shape[-1]), np.arange(Hs.shape[-1])] += tau * d[idx]
+            xs, ok = _newton_direction(Hs, rhs[bad[idx]])
+            x[bad[idx[ok]]] = xs[ok]
+            valid[bad[idx[ok]]] = True
+            todo[idx[ok]] = False
+    p = x[..., 0]
+    if problem.conserve_momentum:
+        w = x[..., 1]
+        aw = w @ a
+        p = p - w * np.divide(p @ a, aw, out=np.zeros_like(aw), where=aw > 0)[..., None]
+    return p, pd, valid
+
+
+def _on_momentum_plane(problem: CollisionProblem, m: NDArray) -> NDArray:
+    """Euclidean projection of fluxes onto ``sum_k m_k dv_k = 0`` (identity without the constraint)."""
+    if not problem.conserve_momentum:
+        return m
+    a = problem.grid.dv
+    return m - np.multiply.outer((m @ a) / (a @ a), a) if m.ndim > 1 else m - a * ((m @ a) / (a @ a))
 
 
 def _objective_interior(problem: CollisionProblem, f: NDArray, m: NDArray) -> NDArray:
@@ -198,52 +254,32 @@ def _objective_interior(problem: CollisionProblem, f: NDArray, m: NDArray) -> ND
     return val + problem.energy_coef * np.einsum("...i,...i->...", f, problem.energy.matvec(f))
 
 
-def _newton_direction(H: NDArray, g: NDArray | None) -> tuple[NDArray | None, NDArray[np.bool_]]:
-    """Solve ``H p = -g`` slice by slice after Jacobi scaling; flag slices whose H is not PD.
+def _newton_direction(H: NDArray, rhs: NDArray | None) -> tuple[NDArray | None, NDArray[np.bool_]]:
+    """Solve ``H x = rhs`` slice by slice; flag slices whose H is not positive definite.
 
-    With ``g=None`` only the positive-definiteness test (one Cholesky per slice) is done.
+    ``rhs`` has shape ``(B, N-1, k)``.  With ``rhs=None`` only the positive-definiteness
+    test (one Cholesky per slice) is done.  Cholesky's success does not depend on
+    diagonal scaling, so the Jacobi-scaled test "H_s + tol I is PD" is run as
+    "H + tol diag(H) is PD".  LAPACK (potrf/potrs) slice by slice: measured 2.6x faster
+    than NumPy's batched Cholesky plus batched triangular solves at B = 121, N = 121
+    (10 ms against 27 ms per direction on 2 cores), and 3.3x with two right-hand sides.
     """
     d = np.einsum("...ii->...i", H)
     ok = np.all(d > 0, axis=-1) & np.all(np.isfinite(d), axis=-1)
-    if H.shape[0] <= 4:
-        # Few slices: LAPACK directly (potrf/potrs), without the batching wrappers' overhead.
-        # Cholesky's success does not depend on diagonal scaling, so the Jacobi-scaled test
-        # "H_s + tol I is PD" is run as "H + tol diag(H) is PD".
-        p = np.zeros(H.shape[:-1])
-        pd = ok.copy()
-        n1 = H.shape[-1]
-        for i in range(H.shape[0]):
-            if not ok[i]:
-                continue
-            Hi = H[i].copy()
-            Hi.flat[:: n1 + 1] += _PD_TOL * d[i]
-            c, info = lapack.dpotrf(Hi, lower=1, clean=0, overwrite_a=1)
-            if info != 0 or not np.isfinite(c[-1, -1]):
-                pd[i] = False
-            elif g is not None:
-                p[i], _ = lapack.dpotrs(c, -g[i], lower=1)
-        return (None if g is None else p), pd
-    s = 1 / np.sqrt(np.where(d > 0, d, 1.0))
-    ok &= np.all(np.isfinite(H), axis=(-2, -1))
-    Hs = H * s[..., :, None] * s[..., None, :]
-    Hs += _PD_TOL * np.eye(H.shape[-1])
+    x = None if rhs is None else np.zeros(rhs.shape)
     pd = ok.copy()
-    eye = np.eye(H.shape[-1])
-    try:
-        L = np.linalg.cholesky(np.where(ok[:, None, None], Hs, eye))
-    except np.linalg.LinAlgError:
-        # Some slice is indefinite: factorise slice by slice, identity for the failures.
-        L = np.empty_like(Hs)
-        for i in range(H.shape[0]):
-            try:
-                L[i] = np.linalg.cholesky(Hs[i]) if ok[i] else eye
-            except np.linalg.LinAlgError:
-                pd[i], L[i] = False, eye
-    if g is None:
-        return None, pd
-    y = solve_triangular(L, (-g * s)[..., None], lower=True, check_finite=False)
-    p = solve_triangular(L, y, lower=True, trans="T", check_finite=False)[..., 0] * s
-    return np.where(pd[:, None], p, 0.0), pd
+    n1 = H.shape[-1]
+    for i in range(H.shape[0]):
+        if not ok[i]:
+            continue
+        Hi = H[i].copy()
+        Hi.flat[:: n1 + 1] += _PD_TOL * d[i]
+        c, info = lapack.dpotrf(Hi, lower=1, clean=0, overwrite_a=1)
+        if info != 0 or not np.isfinite(c[-1, -1]):
+            pd[i] = False
+        elif rhs is not None:
+            x[i], _ = lapack.dpotrs(c, rhs[i], lower=1)
+    return x, pd
 
 
 def solve_newton(
@@ -270,7 +306,8 @@ def solve_newton(
     m0 : array_like, optional
         Warm start: fluxes of shape ``(N-1,)`` or ``(B, N-1)`` (e.g. the previous
         solution's ``m``).  It is used only where it keeps ``f(m0) > 0``; otherwise the
-        solver starts from ``m = 0``.
+        solver starts from ``m = 0``.  With ``conserve_momentum`` it is first projected
+        onto the constraint :math:`\\sum_k m_k\\Delta v_k = 0`.
     start : {"explicit", "zero"}, default "explicit"
         Starting point without ``m0``: the explicit step (the first step of the paper's
         SQP, one tridiagonal solve; damped to keep f >= f*/2 and kept only if it lowers J;
@@ -298,7 +335,7 @@ def solve_newton(
     m = np.zeros((B, n - 1))
     warm = np.zeros(B, dtype=bool)
     if m0 is not None:
-        M0 = np.broadcast_to(np.asarray(m0, dtype=float), (B, n - 1))
+        M0 = _on_momentum_plane(P, np.broadcast_to(np.asarray(m0, dtype=float), (B, n - 1)))
         f0 = F_star - divergence(M0) / h
         warm = np.all(f0 > 0, axis=-1) & np.all(np.isfinite(M0), axis=-1)
         m[warm] = M0[warm]
@@ -329,7 +366,7 @@ def solve_newton(
             fa, ma = (f[idx], m[idx]) if sub else (f, m)
             check = near[idx] | (it == max_iter)
             g, bands, parts = _fused(Pa, fa, ma, want_parts=bool(check.any()))
-            p, pd = _direction(Pa, bands, g)
+            p, pd, valid = _direction(Pa, bands, g)
             done = np.zeros(idx.size, dtype=bool)
             if check.any():
                 kk = Pa.kkt_residual(fa, ma, parts).total
@@ -351,14 +388,18 @@ def solve_newton(
                     ]
                     active[idx[done]] = False
             if it == max_iter:
-                status[idx[~done]] = Status.MAX_ITERATIONS
+                # Out of iterations where the Hessian still needed a shift: loss of convexity
+                # is what stopped the solver (typically a minimiser on the vacuum boundary).
+                status[idx[~done]] = [
+                    Status.MAX_ITERATIONS if (ok or not check_convexity) else Status.NONCONVEX for ok in pd[~done]
+                ]
                 break
             if check.any():
                 done = done | stalled
-            go = ~done & pd & np.all(np.isfinite(p), axis=-1)
+            go = ~done & valid & np.all(np.isfinite(p), axis=-1)
             if not go.all():
-                status[idx[~done & ~pd]] = Status.NONCONVEX  # no Newton descent direction here
-                status[idx[~done & pd & ~go]] = Status.NUMERICAL_ERROR
+                status[idx[~done & ~valid]] = Status.NONCONVEX  # no descent direction even shifted
+                status[idx[~done & valid & ~go]] = Status.NUMERICAL_ERROR
                 active[idx[~go]] = False
             if not go.any():
                 continue
@@ -461,7 +502,7 @@ def _explicit_start(P: CollisionProblem, F_star: NDArray, m: NDArray, use: NDArr
     pf, pm = _qp_step_banded(P, F_star, zero, gf, gm)
     ratio = np.where(pf < 0, -F_star / np.where(pf < 0, pf, -1.0), np.inf).min(axis=-1)
     alpha = np.minimum(1.0, 0.5 * ratio)
-    cand = np.asarray(alpha)[..., None] * pm
+    cand = _on_momentum_plane(P, np.asarray(alpha)[..., None] * pm)
     fc = F_star - divergence(cand) / P.grid.h
     better = (
         use
@@ -487,7 +528,7 @@ def _solve_single(
     m = np.zeros(n - 1)
     warm = False
     if m0 is not None:
-        cand = np.asarray(m0, dtype=float).reshape(n - 1)
+        cand = _on_momentum_plane(P, np.asarray(m0, dtype=float).reshape(n - 1))
         fc = f_star - divergence(cand) / h
         if np.all(np.isfinite(cand)) and np.all(fc > 0):
             m, warm = cand.copy(), True
@@ -506,8 +547,8 @@ def _solve_single(
                 break
             check = near or it == max_iter
             g, bands, parts = _fused(P, f, m, want_parts=check)
-            p, pd = _direction(P, tuple(b[None] for b in bands), g[None])
-            p, pd = p[0], bool(pd[0])
+            p, pd, valid = _direction(P, tuple(b[None] for b in bands), g[None])
+            p, pd, valid = p[0], bool(pd[0]), bool(valid[0])
             if check:
                 prev, kkt = kkt, float(P.kkt_residual(f, m, parts).total)
                 kkt_here = True  # the residual belongs to the current (f, m)
@@ -519,10 +560,10 @@ def _solve_single(
                     status = Status.NOT_CERTIFIED
                     break
             if it == max_iter:
-                status = Status.MAX_ITERATIONS
+                status = Status.MAX_ITERATIONS if (pd or not check_convexity) else Status.NONCONVEX
                 break
-            if not pd:
-                status = Status.NONCONVEX
+            if not valid:
+                status = Status.NONCONVEX  # no descent direction even with a shifted Hessian
                 break
             if not np.all(np.isfinite(p)):
                 status = Status.NUMERICAL_ERROR

@@ -230,6 +230,11 @@ def solve_sqp(
 
 
 def _check_sqp_args(problem, step, tol, max_iter, kkt_tol, qp, floor) -> None:
+    if problem.conserve_momentum:
+        raise ValueError(
+            "method='sqp' is the paper's Algorithm 1, which has no momentum constraint; "
+            "use method='newton' or 'conic' for conserve_momentum=True"
+        )
     if problem.batched:
         raise ValueError("method='sqp' solves one problem at a time; pass problem.slice(i)")
     if not (isinstance(step, (int, float)) and 0 < step <= 1):
