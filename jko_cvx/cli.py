@@ -4,7 +4,8 @@
 homogeneous gamma = 1, g1 = exp(-2 v^2) scene of Table ``tab:bu``, with mesh refinement,
 run until the blow-up criterion min dv < eps_v fires; exact T = 0.5), writes the run
 directory and prints the verdict.  ``jko-cvx solve`` solves one collision step with
-every method; ``jko-cvx solvers`` lists the installed conic solvers.
+every method; ``jko-cvx solvers`` lists the installed conic solvers; ``jko-cvx reproduce NAME [--quick]``
+regenerates one of the paper's tables or figures (:mod:`jko_cvx.reproduce`).
 """
 
 from __future__ import annotations
@@ -99,6 +100,28 @@ def _solve_one(args) -> int:
     return 0
 
 
+def _reproduce(args) -> int:
+    from .reproduce import REPRODUCTIONS
+
+    t0 = time.perf_counter()
+    func = REPRODUCTIONS[args.name]
+    func(
+        args.out,
+        quick=args.quick,
+        executor=args.executor,
+        scheduler=args.scheduler,
+        workers=args.workers,
+        progress=True,
+    )
+    wall = time.perf_counter() - t0
+    md = args.out / f"{args.name}.md"
+    if md.exists():
+        print(md.read_text())
+    quick = " --quick" if args.quick else ""
+    print(f"jko-cvx reproduce {args.name}{quick}: {wall:.1f} s; wrote {args.out}/{args.name}.*")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="jko-cvx", description=__doc__.split("\n")[0])
     parser.add_argument("--version", action="version", version=f"jko-cvx {__version__}")
@@ -115,12 +138,25 @@ def main(argv: list[str] | None = None) -> int:
     p_solve.add_argument("--dt", type=float, default=0.01)
     p_solve.add_argument("--beta", type=float, default=10.0)
     sub.add_parser("solvers", help="list the installed conic solvers")
+    from .reproduce import REPRODUCTIONS
+
+    p_rep = sub.add_parser("reproduce", help="regenerate one of the paper's tables or figures beside its numbers")
+    p_rep.add_argument("name", choices=sorted(REPRODUCTIONS), help="which table or figure")
+    p_rep.add_argument("--quick", action="store_true", help="a reduced version (under 2 minutes)")
+    p_rep.add_argument("--out", type=Path, default=Path("results/reproduce"), help="output directory")
+    p_rep.add_argument(
+        "--executor", choices=("process", "serial", "dask"), default="process", help="where sweep points run"
+    )
+    p_rep.add_argument("--scheduler", default=None, help="Dask scheduler address (tcp://host:port)")
+    p_rep.add_argument("--workers", type=int, default=None, help="local workers (default: CPU count)")
     args = parser.parse_args(argv)
     try:
         if args.command == "run":
             return _run_scene(args.scene, args.out, args.resume, args.quiet)
         if args.command == "solve":
             return _solve_one(args)
+        if args.command == "reproduce":
+            return _reproduce(args)
         print("\n".join(conic_solvers()))
         return 0
     except (ValueError, TypeError, FileNotFoundError) as exc:
