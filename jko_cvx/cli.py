@@ -100,6 +100,33 @@ def _solve_one(args) -> int:
     return 0
 
 
+def _compare(args) -> int:
+    from .compare import compare_solvers, problem_from_scene
+    from .scene import load_scene
+
+    if args.scene is not None:
+        prob = problem_from_scene(load_scene(args.scene), args.t)
+        name = f"{args.scene.stem}_t{args.t:g}"
+    else:
+        grid = Grid.uniform(-args.L, args.L, args.n)
+        f0 = np.exp(-2 * grid.points**2)
+        prob = CollisionProblem(grid, PowerKernel(args.gamma), f0, args.dt, beta=args.beta)
+        name = f"builtin_gamma{args.gamma:g}_n{args.n}_dt{args.dt:g}_beta{args.beta:g}"
+    print(prob)
+    df = compare_solvers(prob, repeats=args.repeats)
+    args.out.mkdir(parents=True, exist_ok=True)
+    df.to_csv(args.out / f"{name}.csv", index=False)
+    text = (
+        f"# Solver comparison: {prob!r}\n\nReference: {df.attrs['reference']}.\n\n"
+        + df.to_markdown(index=False, floatfmt=".3g")
+        + "\n"
+    )
+    (args.out / f"{name}.md").write_text(text)
+    print(text)
+    print(f"wrote {args.out}/{name}.csv and .md")
+    return 0
+
+
 def _reproduce(args) -> int:
     from .reproduce import REPRODUCTIONS
 
@@ -149,6 +176,16 @@ def main(argv: list[str] | None = None) -> int:
     )
     p_rep.add_argument("--scheduler", default=None, help="Dask scheduler address (tcp://host:port)")
     p_rep.add_argument("--workers", type=int, default=None, help="local workers (default: CPU count)")
+    p_cmp = sub.add_parser("compare", help="every solver and tolerance on one collision step: one table")
+    p_cmp.add_argument("scene", nargs="?", type=Path, help="scene TOML (default: a built-in problem, see --gamma ...)")
+    p_cmp.add_argument("--t", type=float, default=0.0, help="take the step from the scene's state at this time")
+    p_cmp.add_argument("--gamma", type=float, default=1.0)
+    p_cmp.add_argument("--n", type=int, default=121)
+    p_cmp.add_argument("--L", type=float, default=2.0)
+    p_cmp.add_argument("--dt", type=float, default=0.01)
+    p_cmp.add_argument("--beta", type=float, default=10.0)
+    p_cmp.add_argument("--repeats", type=int, default=5)
+    p_cmp.add_argument("--out", type=Path, default=Path("results/compare"), help="output directory")
     args = parser.parse_args(argv)
     try:
         if args.command == "run":
@@ -157,6 +194,8 @@ def main(argv: list[str] | None = None) -> int:
             return _solve_one(args)
         if args.command == "reproduce":
             return _reproduce(args)
+        if args.command == "compare":
+            return _compare(args)
         print("\n".join(conic_solvers()))
         return 0
     except (ValueError, TypeError, FileNotFoundError) as exc:

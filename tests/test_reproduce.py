@@ -7,7 +7,13 @@ import pandas as pd
 import pytest
 
 from jko_cvx.cli import main
-from jko_cvx.reproduce import reproduce_ibu, reproduce_tab_bu, reproduce_tab_bu_tb2
+from jko_cvx.reproduce import (
+    reproduce_gk1_records,
+    reproduce_ibu,
+    reproduce_inhom_gamma3,
+    reproduce_tab_bu,
+    reproduce_tab_bu_tb2,
+)
 from jko_cvx.reproduce.blowup_tables import blowup_scene
 from jko_cvx.reproduce.ibu import ibu_scene
 from jko_cvx.scene import load_scene
@@ -59,3 +65,23 @@ def test_quick_tab_bu_tb2_and_the_command_line(tmp_path, capsys):
     assert "g4" in capsys.readouterr().out
     df = reproduce_tab_bu_tb2(tmp_path, quick=True, executor="serial", progress=False)
     assert df.cached.all()  # the second call reads every point from the cache
+
+
+@pytest.mark.slow
+def test_quick_inhomogeneous_gamma3_conserves_and_does_not_blow_up(tmp_path):
+    summary = reproduce_inhom_gamma3(tmp_path, quick=True, executor="serial", progress=False)
+    assert (tmp_path / "inhom_gamma3_properties.png").exists()
+    assert not summary["blow-up flagged"].any()
+    assert (summary["mass drift"] <= 1e-12).all() and (summary["momentum drift"] <= 1e-12).all()
+    assert (summary["moment2 increases"] == 0).all()
+    # lambda = 10 concentrates far more than lambda = 4 (the paper's Dirac-like state at x = 0)
+    assert summary["max f (peak)"].iloc[1] > 10 * summary["max f (peak)"].iloc[0]
+
+
+@pytest.mark.slow
+def test_quick_gk1_records_halve_the_step_only_with_the_papers_sqp(tmp_path):
+    summary = reproduce_gk1_records(tmp_path, quick=True, executor="serial", progress=False)
+    fixed = summary[summary.policy == "fixed"]
+    assert (fixed.min_dv_at_end < 5e-4).all()  # refinement follows the collapse
+    adaptive = summary[summary.policy == "halving"].iloc[0]
+    assert adaptive.steps_below_dt0 > 0 and adaptive.smallest_dt < 0.01

@@ -106,7 +106,11 @@ class _OsqpStep:
         lo = np.r_[np.zeros(n), self.floor - f]
         hi = np.r_[np.zeros(n), np.full(n, np.inf)]
         self.solver.update(Px=pdiag, q=np.r_[gf, gm], l=lo, u=hi)
-        res = self.solver.solve()
+        # raise_error=False: a failed subproblem is reported through its status (checked below)
+        try:
+            res = self.solver.solve(raise_error=False)
+        except TypeError:  # osqp < 1.0 has no raise_error and never raises
+            res = self.solver.solve()
         self.status = str(res.info.status)
         if res.x is None or not np.all(np.isfinite(res.x)):
             raise FloatingPointError(f"OSQP failed: {self.status}")

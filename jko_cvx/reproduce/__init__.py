@@ -9,11 +9,22 @@ from __future__ import annotations
 
 from .blowup_tables import reproduce_tab_bu, reproduce_tab_bu_tb2
 from .ibu import reproduce_ibu
+from .inhomogeneous import reproduce_inhom_gamma3
+from .records import reproduce_gk1_records
 
 REPRODUCTIONS = {
     "tab_bu": reproduce_tab_bu,
     "tab_bu_tb2": reproduce_tab_bu_tb2,
     "ibu": reproduce_ibu,
+    "gk1_records": reproduce_gk1_records,
+    "inhom_gamma3": reproduce_inhom_gamma3,
 }
 
-__all__ = ["REPRODUCTIONS", "reproduce_ibu", "reproduce_tab_bu", "reproduce_tab_bu_tb2"]
+__all__ = [
+    "REPRODUCTIONS",
+    "reproduce_gk1_records",
+    "reproduce_ibu",
+    "reproduce_inhom_gamma3",
+    "reproduce_tab_bu",
+    "reproduce_tab_bu_tb2",
+]
