@@ -309,6 +309,5 @@ def remap_periodic(old, f: ArrayLike, new, floor: float = 1e-10, axis: int = 0) 
     """:func:`remap` for periodic grids (``PeriodicGrid``): periodic PCHIP, floor, per-line mass."""
     f = np.moveaxis(np.asarray(f, dtype=float), axis, -1)
     g = old.pchip(f, axis=-1)(new.points)
-    g = np.maximum(g, floor)
-    g = g * ((f @ old.h) / (g @ new.h))[..., None]
+    g, _ = restore_moments(np.maximum(g, floor), new.h, new.points, f @ old.h)
     return np.moveaxis(g, -1, axis)

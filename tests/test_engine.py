@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from jko_cvx.reproduce.ibu import bump_positions
 from jko_cvx.scene import SceneError, default_scene, load_scene, scene_from_dict
 from jko_cvx.simulate import simulate
 
@@ -170,16 +171,6 @@ def test_inhomogeneous_gamma3_lambda4_to_t4():
     assert np.abs(d.momentum).max() <= 1e-10  # measured 1.4e-15 (momentum-conserving step)
 
 
-def _peak_positions(run):
-    ts, ps = [], []
-    for sn in run.snapshots:
-        v, f = sn["v"], sn["f"]
-        pos = v > 0
-        ts.append(sn["t"])
-        ps.append(v[pos][np.argmax(f[pos])])
-    return np.array(ts), np.array(ps)
-
-
 def test_gamma3_bumps_approach_zero_like_one_over_t():
     """sec:ibu to t = 20: two bumps of mass M/2 at +-p obey p' = -2 M p^2, p = p0/(1 + 2 M p0 t).
 
@@ -195,22 +186,13 @@ def test_gamma3_bumps_approach_zero_like_one_over_t():
     assert not run.blowup and run.t == pytest.approx(20.0)
     M = run.diagnostics.mass.iloc[0]
     law = lambda t: 1.5 / (1 + 2 * M * 1.5 * t)  # noqa: E731
-    ts, ps = _peak_positions(run)
-    late = ts >= 10
-    slope = np.polyfit(np.log(ts[late]), np.log(ps[late]), 1)[0]
+    b = bump_positions(run.snapshots)
+    late = b[b.t >= 10]
+    slope = np.polyfit(np.log(late.t), np.log(late.peak), 1)[0]
     assert abs(slope + 1) <= 0.15, slope
-    tc, cm = _centres_of_mass(run)
-    assert np.all(np.abs(cm[late] / law(tc[late]) - 1) <= 0.03), list(zip(tc, cm / law(tc), strict=True))
+    dev = late.centre_of_mass / law(late.t) - 1
+    assert np.all(np.abs(dev) <= 0.03), list(zip(late.t, dev, strict=True))
     eager = simulate(dataclasses.replace(s, refine_v=dataclasses.replace(s.refine_v, tol=0.0)))
-    te, ce = _centres_of_mass(eager)
-    assert eager.blowup or np.any(np.abs(ce[te >= 10] / law(te[te >= 10]) - 1) > 0.05)
-
-
-def _centres_of_mass(run):
-    ts, cs = [], []
-    for sn in run.snapshots:
-        v, f = sn["v"], sn["f"]
-        pos = v > 0
-        ts.append(sn["t"])
-        cs.append((v[pos] * f[pos]).sum() / f[pos].sum())
-    return np.array(ts), np.array(cs)
+    e = bump_positions(eager.snapshots)
+    e = e[e.t >= 10]
+    assert eager.blowup or np.any(np.abs(e.centre_of_mass / law(e.t) - 1) > 0.05)

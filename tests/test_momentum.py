@@ -16,6 +16,8 @@ from jko_cvx.scene import Scene, SceneError, load_scene, scene_from_dict
 from jko_cvx.simulate import simulate
 from jko_cvx.testing import random_problem
 
+from .test_engine import BASE
+
 SCENES = Path(__file__).parent.parent / "studies" / "scenes"
 
 
@@ -106,13 +108,7 @@ def test_sqp_refuses_the_momentum_constraint():
     prob = _constrained(random_problem(np.random.default_rng(0), 1.0, n=31))
     with pytest.raises(ValueError, match="conserve_momentum"):
         solve_collision(prob, "sqp")
-    d = {
-        "gamma": 1.0,
-        "t_end": 0.1,
-        "v": {"L": 2.0, "n": 41},
-        "initial": {"kind": "gaussians", "amplitudes": [1.0], "rates": [2.0], "centres": [0.0]},
-        "time": {"dt": 0.01},
-    }
+    d = BASE
     assert scene_from_dict({**d, "collision": {"method": "sqp"}}).conserve_momentum is False
     assert scene_from_dict(d).conserve_momentum is True
     with pytest.raises(SceneError, match=r"collision\.conserve_momentum"):

@@ -17,7 +17,7 @@ import pandas as pd
 from ..scene import Scene, scene_from_dict
 from ..simulate import simulate
 
-__all__ = ["ibu_scene", "reproduce_ibu"]
+__all__ = ["bump_positions", "ibu_scene", "reproduce_ibu"]
 
 
 def ibu_scene(t_end: float = 20.0) -> Scene:
@@ -39,6 +39,22 @@ def ibu_scene(t_end: float = 20.0) -> Scene:
     )
 
 
+def bump_positions(snapshots) -> pd.DataFrame:
+    """Per snapshot: t, the peak position (argmax of f over v > 0) and the v > 0 bump's centre of mass."""
+    rows = []
+    for sn in snapshots:
+        v, f = sn["v"], sn["f"]
+        pos = v > 0
+        rows.append(
+            {
+                "t": sn["t"],
+                "peak": float(v[pos][np.argmax(f[pos])]),
+                "centre_of_mass": float((v[pos] * f[pos]).sum() / f[pos].sum()),
+            }
+        )
+    return pd.DataFrame(rows)
+
+
 def reproduce_ibu(out: Path, quick: bool = False, **_sweep_opts) -> pd.DataFrame:
     """Run ``sec:ibu`` (to t = 20; ``quick``: t = 5) and compare the peaks with the point-mass law.
 
@@ -51,19 +67,8 @@ def reproduce_ibu(out: Path, quick: bool = False, **_sweep_opts) -> pd.DataFrame
     run = simulate(ibu_scene(t_end))
     wall = time.perf_counter() - t0
     M = float(run.diagnostics.mass.iloc[0])
-    rows = []
-    for sn in run.snapshots:
-        v, f = sn["v"], sn["f"]
-        pos = v > 0
-        rows.append(
-            {
-                "t": sn["t"],
-                "peak": float(v[pos][np.argmax(f[pos])]),
-                "centre_of_mass": float((v[pos] * f[pos]).sum() / f[pos].sum()),
-                "law": 1.5 / (1 + 2 * M * 1.5 * sn["t"]),
-            }
-        )
-    df = pd.DataFrame(rows)
+    df = bump_positions(run.snapshots)
+    df["law"] = 1.5 / (1 + 2 * M * 1.5 * df.t)
     late = df.t >= t_end / 2
     slope_peak = float(np.polyfit(np.log(df.t[late]), np.log(df.peak[late]), 1)[0])
     slope_com = float(np.polyfit(np.log(df.t[late]), np.log(df.centre_of_mass[late]), 1)[0])
