@@ -17,7 +17,10 @@ and 2).  Where the reduced Hessian is not positive definite (the energy is conca
 some directions) a diagonally shifted one gives the step (modified Newton).  The step is
 damped by the fraction to the boundary (iterates stay strictly positive) and an Armijo
 backtracking line search on :math:`\\\\phi` itself (the merit function: iterates are
-exactly feasible).  The solver terminates on the KKT residual of
+exactly feasible).  A slice whose iterates jam at the vacuum boundary (a run of tiny
+steps while the model still promises a decrease) is solved again with interior damping:
+Levenberg-Marquardt in the relative metric of f (``info["interior_damping"]``).  The
+solver terminates on the KKT residual of
 :class:`~jko_cvx.collision.problem.CollisionProblem`, never on step length alone.
 
 Statuses: ``CONVERGED`` (KKT residual within tolerance and the reduced Hessian positive
@@ -46,6 +49,15 @@ __all__ = ["solve_newton"]
 
 _FRACTION_TO_BOUNDARY = 0.995
 _ARMIJO = 1e-4
+# Interior damping (see _interior_damped): a damped step may lower no f_j below
+# (1 - _KEEP) f_j.  Measured on sec:ibu to t = 1: 1230 Newton iterations at 0.99, 1413 at
+# 0.9, 1782 undamped, and more with 0.5 (each step may then only halve a tail value).
+_KEEP = 0.99
+# Jam detection: _JAM consecutive accepted steps shorter than _JAM_STEP (while the Newton
+# decrement still promises a decrease) end the undamped attempt, and solve_newton solves
+# that slice again with interior damping (see _interior_damped).
+_JAM = 5
+_JAM_STEP = 1e-3
 _MAX_BACKTRACKS = 60
 # Tolerance of the positive-definiteness test on the Jacobi-scaled (unit-diagonal) reduced
 # Hessian: smallest eigenvalue >= -_PD_TOL counts as convex (the factorised matrix is
@@ -232,6 +244,56 @@ def _direction(problem: CollisionProblem, bands, g: NDArray) -> tuple[NDArray, N
     return p, pd, valid
 
 
+def _interior_damped(
+    problem: CollisionProblem, bands, g: NDArray, f: NDArray, p: NDArray, jammed: NDArray[np.bool_]
+) -> tuple[NDArray, NDArray[np.float64]]:
+    """Where the Newton step would leave the domain, damp it in the relative metric of f.
+
+    A minimiser close to the vacuum boundary (a density tail of 1e-11 next to mass 1e-5)
+    sits where the quadratic model is poor: the Newton step asks for more mass than the
+    node holds, the fraction to the boundary cuts it to a 200-fold decrease, and the
+    iterates jam geometrically at the boundary (measured: a Gaussian on [-3, 3] at
+    N = 121, dt = 0.01, beta = 30 stuck at KKT 7.5e-3 with f = 5e-26).  Levenberg-Marquardt
+    in the metric :math:`\\sum_j (\\delta f_j / f_j)^2` fixes the shape of the step, not
+    only its length: the direction solves :math:`(H + \\mu T^\\top \\operatorname{diag}(f^{-2}) T) p = -g`
+    (a tridiagonal addition to the bands), with :math:`\\mu` raised tenfold from
+    :math:`10^{-2} |g^\\top p|` until the full step keeps every :math:`f_j` above
+    :math:`f_j / 100`.  It is a descent direction for any :math:`\\mu \\ge 0`, and as the
+    iterates settle the undamped step stays inside, so the local convergence stays Newton's.
+
+    Returns the directions and the fraction-to-boundary step lengths, for a batch
+    (arrays of shape ``(B, ...)``).
+    """
+    h = problem.grid.h
+    _, _, _, aa, _, bb, _, o1b, _, _ = _band_coefficients(problem.grid)
+    pf = -divergence(p) / h
+    alpha = _boundary_step(f, pf)
+    todo = jammed & (alpha < 1.0)
+    mu = 1e-2 * np.abs(np.einsum("bi,bi->b", g, p))
+    for _ in range(12):
+        if not todo.any():
+            break
+        idx = np.flatnonzero(todo)
+        c = mu[idx, None] / (f[idx] * f[idx])
+        diag, off1, off2 = (band[idx] for band in bands)
+        sub = (diag + aa * c[:, :-1] + bb * c[:, 1:], off1 + o1b * c[:, 1:-1], off2)
+        q, _, valid = _direction(problem, sub, g[idx])  # uses the grid and the energy, not f*
+        ok = valid & np.all(np.isfinite(q), axis=-1)
+        qf = -divergence(q) / h
+        inside = ok & np.all(qf >= -_KEEP * f[idx], axis=-1)
+        p[idx[ok]] = q[ok]
+        alpha[idx[ok]] = _boundary_step(f[idx[ok]], qf[ok])
+        todo[idx[inside | ~ok]] = False
+        mu[idx] *= 10.0
+    return p, alpha
+
+
+def _boundary_step(f: NDArray, pf: NDArray) -> NDArray[np.float64]:
+    """Fraction-to-the-boundary step length along a direction with f-components ``pf``."""
+    ratio = np.where(pf < 0, -f / np.where(pf < 0, pf, -1.0), np.inf)
+    return np.minimum(1.0, _FRACTION_TO_BOUNDARY * ratio.min(axis=-1))
+
+
 def _on_momentum_plane(problem: CollisionProblem, m: NDArray) -> NDArray:
     """Euclidean projection of fluxes onto ``sum_k m_k dv_k = 0`` (identity without the constraint)."""
     if not problem.conserve_momentum:
@@ -326,11 +388,46 @@ def solve_newton(
         raise ValueError(f"start must be 'explicit' or 'zero', got {start!r}")
     t0 = time.perf_counter()
     if not problem.batched:
-        return _solve_single(problem, tol, max_iter, m0, start, check_convexity, t0)
-    batched = problem.batched
-    F_star = np.atleast_2d(problem.f_star)
+        res = _solve_single(problem, tol, max_iter, m0, start, check_convexity, t0, False)
+        if res.status in _RETRY and np.all(problem.f_star > 0):
+            again = _solve_single(problem, tol, max_iter, m0, start, check_convexity, t0, True)
+            again.iterations += res.iterations
+            again.info["interior_damping"] = True
+            return again
+        res.info["interior_damping"] = False
+        return res
+    res = _solve_batched(problem, tol, max_iter, m0, start, check_convexity, t0, False)
+    retry = np.array([st in _RETRY for st in res.status]) & np.all(problem.f_star > 0, axis=-1)
+    res.info["interior_damping"] = retry
+    if retry.any():
+        sub = problem.with_f_star(problem.f_star[retry])
+        m0r = None if m0 is None else np.broadcast_to(np.asarray(m0, dtype=float), res.m.shape)[retry]
+        again = _solve_batched(sub, tol, max_iter, m0r, start, check_convexity, t0, True)
+        for name in ("f", "m", "objective", "kkt_residual", "mass_error"):
+            getattr(res, name)[retry] = getattr(again, name)
+        res.status[retry] = again.status
+        res.iterations[retry] += again.iterations
+        res.seconds = time.perf_counter() - t0
+    return res
+
+
+# Statuses after which a slice is solved again with interior damping.
+_RETRY = (Status.MAX_ITERATIONS, Status.NUMERICAL_ERROR)
+
+
+def _solve_batched(
+    P: CollisionProblem,
+    tol: float,
+    max_iter: int,
+    m0: Any,
+    start: str,
+    check_convexity: bool,
+    t0: float,
+    damping: bool,
+) -> CollisionResult:
+    """The batched Newton loop of :func:`solve_newton`; ``damping`` turns interior damping on."""
+    F_star = P.f_star
     B, n = F_star.shape
-    P = problem if batched else problem.with_f_star(F_star)
     h = P.grid.h
     m = np.zeros((B, n - 1))
     warm = np.zeros(B, dtype=bool)
@@ -352,6 +449,8 @@ def solve_newton(
     # stopping test) is worth its cost at the new point.
     near = np.zeros(B, dtype=bool)
     stall = np.zeros(B, dtype=int)
+    damped = np.full(B, damping)
+    flat = np.zeros(B, dtype=int)  # consecutive jammed iterations, per slice
     dec_last = np.full(B, np.inf)
     kkt_here = np.zeros(B, dtype=bool)  # kkt_last belongs to the current (f, m)
     active = status == None  # noqa: E711 (object array): slices still iterating
@@ -406,9 +505,7 @@ def solve_newton(
             sel, g, p = idx[go], g[go], p[go]
             fa, ma = fa[go], ma[go]
             Pl = P.with_f_star(F_star[sel]) if sel.size < B else P
-            pf = -divergence(p) / h
-            ratio = np.where(pf < 0, -fa / np.where(pf < 0, pf, -1.0), np.inf)
-            alpha = np.minimum(1.0, _FRACTION_TO_BOUNDARY * ratio.min(axis=-1))
+            p, alpha = _interior_damped(Pl, tuple(band[go] for band in bands), g, fa, p, damped[sel])
             phi0 = phi[sel]
             slope = np.einsum("bi,bi->b", g, p)
             dec = -slope / np.maximum(np.abs(phi0), np.finfo(float).tiny)
@@ -446,6 +543,12 @@ def solve_newton(
                 phi[up] = _objective_interior(Pu, f[up], m[up])
             iters[upd] += 1
             kkt_here[upd] = False
+            if not damping:  # jam: tiny accepted steps where the model promises a decrease
+                tiny_step = (alpha[accepted] < _JAM_STEP) & (dec[accepted] > 1e-12)
+                flat[upd] = np.where(tiny_step, flat[upd] + 1, 0)
+                jam = upd[flat[upd] >= _JAM]
+                status[jam] = Status.MAX_ITERATIONS
+                active[jam] = False
         # Results: project (clip rounding, exact mass); re-evaluate the residual only where
         # the projection moved f beyond rounding or no residual was computed.
         # Iterates are feasible and positive by construction: return them as they are (the
@@ -468,21 +571,8 @@ def solve_newton(
         objective = P.objective(f_out, m_out)
     seconds = time.perf_counter() - t0
     mass_error = P.mass_error(f_out)
-    if batched:
-        return CollisionResult(
-            f_out, m_out, status, "newton", iters, objective, kkt_all, mass_error, seconds, {"warm_started": warm}
-        )
     return CollisionResult(
-        f_out[0],
-        m_out[0],
-        status[0],
-        "newton",
-        int(iters[0]),
-        float(objective[0]),
-        float(kkt_all[0]),
-        float(mass_error[0]),
-        seconds,
-        {"warm_started": bool(warm[0])},
+        f_out, m_out, status, "newton", iters, objective, kkt_all, mass_error, seconds, {"warm_started": warm}
     )
 
 
@@ -514,7 +604,7 @@ def _explicit_start(P: CollisionProblem, F_star: NDArray, m: NDArray, use: NDArr
 
 
 def _solve_single(
-    P: CollisionProblem, tol: float, max_iter: int, m0: Any, start: str, check_convexity: bool, t0: float
+    P: CollisionProblem, tol: float, max_iter: int, m0: Any, start: str, check_convexity: bool, t0: float, damped: bool
 ) -> CollisionResult:
     """The same algorithm as the batched loop of :func:`solve_newton`, on plain 1-D arrays.
 
@@ -533,6 +623,7 @@ def _solve_single(
         if np.all(np.isfinite(cand)) and np.all(fc > 0):
             m, warm = cand.copy(), True
     status, iters, kkt, stall, dec_last, kkt_here = None, 0, np.nan, 0, np.inf, False
+    flat = 0  # consecutive jammed iterations
     if not np.all(f_star > 0):
         status = Status.NUMERICAL_ERROR
     tiny = np.finfo(float).tiny
@@ -568,9 +659,10 @@ def _solve_single(
             if not np.all(np.isfinite(p)):
                 status = Status.NUMERICAL_ERROR
                 break
-            pf = -divergence(p) / h
-            neg = pf < 0
-            alpha = min(1.0, _FRACTION_TO_BOUNDARY * float(np.min(-f[neg] / pf[neg]))) if neg.any() else 1.0
+            pb, ab = _interior_damped(
+                P, tuple(band[None] for band in bands), g[None], f[None], p[None].copy(), np.array([damped])
+            )
+            p, alpha = pb[0], float(ab[0])
             slope = float(g @ p)
             dec = dec_last = -slope / max(abs(phi), tiny)
             near = dec <= max(tol, 1e-13)
@@ -592,6 +684,11 @@ def _solve_single(
                     break
             iters += 1
             kkt_here = False
+            if not damped:  # jam: tiny accepted steps where the model promises a decrease
+                flat = flat + 1 if (alpha < _JAM_STEP and dec > 1e-12) else 0
+                if flat >= _JAM:
+                    status = Status.MAX_ITERATIONS
+                    break
         # The iterates are feasible by construction (f = f* - Dm/h) and strictly positive:
         # return the last one itself, so the residual reported is that of the returned point.
         if np.all(f > 0):
