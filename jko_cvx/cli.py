@@ -127,26 +127,47 @@ def _compare(args) -> int:
     return 0
 
 
+def _study(args) -> int:
+    from .benchmarks import STUDIES
+
+    return _run_named("study", STUDIES[args.name], args, progress_kw={})
+
+
 def _reproduce(args) -> int:
     from .reproduce import REPRODUCTIONS
 
+    return _run_named("reproduce", REPRODUCTIONS[args.name], args, progress_kw={"progress": True})
+
+
+def _run_named(command: str, func, args, progress_kw: dict) -> int:
+    """Run one named reproduction or study with the sweep options, print its Markdown table and wall time."""
     t0 = time.perf_counter()
-    func = REPRODUCTIONS[args.name]
     func(
         args.out,
         quick=args.quick,
         executor=args.executor,
         scheduler=args.scheduler,
         workers=args.workers,
-        progress=True,
+        **progress_kw,
     )
     wall = time.perf_counter() - t0
     md = args.out / f"{args.name}.md"
     if md.exists():
         print(md.read_text())
     quick = " --quick" if args.quick else ""
-    print(f"jko-cvx reproduce {args.name}{quick}: {wall:.1f} s; wrote {args.out}/{args.name}.*")
+    print(f"jko-cvx {command} {args.name}{quick}: {wall:.1f} s; wrote {args.out}/{args.name}*")
     return 0
+
+
+def _sweep_arguments(parser: argparse.ArgumentParser, out: str, executor: str, quick_help: str) -> None:
+    """The options shared by ``reproduce`` and ``study``: quick form, output, where sweep points run."""
+    parser.add_argument("--quick", action="store_true", help=quick_help)
+    parser.add_argument("--out", type=Path, default=Path(out), help="output directory")
+    parser.add_argument(
+        "--executor", choices=("process", "serial", "dask"), default=executor, help="where sweep points run"
+    )
+    parser.add_argument("--scheduler", default=None, help="Dask scheduler address (tcp://host:port)")
+    parser.add_argument("--workers", type=int, default=None, help="local workers (default: CPU count)")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -169,13 +190,13 @@ def main(argv: list[str] | None = None) -> int:
 
     p_rep = sub.add_parser("reproduce", help="regenerate one of the paper's tables or figures beside its numbers")
     p_rep.add_argument("name", choices=sorted(REPRODUCTIONS), help="which table or figure")
-    p_rep.add_argument("--quick", action="store_true", help="a reduced version (under 2 minutes)")
-    p_rep.add_argument("--out", type=Path, default=Path("results/reproduce"), help="output directory")
-    p_rep.add_argument(
-        "--executor", choices=("process", "serial", "dask"), default="process", help="where sweep points run"
-    )
-    p_rep.add_argument("--scheduler", default=None, help="Dask scheduler address (tcp://host:port)")
-    p_rep.add_argument("--workers", type=int, default=None, help="local workers (default: CPU count)")
+    _sweep_arguments(p_rep, "results/reproduce", "process", "a reduced version (under 2 minutes)")
+    from .benchmarks import STUDIES
+
+    p_std = sub.add_parser("study", help="a solver study: work-precision diagrams, cost growth, the extremes matrix")
+    p_std.add_argument("name", choices=sorted(STUDIES), help="which study")
+    # serial by default: the studies time their runs, which must not share the cores
+    _sweep_arguments(p_std, "results/study", "serial", "a reduced version (about a minute)")
     p_cmp = sub.add_parser("compare", help="every solver and tolerance on one collision step: one table")
     p_cmp.add_argument("scene", nargs="?", type=Path, help="scene TOML (default: a built-in problem, see --gamma ...)")
     p_cmp.add_argument("--t", type=float, default=0.0, help="take the step from the scene's state at this time")
@@ -196,6 +217,8 @@ def main(argv: list[str] | None = None) -> int:
             return _reproduce(args)
         if args.command == "compare":
             return _compare(args)
+        if args.command == "study":
+            return _study(args)
         print("\n".join(conic_solvers()))
         return 0
     except (ValueError, TypeError, FileNotFoundError) as exc:

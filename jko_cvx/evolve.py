@@ -57,7 +57,7 @@ def evolve_fixed_grid(
     strength: float = 1.0,
     beta: float = np.inf,
     fisher: str | None = "perspective",
-    method: str = "sqp",
+    method: str = "newton",
     stop_on_failure: bool = True,
     progress: bool = False,
     **options: Any,
@@ -74,8 +74,11 @@ def evolve_fixed_grid(
         Time step.
     t_end : float
         Final time (> 0).
-    method : str, default "sqp"
-        Collision solver; ``options`` are passed to it.
+    method : str, default "newton"
+        Collision solver; ``options`` are passed to it.  Newton is the default because it
+        reaches the same error against the exact solutions 4-19 times faster than the
+        conic reference and converges where the paper's SQP fails on vacuum tails
+        (``jko-cvx study work_precision_run``, studies/results/work_precision_run.md).
     stop_on_failure : bool, default True
         Stop at the first step whose result is not a success (the run is marked
         ``completed=False``); otherwise carry on with the returned density.

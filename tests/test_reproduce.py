@@ -8,6 +8,7 @@ import pytest
 
 from jko_cvx.cli import main
 from jko_cvx.reproduce import (
+    reproduce_explicit,
     reproduce_gk1_records,
     reproduce_ibu,
     reproduce_inhom_gamma3,
@@ -85,3 +86,23 @@ def test_quick_gk1_records_halve_the_step_only_with_the_papers_sqp(tmp_path):
     assert (fixed.min_dv_at_end < 5e-4).all()  # refinement follows the collapse
     adaptive = summary[summary.policy == "halving"].iloc[0]
     assert adaptive.steps_below_dt0 > 0 and adaptive.smallest_dt < 0.01
+
+
+def test_explicit_ode1_matches_the_closed_forms_and_the_threshold(tmp_path):
+    """sec: explicit: DOP853 on ode1 against rhot / mt (independent), and the width rho/m -> 0 iff
+    lambda rho0 T / 2 > 1 (threshold thres, lambda ~ 309.8 for the sec:sp_inhom_gamma_2 data)."""
+    import numpy as np
+
+    from jko_cvx.reproduce.explicit import RHO0, T, closed_form, solve_ode1
+
+    df = reproduce_explicit(tmp_path, quick=True)
+    assert (tmp_path / "explicit.md").exists() and (tmp_path / "explicit.png").exists()
+    # conditioning of a blow-up: relative difference ~ rtol * T/(T - t)
+    assert (df["rho rel. diff"] <= 1e-10 / df["(T-t)/T"]).all() and (df["m rel. diff"] <= 1e-10 / df["(T-t)/T"]).all()
+    assert 2 / (RHO0 * T) == pytest.approx(20 * np.sqrt(240))
+    t = T * (1 - np.array([1e-3, 1e-6]))
+    for lam, closes in ((300.0, False), (320.0, True)):
+        w = solve_ode1(t, lam)
+        width = w["rho"] / w["m"]
+        assert bool(width[1] < width[0]) is closes
+        assert width == pytest.approx(closed_form(t, lam)["rho"] / closed_form(t, lam)["m"], rel=1e-6)

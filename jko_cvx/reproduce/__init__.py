@@ -8,6 +8,7 @@ run on a local process pool or a Dask cluster (:mod:`jko_cvx.sweep`).
 from __future__ import annotations
 
 from .blowup_tables import reproduce_tab_bu, reproduce_tab_bu_tb2
+from .explicit import reproduce_explicit
 from .ibu import reproduce_ibu
 from .inhomogeneous import reproduce_inhom_gamma3
 from .records import reproduce_gk1_records
@@ -18,10 +19,12 @@ REPRODUCTIONS = {
     "ibu": reproduce_ibu,
     "gk1_records": reproduce_gk1_records,
     "inhom_gamma3": reproduce_inhom_gamma3,
+    "explicit": reproduce_explicit,
 }
 
 __all__ = [
     "REPRODUCTIONS",
+    "reproduce_explicit",
     "reproduce_gk1_records",
     "reproduce_ibu",
     "reproduce_inhom_gamma3",

@@ -1,0 +1,29 @@
+"""Solver studies of issue 6: ``jko-cvx study NAME [--quick]``.
+
+Each entry writes a CSV and a Markdown table and PNG figures into the output directory
+(``studies/results/`` for the shipped ones):
+
+* ``work_precision_step``: error against time for one collision step, every solver family
+  over its tolerance sweep (:mod:`.workprecision`);
+* ``work_precision_run``: error against time for whole homogeneous runs against the exact
+  solutions, sweeping dt, N, the tolerance and the Fisher weight (:mod:`.workprecision`);
+* ``cost_growth``: time per collision step and per time step against N_v and N_x, batched
+  and one at a time, with fitted exponents (:mod:`.cost`);
+* ``extremes``: the matrix of hard cases against every solver, outcomes classified as
+  certified, flagged or silently wrong (:mod:`.extremes`).
+"""
+
+from __future__ import annotations
+
+from .cost import cost_growth
+from .extremes import extremes, extremes_matrix
+from .workprecision import work_precision_run, work_precision_step
+
+STUDIES = {
+    "work_precision_step": work_precision_step,
+    "work_precision_run": work_precision_run,
+    "cost_growth": cost_growth,
+    "extremes": extremes,
+}
+
+__all__ = ["STUDIES", "cost_growth", "extremes", "extremes_matrix", "work_precision_run", "work_precision_step"]
