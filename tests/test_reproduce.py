@@ -15,7 +15,7 @@ from jko_cvx.reproduce import (
     reproduce_tab_bu,
     reproduce_tab_bu_tb2,
 )
-from jko_cvx.reproduce.blowup_tables import blowup_scene
+from jko_cvx.reproduce.blowup_tables import TAB_BU_BETA, TAB_BU_TB2_BETA, blowup_scene
 from jko_cvx.reproduce.ibu import ibu_scene
 from jko_cvx.scene import load_scene
 
@@ -25,7 +25,7 @@ SCENES = Path(__file__).parent.parent / "studies" / "scenes"
 @pytest.mark.parametrize("data, eps_v", [("g1", 2.5e-4), ("g2", 2.5e-4), ("g3", 2.5e-4), ("g4", 1.25e-4)])
 def test_table_scenes_are_the_shipped_ones(data, eps_v):
     shipped = load_scene(SCENES / f"tab_bu_{data}.toml")
-    built = blowup_scene(data, eps_v, 0.01)
+    built = blowup_scene(data, eps_v, 0.01, TAB_BU_TB2_BETA if data == "g4" else TAB_BU_BETA)
     same = ("gamma", "v_L", "v_n", "initial", "dt", "refine_v", "beta", "fisher", "eps_v", "stop_on_solver_failure")
     for name in same:
         assert getattr(built, name) == getattr(shipped, name), name

@@ -27,7 +27,7 @@ __all__ = ["record_run", "reproduce_gk1_records"]
 
 def record_run(data: str, delta0: float, policy: str, t_end: float) -> dict[str, Any]:
     """One sweep point: the records (t, dt, min dv, max f) of a gamma = 1 run."""
-    s = blowup_scene(data, 0.0, 0.01)
+    s = blowup_scene(data, 0.0, 0.01, beta=1000.0)  # the weight the shipped gk1 records were run with
     s = dataclasses.replace(s, refine_v=dataclasses.replace(s.refine_v, delta0=delta0), t_end=t_end)
     if policy == "halving":
         s = dataclasses.replace(
