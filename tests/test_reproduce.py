@@ -106,3 +106,34 @@ def test_explicit_ode1_matches_the_closed_forms_and_the_threshold(tmp_path):
         width = w["rho"] / w["m"]
         assert bool(width[1] < width[0]) is closes
         assert width == pytest.approx(closed_form(t, lam)["rho"] / closed_form(t, lam)["m"], rel=1e-6)
+
+
+def test_mesh_maps_put_delta_n_points_in_the_set(tmp_path):
+    """fig:mr_demon / fig:mr_demon_mu2: about delta N = 0.5 N points in {f > delta0 max f}, remap mass exact."""
+    from jko_cvx.reproduce import reproduce_mesh_maps
+
+    df = reproduce_mesh_maps(tmp_path)
+    assert (tmp_path / "fig_mr_demon.png").exists() and (tmp_path / "fig_mr_demon_mu2.png").exists()
+    assert df["points in set (share)"].between(0.45, 0.6).all()
+    assert (df["refined min dv"] < df["uniform min dv"] / 4).all()
+    assert (df["remap mass error"] <= 1e-13).all()
+
+
+@pytest.mark.parametrize("case", ["before", "after"])
+def test_gamma1p5_scenes_are_the_shipped_ones(case):
+    from jko_cvx.reproduce.gamma1p5 import gamma1p5_scene
+
+    shipped, built = load_scene(SCENES / f"inhom_gamma1p5_{case}.toml"), gamma1p5_scene(case)
+    for f in dataclasses.fields(shipped):
+        if f.name not in ("description",):
+            assert getattr(built, f.name) == getattr(shipped, f.name), f.name
+
+
+@pytest.mark.slow
+def test_quick_gamma1p5_blows_up_in_v(tmp_path):
+    """41 x 41 quick form (~1 min): both cases blow up in v (B_v), mass conserved."""
+    from jko_cvx.reproduce import reproduce_inhom_gamma1p5
+
+    df = reproduce_inhom_gamma1p5(tmp_path, quick=True, executor="serial", progress=False)
+    assert df.blowup.all() and df.B_v.all() and not df.B_x.any()
+    assert (df.mass_drift <= 1e-12).all()

@@ -9,8 +9,10 @@ from __future__ import annotations
 
 from .blowup_tables import reproduce_tab_bu, reproduce_tab_bu_tb2
 from .explicit import reproduce_explicit
+from .gamma1p5 import reproduce_inhom_gamma1p5
 from .ibu import reproduce_ibu
 from .inhomogeneous import reproduce_inhom_gamma3
+from .mesh_maps import reproduce_mesh_maps
 from .records import reproduce_gk1_records
 
 REPRODUCTIONS = {
@@ -20,6 +22,8 @@ REPRODUCTIONS = {
     "gk1_records": reproduce_gk1_records,
     "inhom_gamma3": reproduce_inhom_gamma3,
     "explicit": reproduce_explicit,
+    "mesh_maps": reproduce_mesh_maps,
+    "inhom_gamma1p5": reproduce_inhom_gamma1p5,
 }
 
 __all__ = [
@@ -27,7 +31,9 @@ __all__ = [
     "reproduce_explicit",
     "reproduce_gk1_records",
     "reproduce_ibu",
+    "reproduce_inhom_gamma1p5",
     "reproduce_inhom_gamma3",
+    "reproduce_mesh_maps",
     "reproduce_tab_bu",
     "reproduce_tab_bu_tb2",
 ]
