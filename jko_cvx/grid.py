@@ -210,7 +210,10 @@ class PeriodicGrid:
         x, P, k = self.points, self.period, _PERIODIC_IMAGES
         xe = np.concatenate([x[-k:] - P, x, x[:k] + P])
         ve = np.concatenate([vals[..., -k:], vals, vals[..., :k]], axis=-1)
-        interp = PchipInterpolator(xe, ve, axis=-1)
+        # scipy's weighted harmonic mean of the slopes divides by slopes that underflow in
+        # vacuum tails; the overflow gives 1/inf = 0, the correct limit (a flat derivative).
+        with np.errstate(over="ignore", divide="ignore"):
+            interp = PchipInterpolator(xe, ve, axis=-1)
         lo = self.lower
 
         def evaluate(q: ArrayLike) -> NDArray[np.float64]:

@@ -290,7 +290,9 @@ def remap(
         raise ValueError(f"f must have length {old.n} along axis {axis}, got shape {f.shape}")
     if new.points[0] < old.points[0] - 1e-12 * old.length or new.points[-1] > old.points[-1] + 1e-12 * old.length:
         raise ValueError("the new grid must lie within the old grid's interval")
-    g = PchipInterpolator(old.points, f, axis=-1, extrapolate=True)(np.clip(new.points, old.points[0], old.points[-1]))
+    with np.errstate(over="ignore", divide="ignore"):  # underflowed slopes, see Grid.pchip
+        interp = PchipInterpolator(old.points, f, axis=-1, extrapolate=True)
+    g = interp(np.clip(new.points, old.points[0], old.points[-1]))
     g = np.maximum(g, floor)
     momentum = f @ (old.points * old.h) if conserve_momentum else None
     g, _ = restore_moments(g, new.h, new.points, f @ old.h, momentum)

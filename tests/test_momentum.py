@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from jko_cvx import CollisionProblem, Status, solve_collision
+from jko_cvx import CollisionProblem, PowerKernel, Status, solve_collision
 from jko_cvx.collision.newton import _direction, _fused
 from jko_cvx.collision.problem import add_pentadiagonal
 from jko_cvx.conservation import restore_moments
@@ -134,3 +134,31 @@ def test_inhomogeneous_momentum_is_conserved_without_help_from_symmetry():
     assert abs(p0) > 1e-2  # the datum really carries momentum
     assert np.abs(kept.momentum - p0).max() <= 1e-13
     assert np.abs(drift.momentum - p0).max() > 1e-9  # the paper's step, for contrast
+
+
+def test_gamma2_energy_concavity_lies_along_the_momentum_constraint():
+    """gamma = 2: the energy block -(dv)(dv)' is along the constraint normal a = dv.
+
+    At the minimiser of a strongly aggregating step (dt * strength = 10) the full Hessian in
+    the fluxes is indefinite, so the paper's unconstrained step is non-convex there, while
+    on the tangent space a'm = 0 it is positive definite: the second-order test and the
+    Newton direction must use the tangent space (before, both reported NONCONVEX).
+    """
+    v = np.linspace(-2.0, 2.0, 61)
+    f_star = np.exp(-4 * (v - 0.3) ** 2) + 0.2 * np.exp(-10 * (v + 1) ** 2)
+    args = (Grid(v), PowerKernel(2.0), f_star, 0.01, 1000.0, 30.0, "perspective")
+    prob, free = CollisionProblem(*args, conserve_momentum=True), CollisionProblem(*args)
+    conic = solve_collision(prob, "conic")
+    assert conic.status is Status.CONVERGED
+    assert free.convexity_margin(conic.f, conic.m) < -0.1 < 0 < prob.convexity_margin(conic.f, conic.m)
+    # halfway from f* to the minimiser (a'm = 0 still holds): a point where Newton steps
+    m = 0.5 * conic.m
+    g, bands, _ = _fused(prob, prob.density_from_flux(m)[None], m[None])
+    H = add_pentadiagonal(2 * prob.energy_coef * prob.energy.flux_block(), *bands)[0]
+    assert np.linalg.eigvalsh(H)[0] < 0
+    p, pd, valid = _direction(prob, bands, g)
+    a = prob.grid.dv
+    K = np.block([[H, a[:, None]], [a[None, :], np.zeros((1, 1))]])
+    ref = np.linalg.solve(K, np.r_[-g[0], 0.0])[:-1]
+    assert pd[0] and valid[0]
+    assert np.abs(p[0] - ref).max() <= 1e-7 * np.abs(ref).max()

@@ -137,3 +137,41 @@ def test_quick_gamma1p5_blows_up_in_v(tmp_path):
     df = reproduce_inhom_gamma1p5(tmp_path, quick=True, executor="serial", progress=False)
     assert df.blowup.all() and df.B_v.all() and not df.B_x.any()
     assert (df.mass_drift <= 1e-12).all()
+
+
+def test_g2bu_scene_is_the_shipped_one():
+    from jko_cvx.reproduce.g2bu import g2bu_scene
+
+    shipped, built = load_scene(SCENES / "inhom_gamma2_lambda310.toml"), g2bu_scene(310.0)
+    for f in dataclasses.fields(shipped):
+        if f.name not in ("description", "every", "checkpoint_every"):
+            assert getattr(built, f.name) == getattr(shipped, f.name), f.name
+
+
+def test_level_set_components_count_intervals_per_slice():
+    import numpy as np
+
+    from jko_cvx.reproduce.g2bu import level_set_components, secondary_peaks
+
+    v = np.linspace(-1, 1, 201)
+    one = np.exp(-10 * v**2)
+    two = np.exp(-100 * (v - 0.5) ** 2) + np.exp(-100 * (v + 0.5) ** 2)
+    edge = np.where(v < -0.9, 1.0, 0.0) + np.exp(-100 * v**2)  # a component at the first point
+    slices = np.stack([one, two, edge, 0 * v])
+    assert level_set_components(slices, 0.1).tolist() == [1, 2, 2, 0]
+    # the main component holds the slice maximum; the other peaks are reported
+    two[v > 0] *= 0.5
+    slices = np.stack([one, two, edge, 0 * v])
+    assert np.allclose(secondary_peaks(slices, 0.1), [0.0, 0.5, 1.0, 0.0], atol=1e-3)
+
+
+@pytest.mark.slow
+def test_quick_tab_g2bu_blows_up_near_T(tmp_path):
+    """Quick form (lambda = 220, 310 at 121 x 201, ~80 s): blow-up in x within 0.005 of the paper's T_b."""
+    from jko_cvx.reproduce import reproduce_tab_g2bu
+
+    df = reproduce_tab_g2bu(tmp_path, quick=True, executor="serial", progress=False)
+    assert df.blowup.all() and df.B_x.all()
+    assert (df["T_b - paper"].abs() <= 0.005).all()
+    assert (df.mass_drift <= 1e-12).all()
+    assert (tmp_path / "tab_g2bu.md").exists() and (tmp_path / "tab_g2bu.png").exists()

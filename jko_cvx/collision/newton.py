@@ -188,6 +188,29 @@ def _structured_direction(fb: FluxBlock, scale: float, bands, rhs: NDArray) -> t
     return x, pd
 
 
+def _finite_model(g: NDArray, bands) -> NDArray[np.bool_]:
+    """Per slice: gradient and Hessian bands finite (False once an iterate reached f = 0)."""
+    ok = np.all(np.isfinite(g), axis=-1)
+    for band in bands:
+        ok &= np.all(np.isfinite(band), axis=-1)
+    return ok
+
+
+def _second_order(
+    problem: CollisionProblem, f: NDArray, m: NDArray, pd: NDArray[np.bool_], which: NDArray[np.bool_]
+) -> NDArray[np.bool_]:
+    """Second-order test at converged slices: ``pd`` (H itself positive definite) suffices.
+
+    With ``conserve_momentum`` only the tangent space of ``a'm = 0`` counts, so where H is
+    indefinite the slice is tested there (:meth:`CollisionProblem.is_local_minimiser`).
+    """
+    ok = pd.copy()
+    if problem.conserve_momentum:
+        for i in np.flatnonzero(which & ~pd):
+            ok[i] = problem.with_f_star(problem.f_star[i]).is_local_minimiser(f[i], m[i])
+    return ok
+
+
 def _direction(problem: CollisionProblem, bands, g: NDArray) -> tuple[NDArray, NDArray[np.bool_], NDArray[np.bool_]]:
     """Newton direction ``-H^-1 g``, the per-slice positive-definiteness of H, and validity.
 
@@ -206,6 +229,13 @@ def _direction(problem: CollisionProblem, bands, g: NDArray) -> tuple[NDArray, N
     scale = 2 * problem.energy_coef
     cols = [-g]
     a = problem.grid.dv
+    if problem.conserve_momentum and fb.kind == "rank1":
+        # gamma = 2: the energy block -(dv)(dv)' lies along the constraint normal a = dv,
+        # so it vanishes on the plane a'm = 0; the constrained direction is the same
+        # without it, and the bands alone decide second-order definiteness there.  (With
+        # it, H is indefinite wherever dt * strength is large although the constrained
+        # problem is convex: the modified-Newton shifts then stall the iteration.)
+        fb = FluxBlock("diagonal", diag=np.zeros_like(a))
     if problem.conserve_momentum:
         cols.append(np.broadcast_to(a, g.shape))
     rhs = np.stack(cols, axis=-1)
@@ -482,8 +512,9 @@ def _solve_batched(
                 # pd is the (shifted) Cholesky of the reduced Hessian at this very point:
                 # the second-order test comes for free.
                 if done.any():
+                    ok = _second_order(Pa, fa, ma, pd, done)
                     status[idx[done]] = [
-                        Status.CONVERGED if (ok or not check_convexity) else Status.NONCONVEX for ok in pd[done]
+                        Status.CONVERGED if (o or not check_convexity) else Status.NONCONVEX for o in ok[done]
                     ]
                     active[idx[done]] = False
             if it == max_iter:
@@ -497,7 +528,12 @@ def _solve_batched(
                 done = done | stalled
             go = ~done & valid & np.all(np.isfinite(p), axis=-1)
             if not go.all():
-                status[idx[~done & ~valid]] = Status.NONCONVEX  # no descent direction even shifted
+                # No descent direction even shifted: non-convexity where the Hessian is
+                # finite; an iterate at the vacuum boundary (f underflowed, inf curvature)
+                # is a numerical failure, which the interior-damped retry resolves.
+                finite = _finite_model(g, bands)
+                status[idx[~done & ~valid & finite]] = Status.NONCONVEX
+                status[idx[~done & ~valid & ~finite]] = Status.NUMERICAL_ERROR
                 status[idx[~done & valid & ~go]] = Status.NUMERICAL_ERROR
                 active[idx[~go]] = False
             if not go.any():
@@ -644,6 +680,7 @@ def _solve_single(
                 prev, kkt = kkt, float(P.kkt_residual(f, m, parts).total)
                 kkt_here = True  # the residual belongs to the current (f, m)
                 if kkt <= tol:
+                    pd = pd or (P.conserve_momentum and P.is_local_minimiser(f, m))
                     status = Status.CONVERGED if (pd or not check_convexity) else Status.NONCONVEX
                     break
                 stall = stall + 1 if (prev == prev and kkt > 0.5 * prev and dec_last <= 1e-14) else 0
@@ -653,8 +690,9 @@ def _solve_single(
             if it == max_iter:
                 status = Status.MAX_ITERATIONS if (pd or not check_convexity) else Status.NONCONVEX
                 break
-            if not valid:
-                status = Status.NONCONVEX  # no descent direction even with a shifted Hessian
+            if not valid:  # no descent direction even shifted (see the batched loop)
+                finite = bool(_finite_model(g[None], tuple(b[None] for b in bands))[0])
+                status = Status.NONCONVEX if finite else Status.NUMERICAL_ERROR
                 break
             if not np.all(np.isfinite(p)):
                 status = Status.NUMERICAL_ERROR

@@ -495,7 +495,20 @@ class CollisionProblem:
         if not (np.all(np.isfinite(Hr)) and np.all(d > 0)):
             return None
         scale = 1 / np.sqrt(d)
-        return Hr * scale[:, None] * scale[None, :]
+        Hs = Hr * scale[:, None] * scale[None, :]
+        if self.conserve_momentum and Hs.shape[0] > 1:
+            # Second-order conditions hold on the tangent space of the constraints: with
+            # the momentum constraint a'm = 0 that is a-perp (for gamma = 2 the energy's
+            # concave part lies exactly along a and drops out).  In the scaled variables
+            # y = D^1/2 m the normal is D^-1/2 a; Z = the last columns of its Householder
+            # reflector, an orthonormal basis of the tangent space.
+            normal = self.grid.dv[keep] * scale
+            u = normal / np.linalg.norm(normal)
+            u[0] += 1.0 if u[0] >= 0 else -1.0
+            Q = np.eye(u.size) - np.outer(u, u) * (2 / (u @ u))
+            Z = Q[:, 1:]
+            Hs = Z.T @ Hs @ Z
+        return Hs
 
     def convexity_margin(self, f: ArrayLike, m: ArrayLike) -> float:
         """Smallest eigenvalue of the Jacobi-scaled reduced Hessian (unit diagonal).
@@ -503,13 +516,17 @@ class CollisionProblem:
         Negative means that ``(f, m)`` is not a local minimiser: the step problem has
         lost convexity there.  Jacobi scaling makes the number scale-free and keeps it
         finite when near-vacuum cells put entries of 1e90 in the Hessian.  ``-inf`` when
-        the Hessian is not finite or has a non-positive diagonal entry.
+        the Hessian is not finite or has a non-positive diagonal entry.  With
+        ``conserve_momentum`` it is the Hessian on the constraint's tangent space.
         """
         Hs = self._scaled_reduced_hessian(f, m)
         return -np.inf if Hs is None else float(np.linalg.eigvalsh(Hs)[0])
 
     def is_local_minimiser(self, f: ArrayLike, m: ArrayLike, tol: float = 1e-9) -> bool:
-        """Second-order test: :meth:`convexity_margin` ``>= -tol``, decided by one Cholesky factorisation."""
+        """Second-order test: :meth:`convexity_margin` ``>= -tol``, decided by one Cholesky factorisation.
+
+        With ``conserve_momentum`` the test is on the momentum constraint's tangent space.
+        """
         Hs = self._scaled_reduced_hessian(f, m)
         if Hs is None:
             return False

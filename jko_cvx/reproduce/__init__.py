@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from .blowup_tables import reproduce_tab_bu, reproduce_tab_bu_tb2
 from .explicit import reproduce_explicit
+from .g2bu import reproduce_tab_g2bu
 from .gamma1p5 import reproduce_inhom_gamma1p5
 from .ibu import reproduce_ibu
 from .inhomogeneous import reproduce_inhom_gamma3
@@ -24,6 +25,7 @@ REPRODUCTIONS = {
     "explicit": reproduce_explicit,
     "mesh_maps": reproduce_mesh_maps,
     "inhom_gamma1p5": reproduce_inhom_gamma1p5,
+    "tab_g2bu": reproduce_tab_g2bu,
 }
 
 __all__ = [
@@ -36,4 +38,5 @@ __all__ = [
     "reproduce_mesh_maps",
     "reproduce_tab_bu",
     "reproduce_tab_bu_tb2",
+    "reproduce_tab_g2bu",
 ]
