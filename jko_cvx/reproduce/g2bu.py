@@ -72,11 +72,16 @@ def g2bu_scene(lam: float, n_x: int = 121, n_v: int = 201, t_end: float = 0.2) -
     )
 
 
+def _component_labels(f: np.ndarray, level: float) -> np.ndarray:
+    """Per row of ``f``: 1, 2, ... on the successive intervals of ``{f > level}``, 0 elsewhere."""
+    above = np.asarray(f) > level
+    starts = np.concatenate([above[:, :1], above[:, 1:] & ~above[:, :-1]], axis=1)
+    return np.cumsum(starts, axis=1) * above
+
+
 def level_set_components(f: np.ndarray, level: float = LEVEL) -> np.ndarray:
     """Connected components of ``{f(x_i, .) > level}`` on each x-slice (rows of ``f``)."""
-    above = np.asarray(f) > level
-    starts = above[:, 1:] & ~above[:, :-1]
-    return starts.sum(axis=1) + above[:, 0]
+    return _component_labels(f, level).max(axis=1)
 
 
 def secondary_peaks(f: np.ndarray, level: float = LEVEL) -> np.ndarray:
@@ -86,10 +91,9 @@ def secondary_peaks(f: np.ndarray, level: float = LEVEL) -> np.ndarray:
     shallow wiggle rather than a second population.
     """
     f = np.asarray(f)
-    above = f > level
-    labels = np.cumsum(np.concatenate([above[:, :1], above[:, 1:] & ~above[:, :-1]], axis=1), axis=1) * above
+    labels = _component_labels(f, level)
     main = labels[np.arange(f.shape[0]), np.argmax(f, axis=1)]
-    other = above & (labels != main[:, None])
+    other = (labels > 0) & (labels != main[:, None])
     return np.where(other, f, 0.0).max(axis=1)
 
 
