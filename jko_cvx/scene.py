@@ -46,6 +46,7 @@ A scene file (see ``studies/scenes/*.toml``)::
 
     [output]
     every = 10               # snapshot every K steps
+    times = []               # and at the first step reaching each of these times
     checkpoint_every = 10
 """
 
@@ -135,6 +136,7 @@ class Scene:
     eps_x: float = 0.0
     stop_on_solver_failure: bool = True
     every: int = 10
+    snapshot_times: tuple[float, ...] = ()
     checkpoint_every: int = 10
     description: str = ""
 
@@ -297,6 +299,11 @@ def scene_from_dict(d: dict[str, Any]) -> Scene:
     o = d.get("output", {})
     every = _get(o, "every", "output.", int, default=10, check=(lambda k: k >= 1, ">= 1"))
     ck = _get(o, "checkpoint_every", "output.", int, default=10, check=(lambda k: k >= 1, ">= 1"))
+    times = o.get("times", [])
+    if not isinstance(times, list | tuple) or not all(
+        isinstance(tk, int | float) and not isinstance(tk, bool) and 0 <= tk <= t_end for tk in times
+    ):
+        raise SceneError(f"output.times must be a list of numbers in [0, t_end = {t_end:g}], got {times!r}")
     return Scene(
         name=name,
         gamma=gamma,
@@ -321,6 +328,7 @@ def scene_from_dict(d: dict[str, Any]) -> Scene:
         eps_x=eps_x,
         stop_on_solver_failure=on_fail,
         every=every,
+        snapshot_times=tuple(sorted(float(tk) for tk in times)),
         checkpoint_every=ck,
         description=_get(d, "description", "", str, default=""),
     )

@@ -5,7 +5,8 @@ Each step: choose dt (policy), transport in x (inhomogeneous scenes only), colli
 refinement in v and x with mass-conserving remapping, diagnostics, blow-up checks
 (min dv < eps_v: B_v; min dx < eps_x: B_x; solver failure that the policy cannot cure:
 e_f, counted as B_v).  With ``out`` the run lives in a directory: scene, metadata,
-diagnostics.csv, snapshots, a checkpoint every K steps and the verdict, all written
+diagnostics.csv, snapshots (every K steps and at the first step reaching each of the scene's
+``snapshot_times``), a checkpoint every K steps and the verdict, all written
 atomically, so a killed run loses at most K steps and ``resume=True`` continues it to
 exactly the result of an uninterrupted run (the loop is deterministic and the checkpoint
 holds the whole state).
@@ -54,6 +55,20 @@ class Run:
     @property
     def blowup(self) -> bool:
         return bool(self.verdict["blowup"])
+
+    def snapshots_at(self, times) -> list[dict[str, Any]]:
+        """The first snapshot at or after each of ``times`` (distinct; times past the run's end are skipped).
+
+        Exact for the scene's ``snapshot_times``: the run took a snapshot at the first step
+        reaching each of them.
+        """
+        ts = np.array([s["t"] for s in self.snapshots])
+        picked = []
+        for tk in times:
+            later = np.flatnonzero(ts >= tk - 1e-12 * max(tk, 1.0))
+            if later.size and int(later[0]) not in picked:
+                picked.append(int(later[0]))
+        return [self.snapshots[i] for i in sorted(picked)]
 
     def summary(self) -> str:
         v = self.verdict
@@ -261,7 +276,7 @@ def simulate(scene: Scene, out: str | Path | None = None, resume: bool = False, 
         if xgrid is not None and rows[-1]["min_dx"] < scene.eps_x:
             verdict.update(blowup=True, T_b=t, B_x=True, reason=f"min dx = {rows[-1]['min_dx']:.3g} < eps_x")
         done = verdict["blowup"] or t >= scene.t_end * (1 - 1e-12)
-        if step % scene.every == 0 or done:
+        if step % scene.every == 0 or done or _reaches(scene.snapshot_times, t - dt, t):
             snaps.append(_snapshot(out, step, t, xgrid, vgrid, f))
         if out is not None and (step % scene.checkpoint_every == 0 or done):
             _checkpoint(out, t, step, f, vgrid, xgrid, rows, verdict, v_params, x_params)
@@ -274,6 +289,12 @@ def simulate(scene: Scene, out: str | Path | None = None, resume: bool = False, 
         _checkpoint(out, t, step, f, vgrid, xgrid, rows, verdict, v_params, x_params)
         _text_save(out / "verdict.json", json.dumps({**verdict, "t": t, "steps": step, "seconds": secs}, indent=2))
     return run
+
+
+def _reaches(times: tuple[float, ...], t_prev: float, t: float) -> bool:
+    """True when the step from ``t_prev`` to ``t`` reaches one of ``times`` (to rounding in t)."""
+    slack = 1e-12 * max(t, 1.0)
+    return any(t_prev + slack < tk <= t + slack for tk in times)
 
 
 def _snapshot(out: Path | None, step: int, t: float, xgrid, vgrid: Grid, f: np.ndarray) -> dict[str, Any]:

@@ -51,6 +51,8 @@ def _with(**changes):
         ({"refine": {"v": {"delta0": 1.5}}}, r"refine.v.delta0 must be in \(0, 1\)"),
         ({"collision": {"method": "magic"}}, "collision.method must be one of"),
         ({"stop": {"on_solver_failure": "yes"}}, "stop.on_solver_failure must be of type bool"),
+        ({"output": {"times": [0.05, 0.2]}}, r"output.times must be a list of numbers in \[0, t_end = 0.1\]"),
+        ({"output": {"times": 0.05}}, "output.times must be a list"),
     ],
 )
 def test_scene_validation_names_the_key(changes, match):
@@ -93,6 +95,19 @@ def test_short_inhomogeneous_run_conserves_mass_and_dissipates():
     assert np.all(np.abs(d.mass - d.mass.iloc[0]) <= 1e-10 * d.mass.iloc[0])
     assert np.all(np.diff(d.moment2) <= 1e-10 * d.moment2.iloc[0])
     assert np.abs(d.momentum).max() <= 1e-13  # the momentum-conserving step (scene default)
+
+
+def test_snapshots_at_the_scene_times_leave_the_run_unchanged():
+    """output.times adds a snapshot at the first step reaching each time; the trajectory is the same."""
+    plain = simulate(scene_from_dict(_with(output={"every": 1000})))
+    timed = simulate(scene_from_dict(_with(output={"every": 1000, "times": [0.025, 0.05, 0.1]})))
+    # steps of 0.01: the first steps reaching 0.025, 0.05 and 0.1 end at 0.03, 0.05 and 0.1
+    assert [round(s["t"], 12) for s in timed.snapshots] == [0.0, 0.03, 0.05, 0.1]
+    assert [round(s["t"], 12) for s in plain.snapshots] == [0.0, 0.1]
+    assert np.array_equal(timed.f, plain.f)
+    picked = timed.snapshots_at([0.025, 0.03, 0.05, 0.5])  # 0.025 and 0.03 name one snapshot; 0.5 is past the end
+    assert [round(s["t"], 12) for s in picked] == [0.03, 0.05]
+    assert np.array_equal(timed.snapshots_at([0.1])[0]["f"], timed.f)
 
 
 def test_killed_run_resumes_to_the_uninterrupted_result(tmp_path):

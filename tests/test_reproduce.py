@@ -3,6 +3,7 @@
 import dataclasses
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 
@@ -71,7 +72,7 @@ def test_quick_tab_bu_tb2_and_the_command_line(tmp_path, capsys):
 @pytest.mark.slow
 def test_quick_inhomogeneous_gamma3_conserves_and_does_not_blow_up(tmp_path):
     summary = reproduce_inhom_gamma3(tmp_path, quick=True, executor="serial", progress=False)
-    assert (tmp_path / "inhom_gamma3_properties.png").exists()
+    assert (tmp_path / "inhom_gamma3_properties.png").exists() and (tmp_path / "inhom_gamma3_snapshots.png").exists()
     assert not summary["blow-up flagged"].any()
     assert (summary["mass drift"] <= 1e-12).all() and (summary["momentum drift"] <= 1e-12).all()
     assert (summary["moment2 increases"] == 0).all()
@@ -91,7 +92,6 @@ def test_quick_gk1_records_halve_the_step_only_with_the_papers_sqp(tmp_path):
 def test_explicit_ode1_matches_the_closed_forms_and_the_threshold(tmp_path):
     """sec: explicit: DOP853 on ode1 against rhot / mt (independent), and the width rho/m -> 0 iff
     lambda rho0 T / 2 > 1 (threshold thres, lambda ~ 309.8 for the sec:sp_inhom_gamma_2 data)."""
-    import numpy as np
 
     from jko_cvx.reproduce.explicit import RHO0, T, closed_form, solve_ode1
 
@@ -131,12 +131,25 @@ def test_gamma1p5_scenes_are_the_shipped_ones(case):
 
 @pytest.mark.slow
 def test_quick_gamma1p5_blows_up_in_v(tmp_path):
-    """41 x 41 quick form (~1 min): both cases blow up in v (B_v), mass conserved."""
+    """Quick form (41 x 41, 61 x 61 and a uniform 41 x 81 reference, ~90 s): blow-up in v, mass conserved,
+    and the density's velocity spread on the mapped grids follows the map-free uniform run."""
     from jko_cvx.reproduce import reproduce_inhom_gamma1p5
 
     df = reproduce_inhom_gamma1p5(tmp_path, quick=True, executor="serial", progress=False)
     assert df.blowup.all() and df.B_v.all() and not df.B_x.any()
-    assert (df.mass_drift <= 1e-12).all()
+    assert (df["mass drift"] <= 1e-12).all()
+    for name in ("inhom_gamma1p5.png", "inhom_gamma1p5_resolution.png", "inhom_gamma1p5_properties.png"):
+        assert (tmp_path / name).exists()
+    grids = pd.read_csv(tmp_path / "inhom_gamma1p5_resolution.csv")
+    assert len(grids) == 6 and (grids["mass drift"] <= 1e-12).all()
+    for case, rows in grids.groupby("case"):
+        uniform = rows[rows.grid.str.endswith("uniform")]
+        mapped = rows[~rows.grid.str.endswith("uniform")]
+        assert uniform.reason.iloc[0] == "reached t_end", case
+        # transport shear and collisions both narrow the local velocity distributions
+        assert uniform["sigma_v(t=0.2)"].iloc[0] < 0.6 * 1 / np.sqrt(2 * (6.0 if case == "before" else 3.0))
+        ratio = mapped["sigma_v(t=0.2)"] / uniform["sigma_v(t=0.2)"].iloc[0]
+        assert ratio.between(0.7, 1.3).all(), (case, ratio.tolist())
 
 
 def test_g2bu_scene_is_the_shipped_one():
@@ -149,7 +162,6 @@ def test_g2bu_scene_is_the_shipped_one():
 
 
 def test_level_set_components_count_intervals_per_slice():
-    import numpy as np
 
     from jko_cvx.reproduce.g2bu import level_set_components, secondary_peaks
 
@@ -175,6 +187,7 @@ def test_quick_tab_g2bu_blows_up_near_T(tmp_path):
     assert (df["T_b - paper"].abs() <= 0.005).all()
     assert (df.mass_drift <= 1e-12).all()
     assert (tmp_path / "tab_g2bu.md").exists() and (tmp_path / "tab_g2bu.png").exists()
+    assert (tmp_path / "tab_g2bu_snapshots.png").exists()
 
 
 def test_mesh_rule_time_is_what_our_solver_reports_for_g1():

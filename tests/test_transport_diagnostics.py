@@ -66,3 +66,20 @@ def test_diagnostics_match_gaussian_moments():
     xg = PeriodicGrid.uniform(1.0, 10)
     d2 = diagnostics(vg, np.tile(f, (10, 1)) / 2, xg)
     assert d2["mass"] == pytest.approx(1, rel=1e-10) and d2["min_dx"] == pytest.approx(0.2)
+
+
+def test_velocity_spread_and_density_indicators_are_exact_on_gaussian_slices():
+    """min_spread_v: the smallest local velocity std over slices with rho >= 0.1 max rho; max_rho: max int f dv."""
+    vg = Grid.uniform(-8, 8, 1601)
+    xg = PeriodicGrid.uniform(1.0, 4)
+    rho = np.array([1.0, 0.5, 0.05, 2.0])  # the third slice is below 0.1 max rho: not counted
+    u = np.array([0.5, -1.0, 0.0, 2.0])
+    sigma = np.array([0.6, 0.3, 0.1, 0.9])
+    f = rho[:, None] * np.exp(-((vg.points - u[:, None]) ** 2) / (2 * sigma[:, None] ** 2))
+    f /= np.sqrt(2 * np.pi) * sigma[:, None]
+    d = diagnostics(vg, f, xg)
+    assert d["max_rho"] == pytest.approx(2.0, rel=1e-10)
+    assert d["min_spread_v"] == pytest.approx(0.3, rel=1e-8)
+    d_hom = diagnostics(vg, f[0])
+    assert d_hom["max_rho"] == pytest.approx(1.0, rel=1e-10) and d_hom["min_spread_v"] == pytest.approx(0.6, rel=1e-8)
+    assert np.isnan(diagnostics(vg, np.zeros(vg.n))["min_spread_v"])

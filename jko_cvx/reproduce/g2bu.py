@@ -49,6 +49,11 @@ LEVEL = 0.1  # the level of sec:sup_g2's connectivity check
 EPS = 5e-6
 
 
+EVOLUTION_LAMBDA = 310.0
+EVOLUTION_TIMES = (0.02, 0.04, 0.06, 0.08, 0.09, 0.095)
+"""The run and times of the evolution snapshots (``fig:gk2_evo_example``; the paper does not give its times)."""
+
+
 def g2bu_scene(lam: float, n_x: int = 121, n_v: int = 201, t_end: float = 0.2) -> Scene:
     """The ``tab:g2bu`` scene for lambda (strength lambda / 2); see the module docstring."""
     return scene_from_dict(
@@ -132,6 +137,10 @@ def g2bu_run(lam: float, n_x: int, n_v: int) -> dict[str, Any]:
         "t_steps": d.t.tolist(),
         "min_dx_series": d.min_dx.tolist(),
         "final": {"t": float(last["t"]), "x": last["x"].tolist(), "v": last["v"].tolist(), "f": last["f"].tolist()},
+        "snapshots": [
+            {"t": float(s["t"]), "x": s["x"].tolist(), "v": s["v"].tolist(), "f": s["f"].tolist()}
+            for s in (run.snapshots_at(EVOLUTION_TIMES) if lam == EVOLUTION_LAMBDA else [])
+        ],
         "seconds": time.perf_counter() - t0,
     }
 
@@ -184,7 +193,42 @@ def reproduce_tab_g2bu(out: Path, quick: bool = False, **sweep_opts: Any) -> pd.
         + "\n"
     )
     _figure(df, out / "tab_g2bu.png")
+    _snapshot_figure(df[df.n_v == n_v].reset_index(drop=True), out / "tab_g2bu_snapshots.png")
     return df
+
+
+def _zoomed(ax, snap: dict, title: str) -> None:
+    x, v, f = np.asarray(snap["x"]), np.asarray(snap["v"]), np.asarray(snap["f"])
+    ax.contourf(x, v, f.T, levels=30)
+    ax.contour(x, v, f.T, levels=[LEVEL], colors="w", linewidths=0.6)
+    ax.set_xlim(-0.02, 0.02)
+    ax.set_ylim(-1.0, 1.0)
+    ax.set_title(title, fontsize=8)
+    ax.tick_params(labelsize=7)
+
+
+def _snapshot_figure(df: pd.DataFrame, path: Path) -> None:
+    """``fig:gk2_bu``, ``fig:gk2_bu_2``: every lambda at T_b; ``fig:gk2_evo_example``: lambda = 310 in time."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    evolution = [s for snaps in df.snapshots for s in snaps]
+    k = max(len(df), len(evolution))
+    fig, axes = plt.subplots(2, k, figsize=(2.4 * k, 5.2), squeeze=False)
+    for ax, (_, row) in zip(axes[0], df.iterrows(), strict=False):
+        _zoomed(ax, row.final, f"lambda = {row['lambda']}: t = {row.final['t']:.4f}")
+    for ax, snap in zip(axes[1], evolution, strict=False):
+        _zoomed(ax, snap, f"lambda = {EVOLUTION_LAMBDA:g}: t = {snap['t']:.4f}")
+    for ax in [*axes[0][len(df) :], *axes[1][len(evolution) :]]:
+        ax.axis("off")
+    fig.suptitle(
+        f"top: f at T_b (fig:gk2_bu, fig:gk2_bu_2); bottom: evolution (fig:gk2_evo_example); white: f = {LEVEL}"
+    )
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 def _at_end(r: np.ndarray) -> float:

@@ -3,15 +3,25 @@
 ``eqn:f0`` with a = 6, c = d = 2.5, L_x = L_v = 5: two phase-space bumps at x = -+c moving
 with velocities +-d, so their centres meet at x = 0 at t = c/d = 1 (free transport).  The
 paper reports blow-up in v *before* the bumps meet for lambda = 10 (b = 6, snapshots to
-t = 0.4) and *after* they have passed for lambda = 5 (b = 3, snapshots to t = 1.3).
+t = 0.4, ``fig:gk1p5_C5``) and *after* they have passed for lambda = 5 (b = 3, snapshots to
+t = 1.3, ``fig:gk1p5_C2p5``); rows 3-4 of ``fig:gk3_properties`` are the two runs'
+conservation and dissipation records.
 
 Settings not stated in the paper are those of ``studies/scenes/inhom_gamma1p5_*.toml``
 (CFL steps with dt0 = 0.01, eps = 1e-3/16, delta0 = delta = 0.5, two-bump map in v; a test
 checks the scenes agree).  The table compares T_b with the meeting time c/d.
+
+The paper's criterion (min dv < eps_v) watches the grid the map builds.  Beside it the
+sweep records two indicators of the density itself (:func:`jko_cvx.diagnostics.diagnostics`):
+the smallest local velocity spread sigma_v over populated slices and max_x rho; it runs each
+case at several resolutions (a criterion that fires at the same time on every grid is
+measuring the solution) and on fixed uniform grids, where no map is involved, as a
+map-free reference for sigma_v.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from pathlib import Path
 from typing import Any
@@ -23,11 +33,33 @@ from ..scene import Scene, scene_from_dict
 from ..simulate import simulate
 from ..sweep import run_sweep
 
-__all__ = ["gamma1p5_scene", "reproduce_inhom_gamma1p5"]
+__all__ = ["gamma1p5_run", "gamma1p5_scene", "gamma1p5_uniform", "reproduce_inhom_gamma1p5"]
 
 _CASES = {"before": (10.0, 6.0, 1.0), "after": (5.0, 3.0, 2.0)}  # lambda, b, t_end
 _C = _D = 2.5
 _PAPER = {"before": "blow-up in v before the bumps meet", "after": "blow-up in v after the bumps pass x = 0"}
+PAPER_TIMES = {"before": (0.04, 0.1, 0.2, 0.3, 0.4), "after": (0.1, 0.4, 0.8, 1.2, 1.3)}
+"""Snapshot times of ``fig:gk1p5_C5`` and ``fig:gk1p5_C2p5``."""
+RESOLUTIONS = (41, 61, 81, 121)
+"""N_x = N_v of the full sweep (the paper's runs are 121 x 121)."""
+UNIFORM = (121, 201, 0.7)
+"""The map-free reference: N_x, N_v and the end time of the fixed uniform-grid runs."""
+_SERIES = (
+    "t",
+    "dt",
+    "mass",
+    "momentum",
+    "moment2",
+    "moment3",
+    "moment4",
+    "entropy",
+    "max_f",
+    "min_dx",
+    "min_dv",
+    "max_rho",
+    "min_spread_v",
+)
+_SPREAD_TIMES = (0.2, 0.4, 0.6)
 
 
 def gamma1p5_scene(case: str, n: int = 121) -> Scene:
@@ -51,16 +83,16 @@ def gamma1p5_scene(case: str, n: int = 121) -> Scene:
             },
             "collision": {"method": "newton", "beta": 1000.0, "fisher": "log"},
             "stop": {"eps_v": 6.25e-5, "eps_x": 6.25e-5, "on_solver_failure": True},
-            "output": {"every": 100, "checkpoint_every": 100},
+            "output": {"every": 100, "times": list(PAPER_TIMES[case]), "checkpoint_every": 100},
         }
     )
 
 
-def gamma1p5_run(case: str, n: int) -> dict[str, Any]:
-    """One sweep point: verdict, T_b and the records of the run."""
-    t0 = time.perf_counter()
-    run = simulate(gamma1p5_scene(case, n))
-    d = run.diagnostics
+def _series(run) -> dict[str, list[float]]:
+    return {k: run.diagnostics[k].tolist() for k in _SERIES}
+
+
+def _verdict(run) -> dict[str, Any]:
     return {
         "blowup": bool(run.blowup),
         "T_b": float(run.verdict["T_b"]) if run.blowup else float("nan"),
@@ -68,67 +100,198 @@ def gamma1p5_run(case: str, n: int) -> dict[str, Any]:
         "B_x": bool(run.verdict["B_x"]),
         "e_f": bool(run.verdict["e_f"]),
         "reason": run.verdict["reason"],
-        "steps": len(d) - 1,
-        "min_dv": float(d.min_dv.min()),
-        "min_dx": float(d.min_dx.min()),
-        "max_f": float(d.max_f.max()),
-        "mass_drift": float(np.abs(d.mass - d.mass.iloc[0]).max() / d.mass.iloc[0]),
-        "t": d.t.tolist(),
-        "min_dv_series": d.min_dv.tolist(),
-        "max_f_series": d.max_f.tolist(),
-        "seconds": time.perf_counter() - t0,
+        "t_end": float(run.t),
+        "steps": len(run.diagnostics) - 1,
     }
 
 
+def gamma1p5_run(case: str, n: int) -> dict[str, Any]:
+    """One sweep point: the scene on an n x n grid; verdict, records and the paper's snapshots."""
+    t0 = time.perf_counter()
+    run = simulate(gamma1p5_scene(case, n))
+    # the paper's times and the last state (T_b where the run stopped on blow-up)
+    snaps = [
+        {"t": float(s["t"]), **{k: s[k].tolist() for k in ("x", "v", "f")}}
+        for s in run.snapshots_at((*PAPER_TIMES[case], run.t))
+    ]
+    return {**_verdict(run), **_series(run), "snapshots": snaps, "seconds": time.perf_counter() - t0}
+
+
+def gamma1p5_uniform(case: str, n_x: int, n_v: int, t_end: float) -> dict[str, Any]:
+    """One sweep point: the case on fixed uniform n_x x n_v grids (no maps, no eps stop) to t_end."""
+    t0 = time.perf_counter()
+    scene = dataclasses.replace(
+        gamma1p5_scene(case),
+        x_n=n_x,
+        v_n=n_v,
+        refine_v=None,
+        refine_x=None,
+        eps_v=0.0,
+        eps_x=0.0,
+        t_end=t_end,
+        snapshot_times=(),
+        every=10**9,
+    )
+    run = simulate(scene)
+    return {**_verdict(run), **_series(run), "seconds": time.perf_counter() - t0}
+
+
+def _at(t: list[float], y: list[float], tk: float) -> float:
+    """y at time tk (linear in t), nan past the end of the record."""
+    return float(np.interp(tk, t, y)) if tk <= t[-1] else float("nan")
+
+
 def reproduce_inhom_gamma1p5(out: Path, quick: bool = False, **sweep_opts: Any) -> pd.DataFrame:
-    """Both cases at 121 x 121 (``quick``: 41 x 41); writes ``inhom_gamma1p5.{csv,md,png}``."""
+    """Both cases on the resolutions of ``RESOLUTIONS`` and the uniform reference ``UNIFORM``.
+
+    Writes ``inhom_gamma1p5.{csv,md,png}`` (the 121 x 121 runs against the paper, with the
+    snapshots and records of ``fig:gk1p5_C5`` / ``fig:gk1p5_C2p5``),
+    ``inhom_gamma1p5_resolution.{csv,png}`` (every grid, min dv and sigma_v against t) and
+    ``inhom_gamma1p5_properties.png`` (rows 3-4 of ``fig:gk3_properties``).  ``quick``:
+    41 x 41 and 61 x 61, uniform reference 41 x 81 to t = 0.4.
+    """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    n = 41 if quick else 121
-    points = [{"case": c, "n": n} for c in _CASES]
-    df = run_sweep(gamma1p5_run, points, out / "cache" / "inhom_gamma1p5", desc="inhom_gamma1p5", **sweep_opts)
+    t0 = time.perf_counter()
+    resolutions, uniform = ((41, 61), (41, 81, 0.4)) if quick else (RESOLUTIONS, UNIFORM)
+    # the longest points first, so that a pool is not left waiting on them at the end
+    points = [{"case": c, "n": n} for n in sorted(resolutions, reverse=True) for c in _CASES]
+    runs = run_sweep(gamma1p5_run, points, out / "cache" / "inhom_gamma1p5", desc="inhom_gamma1p5", **sweep_opts)
+    runs = runs.sort_values(["case", "n"], key=lambda c: c.map(list(_CASES).index) if c.name == "case" else c)
+    runs = runs.reset_index(drop=True)
+    upoints = [{"case": c, "n_x": uniform[0], "n_v": uniform[1], "t_end": uniform[2]} for c in _CASES]
+    refs = run_sweep(gamma1p5_uniform, upoints, out / "cache" / "inhom_gamma1p5_uniform", desc="uniform", **sweep_opts)
+    wall = time.perf_counter() - t0
     meet = _C / _D
-    df["lambda"] = [_CASES[c][0] for c in df.case]
-    df["meeting time c/d"] = meet
-    df["ours"] = [
+
+    rows = []
+    for _, r in pd.concat([runs.assign(grid="mapped"), refs.assign(grid="uniform")], ignore_index=True).iterrows():
+        n_label = f"{r.n:g} x {r.n:g}" if r.grid == "mapped" else f"{r.n_x:g} x {r.n_v:g} uniform"
+        k = -1  # the last record: at T_b when the run stopped on blow-up
+        rows.append(
+            {
+                "case": r.case,
+                "lambda": _CASES[r.case][0],
+                "grid": n_label,
+                "T_b": r.T_b,
+                "reason": r.reason,
+                "steps": r.steps,
+                "max f (end)": r.max_f[k],
+                "max rho (end)": r.max_rho[k],
+                "sigma_v (end)": r.min_spread_v[k],
+                **{f"sigma_v(t={tk:g})": _at(r.t, r.min_spread_v, tk) for tk in _SPREAD_TIMES},
+                "min dv (end)": r.min_dv[k],
+                "mass drift": float(np.abs(np.asarray(r.mass) - r.mass[0]).max() / r.mass[0]),
+                "seconds": r.seconds,
+            }
+        )
+    resolution = pd.DataFrame(rows)
+    resolution.to_csv(out / "inhom_gamma1p5_resolution.csv", index=False)
+
+    main = runs[runs.n == max(resolutions)].reset_index(drop=True)
+    main["lambda"] = [_CASES[c][0] for c in main.case]
+    main["meeting time c/d"] = meet
+    main["ours"] = [
         ("no blow-up by t_end" if not bu else f"blow-up in {'v' if bv else 'x'} {'before' if tb < meet else 'after'}")
-        for bu, bv, tb in zip(df.blowup, df.B_v, df.T_b, strict=True)
+        for bu, bv, tb in zip(main.blowup, main.B_v, main.T_b, strict=True)
     ]
-    df["paper"] = df.case.map(_PAPER)
-    df["supports"] = [
+    main["paper"] = main.case.map(_PAPER)
+    main["supports"] = [
         bool(bu and bv and ((tb < meet) == (c == "before")))
-        for bu, bv, tb, c in zip(df.blowup, df.B_v, df.T_b, df.case, strict=True)
+        for bu, bv, tb, c in zip(main.blowup, main.B_v, main.T_b, main.case, strict=True)
     ]
-    cols = ["case", "lambda", "n", "T_b", "meeting time c/d", "ours", "paper", "supports", "reason"]
-    cols += ["steps", "min_dv", "min_dx", "max_f", "mass_drift", "seconds"]
-    df[cols].to_csv(out / "inhom_gamma1p5.csv", index=False)
+    tb = runs.groupby("case").T_b
+    main["T_b over grids"] = [f"{tb.min()[c]:.3f}-{tb.max()[c]:.3f}" for c in main.case]
+    main["max f (end)"] = [m[-1] for m in main.max_f]
+    main["sigma_v (end)"] = [s[-1] for s in main.min_spread_v]
+    main["mass drift"] = [float(np.abs(np.asarray(m) - m[0]).max() / m[0]) for m in main.mass]
+    cols = ["case", "lambda", "n", "T_b", "meeting time c/d", "ours", "paper", "supports", "T_b over grids"]
+    cols += ["reason", "steps", "max f (end)", "sigma_v (end)", "mass drift", "seconds"]
+    main[cols].to_csv(out / "inhom_gamma1p5.csv", index=False)
     (out / "inhom_gamma1p5.md").write_text(
         "# sec:sp_inhom_gamma_1p5: gamma = 3/2 inhomogeneous\n\n"
-        "T_b against the time c/d = 1 at which the bumps' centres meet at x = 0 (free transport).\n\n"
-        + df[cols].to_markdown(index=False, floatfmt=".4g")
-        + "\n"
+        "T_b (the paper's criterion, min dv < eps_v) against the time c/d = 1 at which the bumps' "
+        "centres meet at x = 0 (free transport), on the paper's 121 x 121 grids.\n\n"
+        + main[cols].to_markdown(index=False, floatfmt=".4g")
+        + "\n\n## Every grid, and the map-free reference\n\n"
+        "sigma_v: the smallest local velocity spread over slices with rho >= 0.1 max rho "
+        "(a blow-up in v sends it to 0); 'end' is T_b where the run stopped on blow-up.\n\n"
+        + resolution.to_markdown(index=False, floatfmt=".4g")
+        + f"\n\nSweep wall time {wall:.0f} s (cached points count 0).\n"
     )
-    _figure(df, out / "inhom_gamma1p5.png", meet)
-    return df
+    _figure(main, out / "inhom_gamma1p5.png", meet)
+    _resolution_figure(runs, refs, out / "inhom_gamma1p5_resolution.png", meet)
+    _properties_figure(main, out / "inhom_gamma1p5_properties.png")
+    return main
 
 
-def _figure(df: pd.DataFrame, path: Path, meet: float) -> None:
+def _plt():
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
-    for i, row in df.iterrows():
-        label = f"{row.case}, lambda = {row['lambda']:g}"
-        axes[0].semilogy(row.t, row.min_dv_series, color=f"C{i}", label=label)
-        axes[1].semilogy(row.t, row.max_f_series, color=f"C{i}", label=label)
-    for ax, what in zip(axes, ("min dv", "max f"), strict=True):
-        ax.axvline(meet, color="k", ls=":", lw=1, label="bumps meet (c/d)")
-        ax.set_xlabel("t")
-        ax.set_title(what, fontsize=9)
-        ax.legend(fontsize=7)
-        ax.grid(True, which="both", alpha=0.2)
+    return plt
+
+
+def _figure(main: pd.DataFrame, path: Path, meet: float) -> None:
+    """``fig:gk1p5_C5`` / ``fig:gk1p5_C2p5``: snapshots at the paper's times and the records."""
+    plt = _plt()
+    k = max(len(r.snapshots) for _, r in main.iterrows())
+    fig, axes = plt.subplots(len(main), k + 1, figsize=(2.9 * (k + 1), 2.7 * len(main)), squeeze=False)
+    for ax_row, (_, r) in zip(axes, main.iterrows(), strict=True):
+        for ax, s in zip(ax_row, r.snapshots, strict=False):
+            X, V = np.meshgrid(s["x"], s["v"], indexing="ij")
+            ax.contourf(X, V, np.asarray(s["f"]), levels=20)
+            ax.set_title(f"{r.case}, lambda = {r['lambda']:g}: t = {s['t']:.3g}", fontsize=8)
+            ax.set_xlabel("x", fontsize=8)
+            ax.set_ylabel("v", fontsize=8)
+        for ax in ax_row[len(r.snapshots) : k]:
+            ax.axis("off")
+        rec = ax_row[k]
+        for name, label in (("min_dx", "min dx"), ("min_dv", "min dv"), ("max_f", "max f")):
+            rec.semilogy(r.t, r[name], label=label)
+        rec.axvline(meet, color="k", ls=":", lw=1, label="bumps meet (c/d)")
+        rec.set_xlabel("t", fontsize=8)
+        rec.set_title("records", fontsize=8)
+        rec.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _resolution_figure(runs: pd.DataFrame, refs: pd.DataFrame, path: Path, meet: float) -> None:
+    """min dv (the paper's criterion) and sigma_v (the density's own spread) against t, every grid."""
+    plt = _plt()
+    fig, axes = plt.subplots(2, 2, figsize=(11, 7), squeeze=False)
+    for row, case in zip(axes, _CASES, strict=True):
+        for i, (_, r) in enumerate(runs[runs.case == case].iterrows()):
+            row[0].semilogy(r.t, r.min_dv, color=f"C{i}", label=f"{r.n} x {r.n}")
+            row[1].semilogy(r.t, r.min_spread_v, color=f"C{i}", label=f"{r.n} x {r.n}")
+        for _, r in refs[refs.case == case].iterrows():
+            row[1].semilogy(r.t, r.min_spread_v, "k--", label=f"{r.n_x} x {r.n_v} uniform")
+        for ax, what in zip(row, ("min dv", "sigma_v (min over populated x)"), strict=True):
+            ax.axvline(meet, color="k", ls=":", lw=1)
+            ax.set_title(f"{case}, lambda = {_CASES[case][0]:g}: {what}", fontsize=9)
+            ax.set_xlabel("t")
+            ax.legend(fontsize=7)
+            ax.grid(True, which="both", alpha=0.2)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _properties_figure(main: pd.DataFrame, path: Path) -> None:
+    """Rows 3-4 of ``fig:gk3_properties``: mass, momentum, moments 2-4 and entropy against t."""
+    plt = _plt()
+    names = ("mass", "momentum", "moment2", "moment3", "moment4", "entropy")
+    fig, axes = plt.subplots(len(main), len(names), figsize=(3.1 * len(names), 2.8 * len(main)), squeeze=False)
+    for ax_row, (_, r) in zip(axes, main.iterrows(), strict=True):
+        for ax, name in zip(ax_row, names, strict=True):
+            ax.plot(r.t, r[name])
+            ax.set_title(f"{r.case}: {name if name != 'entropy' else 'entropy (int f log f)'}", fontsize=8)
+            ax.set_xlabel("t", fontsize=8)
+    fig.suptitle("fig:gk3_properties, gamma = 3/2 rows", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
     plt.close(fig)

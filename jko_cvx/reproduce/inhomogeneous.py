@@ -3,7 +3,8 @@
 The set-up of ``studies/scenes/inhom_gamma3_lambdaK.toml`` (``eqn:f0`` with a = b = 6,
 c = 1.5, d = 2, L_x = L_v = 4, N_x = N_v = 121, delta0 = 0.02, delta = 0.5, dt = 0.05, to
 t = 4).  Each lambda is one sweep point; the figures are the record plots (min dx, min dv,
-max f against t), the final snapshots, and ``fig:gk3_properties`` (mass, momentum,
+max f against t), the final snapshots, the snapshots at the paper's times for lambda = 4
+and 10 (``fig:gk3_ih_2_C2_2``, ``fig:gk3_ih_2_C5_2``), and ``fig:gk3_properties`` (mass, momentum,
 moments of order 2-4 and the entropy integral of f log f against t).
 """
 
@@ -22,6 +23,8 @@ from ..sweep import run_sweep
 
 __all__ = ["inhomogeneous_gamma3", "inhomogeneous_scene", "reproduce_inhom_gamma3"]
 
+PAPER_TIMES = {4.0: (0.4, 0.6, 0.8, 1.0, 1.6, 2.0), 10.0: (0.2, 0.6, 0.8, 1.0, 1.2, 2.0)}
+"""Snapshot times of ``fig:gk3_ih_2_C2_2`` (lambda = 4) and ``fig:gk3_ih_2_C5_2`` (lambda = 10)."""
 _SERIES = ("t", "mass", "momentum", "moment2", "moment3", "moment4", "entropy", "max_f", "min_dx", "min_dv")
 
 
@@ -43,7 +46,11 @@ def inhomogeneous_scene(lam: float, n: int = 121, t_end: float = 4.0) -> Scene:
             },
             "collision": {"method": "newton", "beta": 1000.0, "fisher": "log"},
             "stop": {"eps_v": 1e-5, "eps_x": 1e-5, "on_solver_failure": True},
-            "output": {"every": 10**6, "checkpoint_every": 10**6},
+            "output": {
+                "every": 10**6,
+                "times": [tk for tk in PAPER_TIMES.get(lam, ()) if tk <= t_end],
+                "checkpoint_every": 10**6,
+            },
         }
     )
 
@@ -60,6 +67,10 @@ def inhomogeneous_gamma3(lam: float, n: int, t_end: float) -> dict[str, Any]:
         "x": run.xgrid.points.tolist(),
         "v": run.vgrid.points.tolist(),
         "f": run.f.tolist(),
+        "snapshots": [
+            {"t": float(snap["t"]), **{k: snap[k].tolist() for k in ("x", "v", "f")}}
+            for snap in run.snapshots_at(PAPER_TIMES.get(lam, ()))
+        ],
         "seconds": time.perf_counter() - t0,
     }
 
@@ -135,3 +146,18 @@ def _figures(df: pd.DataFrame, out: Path) -> None:
     fig.tight_layout()
     fig.savefig(out / "inhom_gamma3_properties.png", dpi=110)
     plt.close(fig)
+    with_snaps = [r for _, r in df.iterrows() if len(r.snapshots)]
+    if with_snaps:
+        k = max(len(r.snapshots) for r in with_snaps)
+        fig, ax = plt.subplots(len(with_snaps), k, figsize=(3.0 * k, 2.8 * len(with_snaps)), squeeze=False)
+        for row, r in zip(ax, with_snaps, strict=True):
+            for a, snap in zip(row, r.snapshots, strict=False):
+                X, V = np.meshgrid(snap["x"], snap["v"], indexing="ij")
+                a.contourf(X, V, np.asarray(snap["f"]), levels=20)
+                a.set_title(f"lambda = {r.lam:g}: t = {snap['t']:.3g}", fontsize=9)
+            for a in row[len(r.snapshots) :]:
+                a.axis("off")
+        fig.suptitle("fig:gk3_ih_2_C2_2 (lambda = 4), fig:gk3_ih_2_C5_2 (lambda = 10)", fontsize=9)
+        fig.tight_layout()
+        fig.savefig(out / "inhom_gamma3_snapshots.png", dpi=110)
+        plt.close(fig)
