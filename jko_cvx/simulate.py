@@ -35,7 +35,7 @@ from .refine import OneBumpMap, TwoBumpMap, periodic_map_grid, remap, remap_peri
 from .scene import Scene
 from .transport import transport_step
 
-__all__ = ["Run", "simulate"]
+__all__ = ["Run", "simulate", "snapshot_record"]
 
 
 @dataclass
@@ -295,6 +295,11 @@ def _reaches(times: tuple[float, ...], t_prev: float, t: float) -> bool:
     """True when the step from ``t_prev`` to ``t`` reaches one of ``times`` (to rounding in t)."""
     slack = 1e-12 * max(t, 1.0)
     return any(t_prev + slack < tk <= t + slack for tk in times)
+
+
+def snapshot_record(snap: dict[str, Any]) -> dict[str, Any]:
+    """A snapshot as plain JSON data (t as a float, the grids and f as nested lists), e.g. for sweep caches."""
+    return {"t": float(snap["t"]), **{k: snap[k].tolist() for k in ("x", "v", "f") if k in snap}}
 
 
 def _snapshot(out: Path | None, step: int, t: float, xgrid, vgrid: Grid, f: np.ndarray) -> dict[str, Any]:

@@ -36,7 +36,7 @@ import pandas as pd
 
 from ..grid import Grid
 from ..scene import Scene, scene_from_dict
-from ..simulate import simulate
+from ..simulate import simulate, snapshot_record
 from ..sweep import run_sweep
 from .paper import TAB_G2BU
 
@@ -136,11 +136,8 @@ def g2bu_run(lam: float, n_x: int, n_v: int) -> dict[str, Any]:
         "secondary peak": secondary,
         "t_steps": d.t.tolist(),
         "min_dx_series": d.min_dx.tolist(),
-        "final": {"t": float(last["t"]), "x": last["x"].tolist(), "v": last["v"].tolist(), "f": last["f"].tolist()},
-        "snapshots": [
-            {"t": float(s["t"]), "x": s["x"].tolist(), "v": s["v"].tolist(), "f": s["f"].tolist()}
-            for s in (run.snapshots_at(EVOLUTION_TIMES) if lam == EVOLUTION_LAMBDA else [])
-        ],
+        "final": snapshot_record(last),
+        "snapshots": [snapshot_record(s) for s in run.snapshots_at(EVOLUTION_TIMES if lam == EVOLUTION_LAMBDA else ())],
         "seconds": time.perf_counter() - t0,
     }
 

@@ -30,7 +30,7 @@ import numpy as np
 import pandas as pd
 
 from ..scene import Scene, scene_from_dict
-from ..simulate import simulate
+from ..simulate import simulate, snapshot_record
 from ..sweep import run_sweep
 
 __all__ = ["gamma1p5_run", "gamma1p5_scene", "gamma1p5_uniform", "reproduce_inhom_gamma1p5"]
@@ -110,10 +110,7 @@ def gamma1p5_run(case: str, n: int) -> dict[str, Any]:
     t0 = time.perf_counter()
     run = simulate(gamma1p5_scene(case, n))
     # the paper's times and the last state (T_b where the run stopped on blow-up)
-    snaps = [
-        {"t": float(s["t"]), **{k: s[k].tolist() for k in ("x", "v", "f")}}
-        for s in run.snapshots_at((*PAPER_TIMES[case], run.t))
-    ]
+    snaps = [snapshot_record(s) for s in run.snapshots_at((*PAPER_TIMES[case], run.t))]
     return {**_verdict(run), **_series(run), "snapshots": snaps, "seconds": time.perf_counter() - t0}
 
 
@@ -141,6 +138,25 @@ def _at(t: list[float], y: list[float], tk: float) -> float:
     return float(np.interp(tk, t, y)) if tk <= t[-1] else float("nan")
 
 
+def _summary(r: pd.Series, uniform: bool = False) -> dict[str, Any]:
+    """One table row for one run (a mapped or a uniform sweep point); 'end' is its last record, T_b on blow-up."""
+    return {
+        "case": r.case,
+        "lambda": _CASES[r.case][0],
+        "grid": f"{r.n_x:g} x {r.n_v:g} uniform" if uniform else f"{r.n:g} x {r.n:g}",
+        "T_b": r.T_b,
+        "reason": r.reason,
+        "steps": r.steps,
+        "max f (end)": r.max_f[-1],
+        "max rho (end)": r.max_rho[-1],
+        "sigma_v (end)": r.min_spread_v[-1],
+        **{f"sigma_v(t={tk:g})": _at(r.t, r.min_spread_v, tk) for tk in _SPREAD_TIMES},
+        "min dv (end)": r.min_dv[-1],
+        "mass drift": float(np.abs(np.asarray(r.mass) - r.mass[0]).max() / r.mass[0]),
+        "seconds": r.seconds,
+    }
+
+
 def reproduce_inhom_gamma1p5(out: Path, quick: bool = False, **sweep_opts: Any) -> pd.DataFrame:
     """Both cases on the resolutions of ``RESOLUTIONS`` and the uniform reference ``UNIFORM``.
 
@@ -157,34 +173,14 @@ def reproduce_inhom_gamma1p5(out: Path, quick: bool = False, **sweep_opts: Any) 
     # the longest points first, so that a pool is not left waiting on them at the end
     points = [{"case": c, "n": n} for n in sorted(resolutions, reverse=True) for c in _CASES]
     runs = run_sweep(gamma1p5_run, points, out / "cache" / "inhom_gamma1p5", desc="inhom_gamma1p5", **sweep_opts)
-    runs = runs.sort_values(["case", "n"], key=lambda c: c.map(list(_CASES).index) if c.name == "case" else c)
-    runs = runs.reset_index(drop=True)
+    # rows by case, then grid
+    runs = runs.set_index(["case", "n"]).loc[[(c, n) for c in _CASES for n in resolutions]].reset_index()
     upoints = [{"case": c, "n_x": uniform[0], "n_v": uniform[1], "t_end": uniform[2]} for c in _CASES]
     refs = run_sweep(gamma1p5_uniform, upoints, out / "cache" / "inhom_gamma1p5_uniform", desc="uniform", **sweep_opts)
     wall = time.perf_counter() - t0
     meet = _C / _D
 
-    rows = []
-    for _, r in pd.concat([runs.assign(grid="mapped"), refs.assign(grid="uniform")], ignore_index=True).iterrows():
-        n_label = f"{r.n:g} x {r.n:g}" if r.grid == "mapped" else f"{r.n_x:g} x {r.n_v:g} uniform"
-        k = -1  # the last record: at T_b when the run stopped on blow-up
-        rows.append(
-            {
-                "case": r.case,
-                "lambda": _CASES[r.case][0],
-                "grid": n_label,
-                "T_b": r.T_b,
-                "reason": r.reason,
-                "steps": r.steps,
-                "max f (end)": r.max_f[k],
-                "max rho (end)": r.max_rho[k],
-                "sigma_v (end)": r.min_spread_v[k],
-                **{f"sigma_v(t={tk:g})": _at(r.t, r.min_spread_v, tk) for tk in _SPREAD_TIMES},
-                "min dv (end)": r.min_dv[k],
-                "mass drift": float(np.abs(np.asarray(r.mass) - r.mass[0]).max() / r.mass[0]),
-                "seconds": r.seconds,
-            }
-        )
+    rows = [_summary(r) for _, r in runs.iterrows()] + [_summary(r, uniform=True) for _, r in refs.iterrows()]
     resolution = pd.DataFrame(rows)
     resolution.to_csv(out / "inhom_gamma1p5_resolution.csv", index=False)
 
@@ -202,9 +198,8 @@ def reproduce_inhom_gamma1p5(out: Path, quick: bool = False, **sweep_opts: Any) 
     ]
     tb = runs.groupby("case").T_b
     main["T_b over grids"] = [f"{tb.min()[c]:.3f}-{tb.max()[c]:.3f}" for c in main.case]
-    main["max f (end)"] = [m[-1] for m in main.max_f]
-    main["sigma_v (end)"] = [s[-1] for s in main.min_spread_v]
-    main["mass drift"] = [float(np.abs(np.asarray(m) - m[0]).max() / m[0]) for m in main.mass]
+    ends = pd.DataFrame([_summary(r) for _, r in main.iterrows()])
+    main[["max f (end)", "sigma_v (end)", "mass drift"]] = ends[["max f (end)", "sigma_v (end)", "mass drift"]]
     cols = ["case", "lambda", "n", "T_b", "meeting time c/d", "ours", "paper", "supports", "T_b over grids"]
     cols += ["reason", "steps", "max f (end)", "sigma_v (end)", "mass drift", "seconds"]
     main[cols].to_csv(out / "inhom_gamma1p5.csv", index=False)

@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 
 from ..scene import Scene, scene_from_dict
-from ..simulate import simulate
+from ..simulate import simulate, snapshot_record
 from ..sweep import run_sweep
 
 __all__ = ["inhomogeneous_gamma3", "inhomogeneous_scene", "reproduce_inhom_gamma3"]
@@ -67,10 +67,7 @@ def inhomogeneous_gamma3(lam: float, n: int, t_end: float) -> dict[str, Any]:
         "x": run.xgrid.points.tolist(),
         "v": run.vgrid.points.tolist(),
         "f": run.f.tolist(),
-        "snapshots": [
-            {"t": float(snap["t"]), **{k: snap[k].tolist() for k in ("x", "v", "f")}}
-            for snap in run.snapshots_at(PAPER_TIMES.get(lam, ()))
-        ],
+        "snapshots": [snapshot_record(snap) for snap in run.snapshots_at(PAPER_TIMES.get(lam, ()))],
         "seconds": time.perf_counter() - t0,
     }
 
