@@ -45,8 +45,12 @@ def restore_moments(
     ----------
     f : ndarray, shape (..., N)
         Non-negative densities at the grid points ``v`` with quadrature weights ``h``.
-    h, v : ndarray, shape (N,)
-        Quadrature weights and grid points.
+    h : ndarray, shape (N,)
+        Quadrature weights.
+    v : ndarray, shape (N,) or (..., N)
+        The coordinate whose first moment is restored: the grid points, or one row of
+        coordinates per row of ``f`` (a periodic axis cut at a different place per row,
+        see :func:`jko_cvx.refine.remap_periodic`).
     mass : float or ndarray, shape (...)
         Target :math:`\\sum_j h_j f_j` per row.
     momentum : float or ndarray, shape (...), optional
@@ -67,7 +71,9 @@ def restore_moments(
     if momentum is None:
         return f * alpha[..., None], np.ones(m0.shape, dtype=bool)
     target = np.divide(momentum, mass, out=np.zeros_like(m0), where=np.asarray(mass) > 0)
-    vbar = np.divide(np.asarray(f @ (v * h)), m0, out=np.zeros_like(m0), where=m0 > 0)
+    v = np.asarray(v, dtype=float)
+    first = f @ (v * h) if v.ndim == 1 else np.sum(f * (v * h), axis=-1)
+    vbar = np.divide(np.asarray(first), m0, out=np.zeros_like(m0), where=m0 > 0)
     dv = v - vbar[..., None]
     goal = target - vbar  # the tilted mean of dv must reach this
     var = np.asarray(np.sum(h * f * dv * dv, axis=-1))

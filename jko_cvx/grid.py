@@ -220,3 +220,47 @@ class PeriodicGrid:
             return interp(lo + np.mod(np.asarray(q, dtype=float) - lo, P))
 
         return evaluate
+
+    def vacuum_coordinate(self, lines: ArrayLike, reach: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Per line, the coordinate :math:`\\xi = (x - c) \\bmod P` cut in the line's vacuum.
+
+        A first moment on a periodic axis depends on where the period is cut; a moment
+        that is to be kept through a transport step or a remap must be cut where the line
+        has no mass, or mass moving across the cut changes it by P times that mass.  The
+        cut c is the grid point whose neighbourhood (the points within ``reach`` of it)
+        holds the smallest maximum.
+
+        Parameters
+        ----------
+        lines : array_like, shape (..., N)
+            Non-negative values at the grid points, one line per leading index.
+        reach : float
+            The distance that mass may travel (transport) or that an interpolant couples
+            (remap) across the cut.
+
+        Returns
+        -------
+        xi : ndarray, shape (..., N)
+            The cut coordinate of every point, in [0, P).
+        near_cut : ndarray, shape (...)
+            The largest value within ``reach`` of the cut: mass crossing it is bounded by
+            ``near_cut`` times the distance travelled.
+        """
+        f = np.asarray(lines, dtype=float)
+        x, n, P = self.points, self.n, self.period
+        window_max = f.copy()
+        idx = np.arange(n)
+        for d in range(1, n // 2 + 1):  # neighbours d points away on either side, while any is in reach
+            inside = False
+            for step in (d, -d):
+                pos = idx + step
+                within = np.abs(x[pos % n] + P * (pos // n) - x) <= reach
+                if within.any():
+                    inside = True
+                    window_max = np.maximum(window_max, np.where(within, np.roll(f, -step, axis=-1), 0.0))
+            if not inside:
+                break
+        i = np.argmin(window_max, axis=-1)
+        cut = x[i][..., None]
+        near_cut = np.take_along_axis(window_max, i[..., None], axis=-1)[..., 0]
+        return np.mod(x - cut, P), near_cut

@@ -14,6 +14,8 @@ A scene file (see ``studies/scenes/*.toml``)::
     [x]                      # optional: omit for a homogeneous scene (no x-grid, no transport)
     L = 4.0
     n = 121
+    conserve_moment = true   # restore each v-line's first x-moment after transport and x-remap
+                             # (false: the paper's mass-only eqn:semi_update)
 
     [initial]                # a parametric library: never evaluated strings
     kind = "gaussians"       # "gaussians" | "two_bump_phase" (eqn:f0) | "gamma2" (eqn:ic_g2)
@@ -125,6 +127,7 @@ class Scene:
     strength: float = 1.0
     x_L: float | None = None
     x_n: int | None = None
+    conserve_x_moment: bool = True
     refine_v: RefineSpec | None = None
     refine_x: RefineSpec | None = None
     method: str = "newton"
@@ -237,6 +240,7 @@ def scene_from_dict(d: dict[str, Any]) -> Scene:
         x = d["x"]
         x_L = _get(x, "L", "x.", float, required=True, check=_POS)
         x_n = _get(x, "n", "x.", int, required=True, check=_NPTS)
+    conserve_x_moment = _get(d.get("x", {}), "conserve_moment", "x.", bool, default=True)
     init = d.get("initial")
     if not isinstance(init, dict):
         raise SceneError(f"[initial] is required, with kind one of {sorted(_INITIAL_KINDS)}")
@@ -317,6 +321,7 @@ def scene_from_dict(d: dict[str, Any]) -> Scene:
         strength=strength,
         x_L=x_L,
         x_n=x_n,
+        conserve_x_moment=conserve_x_moment,
         refine_v=specs.get("v"),
         refine_x=specs.get("x"),
         method=method,

@@ -160,7 +160,7 @@ def _refine_x(scene: Scene, xgrid: PeriodicGrid, f: np.ndarray, params):
     if not _moved(spec, params, new):
         return f, xgrid, params
     grid = periodic_map_grid(mu, xgrid.n, xgrid.period)
-    return remap_periodic(xgrid, f, grid, axis=0), grid, new
+    return remap_periodic(xgrid, f, grid, axis=0, conserve_moment=scene.conserve_x_moment), grid, new
 
 
 def simulate(scene: Scene, out: str | Path | None = None, resume: bool = False, progress: bool = False) -> Run:
@@ -222,7 +222,11 @@ def simulate(scene: Scene, out: str | Path | None = None, resume: bool = False, 
         dt = min(dt, scene.t_end - t)
         while True:
             t0 = time.perf_counter()
-            fh = f if xgrid is None else transport_step(xgrid, vgrid.points, f, dt)
+            fh = (
+                f
+                if xgrid is None
+                else transport_step(xgrid, vgrid.points, f, dt, conserve_moment=scene.conserve_x_moment)
+            )
             t1 = time.perf_counter()
             prob = CollisionProblem(
                 vgrid, kernel, fh, dt, scene.strength, scene.beta, scene.fisher, scene.conserve_momentum

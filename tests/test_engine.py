@@ -53,6 +53,7 @@ def _with(**changes):
         ({"stop": {"on_solver_failure": "yes"}}, "stop.on_solver_failure must be of type bool"),
         ({"output": {"times": [0.05, 0.2]}}, r"output.times must be a list of numbers in \[0, t_end = 0.1\]"),
         ({"output": {"times": 0.05}}, "output.times must be a list"),
+        ({"x": {"L": 4.0, "n": 11, "conserve_moment": 1}}, "x.conserve_moment must be of type bool"),
     ],
 )
 def test_scene_validation_names_the_key(changes, match):
