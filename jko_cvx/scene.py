@@ -44,6 +44,7 @@ A scene file (see ``studies/scenes/*.toml``)::
     [stop]
     eps_v = 2.5e-4           # blow-up threshold on min dv
     eps_x = 2.5e-4
+    spread_v = 0.0           # > 0: also stop when min_spread_v (a density criterion) falls below it
     on_solver_failure = true # stop (and flag blow-up) when the collision solve fails
 
     [output]
@@ -137,6 +138,7 @@ class Scene:
     options: dict[str, Any] = field(default_factory=dict)
     eps_v: float = 0.0
     eps_x: float = 0.0
+    spread_v: float = 0.0
     stop_on_solver_failure: bool = True
     every: int = 10
     snapshot_times: tuple[float, ...] = ()
@@ -299,6 +301,7 @@ def scene_from_dict(d: dict[str, Any]) -> Scene:
     s = d.get("stop", {})
     eps_v = _get(s, "eps_v", "stop.", float, default=0.0, check=(lambda e: e >= 0, ">= 0"))
     eps_x = _get(s, "eps_x", "stop.", float, default=0.0, check=(lambda e: e >= 0, ">= 0"))
+    spread_v = _get(s, "spread_v", "stop.", float, default=0.0, check=(lambda e: math.isfinite(e) and e >= 0, ">= 0"))
     on_fail = _get(s, "on_solver_failure", "stop.", bool, default=True)
     o = d.get("output", {})
     every = _get(o, "every", "output.", int, default=10, check=(lambda k: k >= 1, ">= 1"))
@@ -331,6 +334,7 @@ def scene_from_dict(d: dict[str, Any]) -> Scene:
         options=dict(options),
         eps_v=eps_v,
         eps_x=eps_x,
+        spread_v=spread_v,
         stop_on_solver_failure=on_fail,
         every=every,
         snapshot_times=tuple(sorted(float(tk) for tk in times)),

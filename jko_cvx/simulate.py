@@ -4,7 +4,8 @@ Each step: choose dt (policy), transport in x (inhomogeneous scenes only), colli
 (batched over x-slices), retry with a halved dt on solver failure (halving policy), mesh
 refinement in v and x with mass-conserving remapping, diagnostics, blow-up checks
 (min dv < eps_v: B_v; min dx < eps_x: B_x; solver failure that the policy cannot cure:
-e_f, counted as B_v).  With ``out`` the run lives in a directory: scene, metadata,
+e_f, counted as B_v; and, where the scene sets ``stop.spread_v``, the density criterion
+min_spread_v < spread_v, counted as B_v).  With ``out`` the run lives in a directory: scene, metadata,
 diagnostics.csv, snapshots (every K steps and at the first step reaching each of the scene's
 ``snapshot_times``), a checkpoint every K steps and the verdict, all written
 atomically, so a killed run loses at most K steps and ``resume=True`` continues it to
@@ -279,6 +280,10 @@ def simulate(scene: Scene, out: str | Path | None = None, resume: bool = False, 
             verdict.update(blowup=True, T_b=t, B_v=True, reason=f"min dv = {rows[-1]['min_dv']:.3g} < eps_v")
         if xgrid is not None and rows[-1]["min_dx"] < scene.eps_x:
             verdict.update(blowup=True, T_b=t, B_x=True, reason=f"min dx = {rows[-1]['min_dx']:.3g} < eps_x")
+        if rows[-1]["min_spread_v"] < scene.spread_v:  # the density itself, not the map (off at 0)
+            verdict.update(
+                blowup=True, T_b=t, B_v=True, reason=f"min spread_v = {rows[-1]['min_spread_v']:.3g} < spread_v"
+            )
         done = verdict["blowup"] or t >= scene.t_end * (1 - 1e-12)
         if step % scene.every == 0 or done or _reaches(scene.snapshot_times, t - dt, t):
             snaps.append(_snapshot(out, step, t, xgrid, vgrid, f))

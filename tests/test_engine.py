@@ -9,6 +9,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from jko_cvx.reproduce.ibu import bump_positions
@@ -54,6 +55,7 @@ def _with(**changes):
         ({"output": {"times": [0.05, 0.2]}}, r"output.times must be a list of numbers in \[0, t_end = 0.1\]"),
         ({"output": {"times": 0.05}}, "output.times must be a list"),
         ({"x": {"L": 4.0, "n": 11, "conserve_moment": 1}}, "x.conserve_moment must be of type bool"),
+        ({"stop": {"spread_v": -0.1}}, "stop.spread_v must be >= 0"),
     ],
 )
 def test_scene_validation_names_the_key(changes, match):
@@ -212,3 +214,17 @@ def test_gamma3_bumps_approach_zero_like_one_over_t():
     e = bump_positions(eager.snapshots)
     e = e[e.t >= 10]
     assert eager.blowup or np.any(np.abs(e.centre_of_mass / law(e.t) - 1) > 0.05)
+
+
+def test_the_density_stopping_rule_stops_at_the_first_step_below_its_threshold():
+    """stop.spread_v ends the run at the first step whose min_spread_v is below it, nothing else changes."""
+    base = scene_from_dict(_with(stop={"eps_v": 0.0, "on_solver_failure": False}, t_end=0.4))
+    free = simulate(base)
+    spread = free.diagnostics["min_spread_v"].to_numpy()
+    threshold = 0.5 * (spread[0] + spread.min())  # crossed part-way through the free run
+    first = int(np.argmax(spread < threshold))
+    assert 0 < first < spread.size - 1
+    stopped = simulate(dataclasses.replace(base, spread_v=threshold))
+    assert stopped.blowup and stopped.verdict["B_v"] and "spread_v" in stopped.verdict["reason"]
+    assert stopped.verdict["T_b"] == free.diagnostics["t"].iloc[first]
+    pd.testing.assert_frame_equal(stopped.diagnostics, free.diagnostics.iloc[: first + 1], check_exact=True)

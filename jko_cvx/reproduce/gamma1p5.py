@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from ..grid import Grid, PeriodicGrid
 from ..scene import Scene, scene_from_dict
 from ..simulate import simulate, snapshot_record
 from ..sweep import run_sweep
@@ -37,6 +38,7 @@ __all__ = ["gamma1p5_run", "gamma1p5_scene", "gamma1p5_uniform", "reproduce_inho
 
 _CASES = {"before": (10.0, 6.0, 1.0), "after": (5.0, 3.0, 2.0)}  # lambda, b, t_end
 _C = _D = 2.5
+_L = 5.0  # both half-widths
 _PAPER = {"before": "blow-up in v before the bumps meet", "after": "blow-up in v after the bumps pass x = 0"}
 PAPER_TIMES = {"before": (0.04, 0.1, 0.2, 0.3, 0.4), "after": (0.1, 0.4, 0.8, 1.2, 1.3)}
 """Snapshot times of ``fig:gk1p5_C5`` and ``fig:gk1p5_C2p5``."""
@@ -60,6 +62,12 @@ _SERIES = (
     "min_spread_v",
 )
 _SPREAD_TIMES = (0.2, 0.4, 0.6)
+COLLAPSE_SPREAD = 0.05
+"""The density criterion: the first time sigma_v (``min_spread_v``) falls below this, a sixth
+of lambda = 10's initial 0.29 and an eighth of lambda = 5's 0.41 (``stop.spread_v`` of a scene)."""
+QUICK_T_END = 0.6
+"""End of the quick form's mapped runs (the collapse comes at t ~ 0.33-0.45 on its grids)."""
+_SEPARATE = 0.7  # until then the bumps (x-width 0.29) stay 1.5 apart: each keeps x-bar' = u-bar
 
 
 def gamma1p5_scene(case: str, n: int = 121) -> Scene:
@@ -73,8 +81,8 @@ def gamma1p5_scene(case: str, n: int = 121) -> Scene:
             "gamma": 1.5,
             "strength": lam / 2,
             "t_end": t_end,
-            "v": {"L": 5.0, "n": n},
-            "x": {"L": 5.0, "n": n},
+            "v": {"L": _L, "n": n},
+            "x": {"L": _L, "n": n},
             "initial": {"kind": "two_bump_phase", "a": 6.0, "b": b, "c": _C, "d": _D},
             "time": {"policy": "cfl", "dt": 0.01},
             "refine": {
@@ -105,10 +113,19 @@ def _verdict(run) -> dict[str, Any]:
     }
 
 
-def gamma1p5_run(case: str, n: int) -> dict[str, Any]:
-    """One sweep point: the scene on an n x n grid; verdict, records and the paper's snapshots."""
+def gamma1p5_run(case: str, n: int, collapse_stop: bool = False) -> dict[str, Any]:
+    """One sweep point: the scene on an n x n grid; verdict, records and the paper's snapshots.
+
+    ``collapse_stop`` (the quick form) also stops on the density criterion sigma_v <
+    COLLAPSE_SPREAD and at t = QUICK_T_END: on coarse grids the paper's criterion fires only
+    after thousands of CFL steps on a collapsed grid (41 x 41, lambda = 10: 3250 steps,
+    T_b = 0.82, against 111 steps to the collapse at t = 0.33).
+    """
     t0 = time.perf_counter()
-    run = simulate(gamma1p5_scene(case, n))
+    scene = gamma1p5_scene(case, n)
+    if collapse_stop:
+        scene = dataclasses.replace(scene, spread_v=COLLAPSE_SPREAD, t_end=min(scene.t_end, QUICK_T_END))
+    run = simulate(scene)
     # the paper's times and the last state (T_b where the run stopped on blow-up)
     snaps = [snapshot_record(s) for s in run.snapshots_at((*PAPER_TIMES[case], run.t))]
     return {**_verdict(run), **_series(run), "snapshots": snaps, "seconds": time.perf_counter() - t0}
@@ -138,6 +155,29 @@ def _at(t: list[float], y: list[float], tk: float) -> float:
     return float(np.interp(tk, t, y)) if tk <= t[-1] else float("nan")
 
 
+def _first_below(t: list[float], y: list[float], level: float) -> float:
+    """The first recorded time with y < level (nan if none)."""
+    below = np.flatnonzero(np.asarray(y) < level)
+    return float(t[below[0]]) if below.size else float("nan")
+
+
+def _centre_error(snapshots: list[dict[str, Any]]) -> float:
+    """Largest |x-bar - (-c + d t)| of the right-moving (v > 0) half over the snapshots with t <= _SEPARATE.
+
+    Until the bumps overlap, collisions act within one bump and keep its momentum, so the
+    centre of mass of the v > 0 half moves at exactly d (eqn:f0 has mean velocity d).
+    """
+    errors = []
+    for snap in snapshots:
+        if snap["t"] > _SEPARATE or "x" not in snap:
+            continue
+        x, v, f = (np.asarray(snap[k]) for k in ("x", "v", "f"))
+        w = np.outer(PeriodicGrid(x, 2 * _L).h, Grid(v).h) * f
+        right = w[:, v > 0].sum(axis=1)
+        errors.append(abs(x @ right / right.sum() - (-_C + _D * snap["t"])))
+    return max(errors) if errors else float("nan")
+
+
 def _summary(r: pd.Series, uniform: bool = False) -> dict[str, Any]:
     """One table row for one run (a mapped or a uniform sweep point); 'end' is its last record, T_b on blow-up."""
     return {
@@ -151,6 +191,8 @@ def _summary(r: pd.Series, uniform: bool = False) -> dict[str, Any]:
         "max rho (end)": r.max_rho[-1],
         "sigma_v (end)": r.min_spread_v[-1],
         **{f"sigma_v(t={tk:g})": _at(r.t, r.min_spread_v, tk) for tk in _SPREAD_TIMES},
+        f"t(sigma_v < {COLLAPSE_SPREAD:g})": _first_below(r.t, r.min_spread_v, COLLAPSE_SPREAD),
+        f"x-bar error (t <= {_SEPARATE:g})": float("nan") if uniform else _centre_error(r.snapshots),
         "min dv (end)": r.min_dv[-1],
         "mass drift": float(np.abs(np.asarray(r.mass) - r.mass[0]).max() / r.mass[0]),
         "seconds": r.seconds,
@@ -164,7 +206,8 @@ def reproduce_inhom_gamma1p5(out: Path, quick: bool = False, **sweep_opts: Any) 
     snapshots and records of ``fig:gk1p5_C5`` / ``fig:gk1p5_C2p5``),
     ``inhom_gamma1p5_resolution.{csv,png}`` (every grid, min dv and sigma_v against t) and
     ``inhom_gamma1p5_properties.png`` (rows 3-4 of ``fig:gk3_properties``).  ``quick``:
-    41 x 41 and 61 x 61, uniform reference 41 x 81 to t = 0.4.
+    41 x 41 and 61 x 61, stopped also at the density collapse (``gamma1p5_run``), uniform
+    reference 41 x 81 to t = 0.4.
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -172,6 +215,8 @@ def reproduce_inhom_gamma1p5(out: Path, quick: bool = False, **sweep_opts: Any) 
     resolutions, uniform = ((41, 61), (41, 81, 0.4)) if quick else (RESOLUTIONS, UNIFORM)
     # the longest points first, so that a pool is not left waiting on them at the end
     points = [{"case": c, "n": n} for n in sorted(resolutions, reverse=True) for c in _CASES]
+    if quick:
+        points = [{**p, "collapse_stop": True} for p in points]
     runs = run_sweep(gamma1p5_run, points, out / "cache" / "inhom_gamma1p5", desc="inhom_gamma1p5", **sweep_opts)
     # rows by case, then grid
     runs = runs.set_index(["case", "n"]).loc[[(c, n) for c in _CASES for n in resolutions]].reset_index()
@@ -199,14 +244,28 @@ def reproduce_inhom_gamma1p5(out: Path, quick: bool = False, **sweep_opts: Any) 
     tb = runs.groupby("case").T_b
     main["T_b over grids"] = [f"{tb.min()[c]:.3f}-{tb.max()[c]:.3f}" for c in main.case]
     ends = pd.DataFrame([_summary(r) for _, r in main.iterrows()])
-    main[["max f (end)", "sigma_v (end)", "mass drift"]] = ends[["max f (end)", "sigma_v (end)", "mass drift"]]
+    collapse, centre = f"t(sigma_v < {COLLAPSE_SPREAD:g})", f"x-bar error (t <= {_SEPARATE:g})"
+    main[["max f (end)", "sigma_v (end)", "mass drift", collapse, centre]] = ends[
+        ["max f (end)", "sigma_v (end)", "mass drift", collapse, centre]
+    ]
+    # the density criterion on every grid, the uniform reference included
+    tc = resolution.groupby("case")[collapse]
+    main[f"{collapse} over grids"] = [f"{tc.min()[c]:.3f}-{tc.max()[c]:.3f}" for c in main.case]
+    main["density criterion"] = [
+        "no collapse by t_end" if np.isnan(t) else f"collapse in v {'before' if t < meet else 'after'}"
+        for t in main[collapse]
+    ]
     cols = ["case", "lambda", "n", "T_b", "meeting time c/d", "ours", "paper", "supports", "T_b over grids"]
+    cols += [collapse, f"{collapse} over grids", "density criterion", centre]
     cols += ["reason", "steps", "max f (end)", "sigma_v (end)", "mass drift", "seconds"]
     main[cols].to_csv(out / "inhom_gamma1p5.csv", index=False)
     (out / "inhom_gamma1p5.md").write_text(
         "# sec:sp_inhom_gamma_1p5: gamma = 3/2 inhomogeneous\n\n"
         "T_b (the paper's criterion, min dv < eps_v) against the time c/d = 1 at which the bumps' "
-        "centres meet at x = 0 (free transport), on the paper's 121 x 121 grids.\n\n"
+        "centres meet at x = 0 (free transport), on the paper's 121 x 121 grids.  Beside it the "
+        f"density criterion: the first time sigma_v < {COLLAPSE_SPREAD:g}, on every grid.  x-bar error: "
+        "the largest distance of the right-moving half's centre of mass from -c + d t "
+        f"(exact until the bumps overlap) over the snapshots up to t = {_SEPARATE:g}.\n\n"
         + main[cols].to_markdown(index=False, floatfmt=".4g")
         + "\n\n## Every grid, and the map-free reference\n\n"
         "sigma_v: the smallest local velocity spread over slices with rho >= 0.1 max rho "
