@@ -28,7 +28,7 @@ import numpy as np
 import pandas as pd
 
 from . import __version__
-from .collision import CollisionProblem, solve_collision
+from .collision import CollisionProblem, Status, solve_collision
 from .diagnostics import diagnostics
 from .grid import Grid, PeriodicGrid
 from .kernels import PowerKernel
@@ -240,7 +240,7 @@ def simulate(scene: Scene, out: str | Path | None = None, resume: bool = False, 
             # target tol matters for the populated ones (momentum symmetry).
             ok = np.all(res.success) or (
                 np.all(np.atleast_1d(res.kkt_residual) <= accept_kkt)
-                and all(st.name in ("CONVERGED", "NOT_CERTIFIED") for st in np.ravel(np.atleast_1d(res.status)))
+                and all(st in (Status.CONVERGED, Status.NOT_CERTIFIED) for st in np.ravel(np.atleast_1d(res.status)))
             )
             if ok:
                 break
