@@ -196,7 +196,7 @@ def load_run(path: str | Path, *, allow_partial: bool = False) -> Run:
         A run directory (``jko-cvx run --out``, or ``simulate(..., out=path)``).
     allow_partial : bool
         Also load a run that has not ended (no ``verdict.json``: killed or interrupted) as
-        it stood at its last checkpoint; its verdict is then provisional and ``seconds`` empty.
+        it stood at its last checkpoint (its verdict is then provisional).
 
     Raises
     ------
@@ -215,12 +215,11 @@ def load_run(path: str | Path, *, allow_partial: bool = False) -> Run:
     fingerprint = str(read_npz(ck, "checkpoint", ("scene_sha256",))["scene_sha256"])
     scene = _scene_from_record(record, fingerprint, path / "scene.json")
     state, _ = RunState.load(ck, None if scene.homogeneous else scene.xgrid().period)
-    seconds: dict[str, float] = {}
     verdict_file = path / "verdict.json"
     if verdict_file.exists():
         try:
-            seconds = {k: float(s) for k, s in json.loads(verdict_file.read_text())["seconds"].items()}
-        except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
+            json.loads(verdict_file.read_text())["stop"]
+        except (OSError, ValueError, KeyError, TypeError) as exc:
             raise RunDirError(f"{verdict_file} does not read ({type(exc).__name__}: {exc})") from None
     elif not allow_partial:
         raise RunDirError(
@@ -231,4 +230,4 @@ def load_run(path: str | Path, *, allow_partial: bool = False) -> Run:
 
     snaps = read_snapshots(path, state.step)
     diag = pd.DataFrame(state.rows)
-    return Run(scene, diag, snaps, state.f, state.vgrid, state.xgrid, state.t, state.verdict, seconds)
+    return Run(scene, diag, snaps, state.f, state.vgrid, state.xgrid, state.t, state.verdict, state.seconds)

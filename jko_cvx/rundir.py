@@ -239,6 +239,7 @@ class RunDir:
         state.save(self.checkpoint, self.provenance)
         save_text(self.path / "diagnostics.csv", pd.DataFrame(state.rows).to_csv(index=False))
 
-    def write_verdict(self, state: RunState, seconds: dict[str, float]) -> None:
-        record = {**state.verdict.to_dict(), "t": state.t, "steps": state.step, "seconds": seconds}
+    def write_verdict(self, state: RunState) -> None:
+        """verdict.json: the verdict, t, the step count and the timings (its presence marks an ended run)."""
+        record = {**state.verdict.to_dict(), "t": state.t, "steps": state.step, "seconds": state.seconds}
         save_text(self.path / "verdict.json", json.dumps(record, indent=2))

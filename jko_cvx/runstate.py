@@ -14,7 +14,7 @@ import os
 import tempfile
 import zipfile
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -93,14 +93,15 @@ def read_snapshot(path: Path) -> dict[str, Any]:
         raise RunDirError(f"snapshot {path} is not a jko_cvx snapshot ({exc})") from None
 
 
-_CHECKPOINT_KEYS = ("t", "step", "f", "v", "x", "rows", "verdict", "v_params", "x_params")
+_CHECKPOINT_KEYS = ("t", "step", "f", "v", "x", "rows", "verdict", "v_params", "x_params", "seconds")
 
 
 @dataclass
 class RunState:
     """Everything the time loop carries from one step to the next.
 
-    ``rows`` are the diagnostics records (one per accepted step, from step 0);
+    ``rows`` are the diagnostics records (one per accepted step, from step 0); ``seconds`` the
+    time spent so far in collision, transport and refinement (over every call that ran the loop);
     ``v_params`` / ``x_params`` the extents of the concentration sets the refined grids were
     built for (None on a fixed grid, or before the first refinement).
     """
@@ -114,6 +115,7 @@ class RunState:
     x_params: np.ndarray | None
     rows: list[dict[str, Any]]
     verdict: Verdict
+    seconds: dict[str, float] = field(default_factory=lambda: dict.fromkeys(("collision", "transport", "refine"), 0.0))
 
     def done(self, t_end: float) -> bool:
         """A blow-up rule fired, or ``t_end`` is reached (to rounding in t)."""
@@ -132,6 +134,7 @@ class RunState:
             x=np.array([]) if self.xgrid is None else self.xgrid.points,
             rows=json.dumps(self.rows),
             verdict=json.dumps(self.verdict.to_dict()),
+            seconds=json.dumps(self.seconds),
             **{k: np.array(v) for k, v in provenance.items()},
         )
 
@@ -162,6 +165,7 @@ class RunState:
                 x_params=ck["x_params"] if ck["x_params"].size else None,
                 rows=json.loads(str(ck["rows"])),
                 verdict=Verdict.from_dict(json.loads(str(ck["verdict"]))),
+                seconds={k: float(x) for k, x in json.loads(str(ck["seconds"])).items()},
             )
         except _READ_ERRORS as exc:
             raise RunDirError(f"checkpoint {path} does not hold a valid run state ({exc})") from None

@@ -41,7 +41,7 @@ from .run import Run, load_run
 from .rundir import RunDir
 from .runstate import RunState
 from .scene import Scene
-from .trackers import SolverFailure, StepInfo, Tracker, default_trackers
+from .trackers import Snapshots, SolverFailure, StepInfo, Tracker, default_trackers
 from .transport import transport_step
 from .verdict import Verdict
 
@@ -123,7 +123,6 @@ class Stepper:
             # the drift comes from the step itself, not from the tolerance (measured on
             # inhom_gamma3_lambda4: tol 1e-11 costs 50 % more and only lowers it 3e-9 -> 6e-10).
             self.opts.setdefault("tol", ACCEPT_KKT)
-        self.seconds = {"collision": 0.0, "transport": 0.0, "refine": 0.0}
 
     @staticmethod
     def accepted(res) -> bool:
@@ -152,8 +151,8 @@ class Stepper:
                 state.vgrid, self.kernel, fh, dt, sc.strength, sc.beta, sc.fisher, sc.conserve_momentum
             )
             res = solve_collision(prob, method=sc.method, **self.opts)
-            self.seconds["transport"] += t1 - t0
-            self.seconds["collision"] += time.perf_counter() - t1
+            state.seconds["transport"] += t1 - t0
+            state.seconds["collision"] += time.perf_counter() - t1
             ok = self.accepted(res)
             retry = None if ok else self.policy.retry(dt)
             if retry is None:
@@ -168,7 +167,7 @@ class Stepper:
             f, vgrid, vp = _refine_v(self.scene, vgrid, f, vp)
         if self.scene.refine_x is not None:
             f, xgrid, xp = _refine_x(self.scene, xgrid, f, xp)
-        self.seconds["refine"] += time.perf_counter() - t2
+        state.seconds["refine"] += time.perf_counter() - t2
         state.f, state.vgrid, state.xgrid, state.v_params, state.x_params = f, vgrid, xgrid, vp, xp
         state.t += out.dt
         state.step += 1
@@ -226,28 +225,23 @@ def simulate(
         with InterruptGuard() if rd is not None else nullcontext(InterruptGuard()) as guard:
             try:
                 _loop(scene, stepper, state, trackers, guard)
-                with guard.deferred():
-                    for tr in trackers:
-                        tr.finish(state)
-                    run = Run(
-                        scene,
-                        pd.DataFrame(state.rows),
-                        snaps.snapshots,
-                        state.f,
-                        state.vgrid,
-                        state.xgrid,
-                        state.t,
-                        state.verdict,
-                        stepper.seconds,
-                    )
-                    if rd is not None:
-                        rd.write_verdict(state, stepper.seconds)
+                guard.hold()  # the loop has ended: a signal from here on is ignored
+                return _finish(scene, state, trackers, snaps, rd)
             except KeyboardInterrupt as exc:
                 if rd is None:
                     raise
                 guard.hold()
                 rd.save_state(state)
                 raise RunInterrupted(rd.path, state.step, state.t, getattr(exc, "signum", signal.SIGINT)) from None
+
+
+def _finish(scene: Scene, state: RunState, trackers: list[Tracker], snaps: Snapshots, rd: RunDir | None) -> Run:
+    for tr in trackers:
+        tr.finish(state)
+    run = Run(scene, pd.DataFrame(state.rows), snaps.snapshots, state.f, state.vgrid, state.xgrid, state.t,
+              state.verdict, state.seconds)  # fmt: skip
+    if rd is not None:
+        rd.write_verdict(state)
     return run
 
 
