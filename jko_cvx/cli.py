@@ -48,7 +48,11 @@ def _run_scene(scene_path: Path | None, out: Path | None, resume: bool, overwrit
         )
         return 130
     except KeyboardInterrupt:  # before the run had a state to checkpoint
-        print("\njko-cvx: interrupted before the first step (nothing was checkpointed)", file=sys.stderr)
+        print(
+            f"\njko-cvx: interrupted before the run started (nothing was checkpointed); start it again with "
+            f"--overwrite (--out {out})",
+            file=sys.stderr,
+        )
         return 130
     wall = time.perf_counter() - t0
     save_figures(run, out)

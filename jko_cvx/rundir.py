@@ -125,10 +125,10 @@ class RunDir:
         if resume and overwrite:
             raise ValueError("resume and overwrite exclude each other (resume continues a run, overwrite replaces it)")
         rd = cls(Path(path), scene)
-        if resume and not rd.path.is_dir():
-            raise RunDirError(f"nothing to resume: run directory {rd.path} does not exist")
         if rd.path.exists() and not rd.path.is_dir():
             raise RunDirError(f"run directory {rd.path} exists and is not a directory")
+        if resume and not rd.path.is_dir():
+            raise RunDirError(f"nothing to resume: run directory {rd.path} does not exist")
         rd.path.mkdir(parents=True, exist_ok=True)
         rd._lock()
         try:

@@ -220,10 +220,11 @@ def simulate(
     with RunDir.open(out, scene, resume=resume, overwrite=overwrite) if out is not None else nullcontext() as rd:
         state = rd.state if rd is not None and rd.state is not None else initial_state(scene)
         trackers, snaps = default_trackers(scene, rd, [] if rd is None else rd.snapshots, progress)
-        for tr in trackers:
-            tr.start(state)
         with InterruptGuard() if rd is not None else nullcontext(InterruptGuard()) as guard:
             try:
+                with guard.deferred():
+                    for tr in trackers:
+                        tr.start(state)
                 _loop(scene, stepper, state, trackers, guard)
                 guard.hold()  # the loop has ended: a signal from here on is ignored
                 return _finish(scene, state, trackers, snaps, rd)
