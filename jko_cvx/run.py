@@ -207,6 +207,8 @@ def load_run(path: str | Path, *, allow_partial: bool = False) -> Run:
     path = Path(path)
     if not path.is_dir():
         raise RunDirError(f"run directory {path} does not exist")
+    if not (path / "scene.json").exists():
+        raise RunDirError(f"{path} is not a run directory: it has no scene.json")
     try:
         record = json.loads((path / "scene.json").read_text())
     except (OSError, ValueError) as exc:

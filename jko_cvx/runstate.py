@@ -67,7 +67,9 @@ def read_npz(path: Path, what: str, keys: tuple[str, ...]) -> dict[str, np.ndarr
     except FileNotFoundError:
         raise RunDirError(f"{what} {path} does not exist") from None
     except _READ_ERRORS as exc:
-        raise RunDirError(f"{what} {path} is corrupted or truncated ({type(exc).__name__}: {exc})") from None
+        # np.load reads a file that is no archive at all as a pickle, which it refuses
+        why = "not an .npz archive" if "pickle" in str(exc) else f"{type(exc).__name__}: {exc}"
+        raise RunDirError(f"{what} {path} is corrupted or truncated ({why})") from None
     missing = [k for k in keys if k not in data]
     if missing:
         raise RunDirError(f"{what} {path} is not a jko_cvx {what}: it lacks {missing}")

@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from .collision import CollisionProblem, solve_collision
+from .collision import CollisionProblem, Status, solve_collision
 from .grid import Grid, PeriodicGrid
 from .interrupts import InterruptGuard, RunInterrupted
 from .kernels import PowerKernel
@@ -130,7 +130,7 @@ class Stepper:
         near 1e-10 while the tight target tol matters for the populated ones (momentum symmetry)."""
         return bool(np.all(res.success)) or bool(
             np.all(np.atleast_1d(res.kkt_residual) <= ACCEPT_KKT)
-            and all(st.name in ("CONVERGED", "NOT_CERTIFIED") for st in np.ravel(np.atleast_1d(res.status)))
+            and all(st in (Status.CONVERGED, Status.NOT_CERTIFIED) for st in np.ravel(np.atleast_1d(res.status)))
         )
 
     def solve(self, state: RunState) -> _Outcome:

@@ -208,6 +208,9 @@ def test_damaged_checkpoint_or_snapshot_is_named_on_resume(tmp_path, capsys):
         simulate(_small(), out=out, resume=True)
     assert main(["run", "--out", str(out), "--resume", "--quiet"]) == 2  # the default scene: the same refusal
     assert f"checkpoint {ck} is corrupted" in capsys.readouterr().err
+    ck.write_bytes(b"PK not really")
+    with pytest.raises(RunDirError, match=rf"checkpoint {ck} is corrupted or truncated \(not an \.npz archive\)"):
+        simulate(_small(), out=out, resume=True)
     ck.write_bytes(good)
     snap = out / "snapshots" / "step_0000002.npz"
     snap.write_bytes(snap.read_bytes()[:100])
