@@ -68,7 +68,7 @@ def test_load_run_refuses_an_unfinished_run_unless_asked(tmp_path):
     assert jko_cvx.load_run(out, allow_partial=True).t == run.t
     with pytest.raises(RunDirError, match="does not exist"):
         jko_cvx.load_run(tmp_path / "nowhere")
-    with pytest.raises(RunDirError, match="is not a run directory: it has no scene.json"):
+    with pytest.raises(RunDirError, match=r"is not a run directory: it has no scene\.json"):
         jko_cvx.load_run(out / "snapshots")
     (out / "scene.json").write_text(json.dumps({**json.loads((out / "scene.json").read_text()), "gamma": 2.0}))
     with pytest.raises(RunDirError, match="does not rebuild the scene"):  # an edited scene.json is caught
