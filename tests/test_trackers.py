@@ -254,3 +254,11 @@ def test_interrupt_guard_defers_signals_while_a_step_is_committed():
         for _ in range(1000):
             pass
     assert signal.getsignal(signal.SIGTERM) is before
+
+
+def test_the_run_is_done_at_t_end_to_rounding_or_at_blowup():
+    state = _state(t=1.0 - 1e-13)
+    assert state.done(1.0) and not _state(t=1.0 - 1e-9).done(1.0)  # ten steps of 0.1 sum to 0.9999999999999999
+    blown = _state(t=0.2, verdict=Verdict().stopped(StopReason.EPS_V, 0.2, "min dv = 1e-05 < eps_v"))
+    assert blown.done(1.0)
+    assert not _state(t=0.2, verdict=Verdict().solver_failed()).done(1.0)  # e_f alone does not stop a run
