@@ -1,16 +1,21 @@
 """The ``jko-cvx`` command.
 
-``jko-cvx run [SCENE.toml] [--out DIR] [--resume]`` runs a scene (default: the built-in
-homogeneous gamma = 1, g1 = exp(-2 v^2) scene of Table ``tab:bu``, with mesh refinement,
+``jko-cvx run [SCENE.toml] [--out DIR] [--resume | --overwrite]`` runs a scene (default: the
+built-in homogeneous gamma = 1, g1 = exp(-2 v^2) scene of Table ``tab:bu``, with mesh refinement,
 run until the blow-up criterion min dv < eps_v fires; exact T = 0.5), writes the run
-directory and prints the verdict.  ``jko-cvx solve`` solves one collision step with
-every method; ``jko-cvx solvers`` lists the installed conic solvers; ``jko-cvx reproduce NAME [--quick]``
-regenerates one of the paper's tables or figures (:mod:`jko_cvx.reproduce`).
+directory (refusing one that holds a run, unless ``--overwrite``) and prints the verdict;
+Ctrl-C (SIGINT) or SIGTERM writes a checkpoint, prints the command that resumes it and exits
+with status 130.  ``jko-cvx export RUN_DIR --netcdf FILE`` writes a run as netCDF.
+``jko-cvx solve`` solves one collision step with every method; ``jko-cvx solvers`` lists the installed
+conic solvers; ``jko-cvx reproduce NAME [--quick]`` regenerates one of the paper's tables or figures
+(:mod:`jko_cvx.reproduce`).
 """
 
 from __future__ import annotations
 
 import argparse
+import shlex
+import signal
 import sys
 import time
 from pathlib import Path
@@ -23,28 +28,42 @@ from .grid import Grid
 from .kernels import PowerKernel
 
 
-def _run_scene(scene_path: Path | None, out: Path | None, resume: bool, quiet: bool) -> int:
+def _run_scene(scene_path: Path | None, out: Path | None, resume: bool, overwrite: bool, quiet: bool) -> int:
+    from .interrupts import RunInterrupted
+    from .plot import save_figures
     from .scene import default_scene, load_scene
     from .simulate import simulate
 
     scene = default_scene() if scene_path is None else load_scene(scene_path)
     out = out if out is not None else Path("runs") / scene.name
     t0 = time.perf_counter()
-    run = simulate(scene, out=out, resume=resume, progress=not quiet)
+    try:
+        run = simulate(scene, out=out, resume=resume, overwrite=overwrite, progress=not quiet)
+    except RunInterrupted as exc:
+        cmd = ["jko-cvx", "run", *([] if scene_path is None else [str(scene_path)]), "--out", str(out), "--resume"]
+        print(
+            f"\njko-cvx: interrupted ({signal.Signals(exc.signum).name}) at step {exc.step}, t = {exc.t:.6g}; "
+            f"checkpoint written to {out / 'checkpoint.npz'}.\nResume with:\n  {shlex.join(cmd)}",
+            file=sys.stderr,
+        )
+        return 130
+    except KeyboardInterrupt:  # before the run had a state to checkpoint
+        print(
+            f"\njko-cvx: interrupted before the run started (nothing was checkpointed); start it again with "
+            f"--overwrite (--out {out})",
+            file=sys.stderr,
+        )
+        return 130
     wall = time.perf_counter() - t0
-    _plot_run(run, out)
-    d = run.diagnostics
+    save_figures(run, out)
     print(f"jko-cvx {__version__}: {scene.name} -- {scene.description}")
     print(f"  {run.summary()}")
     print(
         f"  wall {wall:.2f} s (collision {run.seconds['collision']:.2f} s, transport {run.seconds['transport']:.2f} s, "
-        f"refinement {run.seconds['refine']:.2f} s); steps with a failed collision solve: {int((d.failed > 0).sum())}"
+        f"refinement {run.seconds['refine']:.2f} s); steps with a failed collision solve: {run.failed_steps}"
     )
-    print(
-        f"  mass drift {abs(d.mass.iloc[-1] - d.mass.iloc[0]) / d.mass.iloc[0]:.1e} (relative), "
-        f"momentum drift {abs(d.momentum.iloc[-1] - d.momentum.iloc[0]):.1e}, max f {d.max_f.max():.4g}, "
-        f"min dv {d.min_dv.min():.3g}" + ("" if scene.homogeneous else f", min dx {d.min_dx.min():.3g}")
-    )
+    print(f"  {run.records_line()}")
+    d = run.diagnostics
     if scene.gamma == 1.0 and scene.homogeneous and run.blowup:
         print(
             f"  exact blow-up time 1/(2 max f0) = {1 / (2 * d.max_f.iloc[0] * scene.strength):.4f} (max f0 on the grid)"
@@ -53,41 +72,16 @@ def _run_scene(scene_path: Path | None, out: Path | None, resume: bool, quiet: b
     return 0
 
 
-def _plot_run(run, out: Path) -> None:
-    import matplotlib
+def _export(args) -> int:
+    from .run import export_netcdf, load_run
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    d = run.diagnostics
-    fig, ax = plt.subplots(1, 2 if run.xgrid is None else 1, figsize=(10 if run.xgrid is None else 6, 4))
-    if run.xgrid is None:
-        a, b = ax
-        a.plot(run.vgrid.points, run.f, ".-", ms=2)
-        a.set_xlabel("v"), a.set_ylabel("f"), a.set_title(f"f at t = {run.t:.4g}")
-        k = int(np.argmax(run.f))
-        w = max(20 * run.vgrid.dv.min(), 1e-3)
-        sel = np.abs(run.vgrid.points - run.vgrid.points[k]) <= w
-        b.plot(run.vgrid.points[sel], run.f[sel], ".-", ms=3)
-        b.set_xlabel("v"), b.set_title("zoom at the maximum")
-    else:
-        X, V = np.meshgrid(run.xgrid.points, run.vgrid.points, indexing="ij")
-        pc = ax.pcolormesh(X, V, run.f, shading="auto")
-        fig.colorbar(pc, ax=ax)
-        ax.set_xlabel("x"), ax.set_ylabel("v"), ax.set_title(f"f(t = {run.t:.4g}, x, v)")
-    fig.tight_layout()
-    fig.savefig(out / "solution.png", dpi=110)
-    plt.close(fig)
-    fig, a = plt.subplots(figsize=(6, 4))
-    a.semilogy(d.t, d.min_dv, label="min dv")
-    if run.xgrid is not None:
-        a.semilogy(d.t, d.min_dx, label="min dx")
-    a.semilogy(d.t, d.max_f, label="max f")
-    a.set_xlabel("t"), a.legend()
-    a.set_title(f"{run.scene.name}: " + (f"blow-up at T_b = {run.verdict['T_b']:.4g}" if run.blowup else "no blow-up"))
-    fig.tight_layout()
-    fig.savefig(out / "records.png", dpi=110)
-    plt.close(fig)
+    try:
+        path = export_netcdf(load_run(args.run_dir), args.netcdf)
+    except ImportError as exc:  # the optional extra is missing
+        print(f"jko-cvx: error: {exc}", file=sys.stderr)
+        return 2
+    print(f"jko-cvx export: wrote {path} (xarray Dataset of {args.run_dir}: diagnostics over t, snapshots over t_snap)")
+    return 0
 
 
 def _solve_one(args) -> int:
@@ -177,8 +171,13 @@ def main(argv: list[str] | None = None) -> int:
     p_run = sub.add_parser("run", help="run a scene (default: the built-in homogeneous gamma = 1, g1 scene)")
     p_run.add_argument("scene", nargs="?", type=Path, help="scene TOML file (studies/scenes/*.toml)")
     p_run.add_argument("--out", type=Path, default=None, help="run directory (default runs/<scene name>)")
-    p_run.add_argument("--resume", action="store_true", help="continue a killed run from its checkpoint")
+    again = p_run.add_mutually_exclusive_group()
+    again.add_argument("--resume", action="store_true", help="continue an interrupted run from its checkpoint")
+    again.add_argument("--overwrite", action="store_true", help="replace the run already in the run directory")
     p_run.add_argument("--quiet", action="store_true", help="no progress bar")
+    p_exp = sub.add_parser("export", help="write a run directory as a netCDF file (extra jko_cvx[netcdf])")
+    p_exp.add_argument("run_dir", type=Path, help="run directory (jko-cvx run --out)")
+    p_exp.add_argument("--netcdf", type=Path, required=True, help="the netCDF file to write")
     p_solve = sub.add_parser("solve", help="one collision step with every method, side by side")
     p_solve.add_argument("--gamma", type=float, default=1.0)
     p_solve.add_argument("--n", type=int, default=121)
@@ -210,7 +209,9 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         if args.command == "run":
-            return _run_scene(args.scene, args.out, args.resume, args.quiet)
+            return _run_scene(args.scene, args.out, args.resume, args.overwrite, args.quiet)
+        if args.command == "export":
+            return _export(args)
         if args.command == "solve":
             return _solve_one(args)
         if args.command == "reproduce":

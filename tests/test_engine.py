@@ -15,6 +15,7 @@ import pytest
 from jko_cvx.reproduce.ibu import bump_positions
 from jko_cvx.scene import SceneError, default_scene, load_scene, scene_from_dict
 from jko_cvx.simulate import simulate
+from jko_cvx.verdict import StopReason
 
 SCENES = Path(__file__).parent.parent / "studies" / "scenes"
 
@@ -176,6 +177,7 @@ def test_halving_policy_cures_a_failing_step():
     assert not run.blowup and run.t == pytest.approx(0.3)
     fixed = simulate(dataclasses.replace(s, policy="fixed"))  # the same scene without halving fails
     assert fixed.blowup and fixed.verdict["e_f"] and "collision solver failed" in fixed.verdict["reason"]
+    assert fixed.verdict.stop is StopReason.SOLVER_FAILURE and not run.verdict.e_f
 
 
 @pytest.mark.slow
@@ -225,6 +227,6 @@ def test_the_density_stopping_rule_stops_at_the_first_step_below_its_threshold()
     first = int(np.argmax(spread < threshold))
     assert 0 < first < spread.size - 1
     stopped = simulate(dataclasses.replace(base, spread_v=threshold))
-    assert stopped.blowup and stopped.verdict["B_v"] and "spread_v" in stopped.verdict["reason"]
+    assert stopped.blowup and stopped.verdict["B_v"] and stopped.verdict.stop is StopReason.SPREAD_V
     assert stopped.verdict["T_b"] == free.diagnostics["t"].iloc[first]
     pd.testing.assert_frame_equal(stopped.diagnostics, free.diagnostics.iloc[: first + 1], check_exact=True)
