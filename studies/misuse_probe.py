@@ -64,7 +64,7 @@ def _scene(**edits: str) -> str:
         if old == "_add":
             continue
         assert old in text, old
-        text = text.replace(old, new)
+        text = text.replace(old, new, 1)
     return text + edits.get("_add", "")
 
 
@@ -163,8 +163,10 @@ CASES: list[tuple[str, str, str, str | None, list[str]]] = [
         _scene(**{"eps_v = 1e-4": "eps_v = 1e-4\neps_x = 1e-3"}),
         [],
     ),
-    ("name with a path", 'name = "../../escape"', "name", _scene(**{'name = "probe"': 'name = "../../escape"'}), []),
-    ("name with a leading dot", 'name = ".hidden"', "name", _scene(**{'name = "probe"': 'name = ".hidden"'}), []),
+    ("name with a path", 'name = "../../escape"', "name", _scene(**{'name = "probe"': 'name = "../../escape"'}),
+     ["--quiet"]),
+    ("name with a leading dot", 'name = ".hidden"', "name", _scene(**{'name = "probe"': 'name = ".hidden"'}),
+     ["--quiet"]),
     ("huge grid", "v.n = 10**7", "n", _scene(**{"n = 21": "n = 10000000"}), []),
     ("tiny time step", "time.dt = 1e-300", "dt", _scene(**{"dt = 0.01": "dt = 1e-300"}), []),
     (
@@ -218,7 +220,8 @@ def _probe(tree: Path, text: str | None, args: list[str]) -> tuple[int | None, s
         (cwd / "scene.toml").write_text(BASE)
         if text is not None:
             (cwd / "scene.toml").write_text(text)
-            args = ["run", "scene.toml", "--out", "out", "--quiet"]
+            # the name cases use the default run directory runs/<name>
+            args = ["run", "scene.toml", "--quiet", *(args or ["--out", "out"])]
         env = {**os.environ, "PYTHONPATH": str(tree), "OPENBLAS_NUM_THREADS": "1", "MPLBACKEND": "Agg"}
         try:
             proc = subprocess.run(
