@@ -301,8 +301,9 @@ def _parse_refine(data: Any, has_x: bool) -> dict[str, RefineSpec]:
 
 def _check_combinations(top, v, x, t, c, s, o) -> None:
     """Cross-table checks: values fine alone that are wrong together."""
-    # W(v) = |v|^gamma / gamma on |v| <= 2 L_v (differences of grid points) must be finite
-    if top.gamma * math.log(2 * v.L) > math.log(1e300):
+    # W(v) = |v|^gamma / gamma on |v| <= 2 L_v (differences of grid points) must be finite:
+    # at most max((2 L_v)^gamma, 1) / gamma
+    if max(top.gamma * math.log(2 * v.L), 0.0) - math.log(top.gamma) > math.log(1e300):
         raise SceneError(
             f"gamma = {top.gamma:g} makes the kernel |v|^gamma/gamma overflow on the velocity grid "
             f"(|v| up to 2 v.L = {2 * v.L:g})"
