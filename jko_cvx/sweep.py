@@ -123,7 +123,7 @@ def _read_entry(path: Path, key: str, point: Mapping[str, Any]) -> dict | None:
         problem = f"does not parse ({type(exc).__name__}: {exc})"
     if problem is None:
         return entry["result"]
-    warnings.warn(f"sweep cache entry {path} {problem}; recomputing the point", StaleCacheWarning, stacklevel=3)
+    warnings.warn(f"sweep cache entry {path} {problem}; recomputing the point", StaleCacheWarning, stacklevel=4)
     return None
 
 
@@ -136,6 +136,18 @@ def _write_atomic(path: Path, text: str) -> None:
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)
+
+
+def _read_cache(cache: Path, points: Mapping[str, Mapping[str, Any]]) -> dict[str, dict]:
+    """The trusted cached results of ``points`` (by key); damaged entries are left out with a warning."""
+    results = {}
+    for key, point in points.items():
+        path = cache / f"{key}.json"
+        if path.exists():
+            result = _read_entry(path, key, point)
+            if result is not None:
+                results[key] = result
+    return results
 
 
 def _call(func: Callable[..., dict], point: dict) -> dict:
@@ -194,13 +206,7 @@ def run_sweep(
     cache = Path(cache_dir)
     cache.mkdir(parents=True, exist_ok=True)
     keys = [point_key(func, p) for p in points]
-    results: dict[str, dict] = {}
-    for key, point in dict(zip(keys, points, strict=True)).items():
-        path = cache / f"{key}.json"
-        if not fresh and path.exists():
-            result = _read_entry(path, key, point)
-            if result is not None:
-                results[key] = result
+    results = {} if fresh else _read_cache(cache, dict(zip(keys, points, strict=True)))
     cached = set(results)
     todo = {k: p for k, p in zip(keys, points, strict=True) if k not in results}
 
