@@ -3,7 +3,8 @@
 Each class is a small scene (or command line) with one mistake.  It is run as
 ``python -m jko_cvx.cli ...`` in a fresh directory against a source tree (default: this
 checkout), and counted *clear* when the command exits non-zero within the time limit,
-prints no traceback and names the offending key (the leaf name is enough) or path.
+prints no traceback, names the offending key (the leaf name is enough) or path, and
+has written no file (no run directory).
 
     python studies/misuse_probe.py                         # this checkout
     python studies/misuse_probe.py --before OLD_TREE       # and an older tree, side by side
@@ -210,8 +211,8 @@ CASES: list[tuple[str, str, str, str | None, list[str]]] = [
 ]
 
 
-def _probe(tree: Path, text: str | None, args: list[str]) -> tuple[int | None, str, bool]:
-    """Run one case in a fresh directory: exit code (None on time-out), output, traceback shown."""
+def _probe(tree: Path, text: str | None, args: list[str]) -> tuple[int | None, str, bool, bool]:
+    """Run one case in a fresh directory: exit code (None on time-out), output, traceback shown, files written."""
     with tempfile.TemporaryDirectory() as tmp:
         cwd = Path(tmp) / "a" / "b" / "c"
         cwd.mkdir(parents=True)
@@ -223,6 +224,7 @@ def _probe(tree: Path, text: str | None, args: list[str]) -> tuple[int | None, s
             # the name cases use the default run directory runs/<name>
             args = ["run", "scene.toml", "--quiet", *(args or ["--out", "out"])]
         env = {**os.environ, "PYTHONPATH": str(tree), "OPENBLAS_NUM_THREADS": "1", "MPLBACKEND": "Agg"}
+        before = set(Path(tmp).rglob("*"))
         try:
             proc = subprocess.run(
                 [sys.executable, "-m", "jko_cvx.cli", *args],
@@ -233,29 +235,31 @@ def _probe(tree: Path, text: str | None, args: list[str]) -> tuple[int | None, s
                 timeout=TIMEOUT,
             )
         except subprocess.TimeoutExpired:
-            return None, f"still running after {TIMEOUT:g} s", False
+            return None, f"still running after {TIMEOUT:g} s", False, set(Path(tmp).rglob("*")) != before
         out = (proc.stderr.strip() or proc.stdout.strip()).splitlines()
         shown = out[-1] if out else ""
-        return proc.returncode, shown, "Traceback" in proc.stderr
+        return proc.returncode, shown, "Traceback" in proc.stderr, set(Path(tmp).rglob("*")) != before
 
 
-def _clear(rc: int | None, message: str, traceback: bool, key: str) -> bool:
-    return rc not in (None, 0) and not traceback and key.split(".")[-1] in message
+def _clear(rc: int | None, message: str, traceback: bool, wrote: bool, key: str) -> bool:
+    return rc not in (None, 0) and not traceback and not wrote and key.split(".")[-1] in message
 
 
 def probe(tree: Path) -> pd.DataFrame:
     rows = []
     for cls, what, key, text, args in CASES:
-        rc, message, tb = _probe(tree, text, args)
+        rc, message, tb, wrote = _probe(tree, text, args)
         outcome = "timed out" if rc is None else ("exit 0 (accepted)" if rc == 0 else f"exit {rc}")
         if tb:
             outcome += ", traceback"
+        if wrote:
+            outcome += ", wrote files"
         rows.append(
             {
                 "class": cls,
                 "input": what,
                 "key": key,
-                "clear": _clear(rc, message, tb, key),
+                "clear": _clear(rc, message, tb, wrote, key),
                 "outcome": outcome,
                 "message": message[:240],
             }
