@@ -27,6 +27,10 @@ from .collision import CollisionProblem, conic_solvers, solve_collision
 from .grid import Grid
 from .kernels import PowerKernel
 
+# Bad input the user can fix: one line on stderr, exit code 2, no traceback.  SceneError is
+# a ValueError; OSError covers unreadable or unwritable paths; ImportError a missing extra.
+EXPECTED_ERRORS = (ValueError, TypeError, OSError, ImportError)
+
 
 def _run_scene(scene_path: Path | None, out: Path | None, resume: bool, overwrite: bool, quiet: bool) -> int:
     from .interrupts import RunInterrupted
@@ -130,7 +134,7 @@ def _study(args) -> int:
 def _reproduce(args) -> int:
     from .reproduce import REPRODUCTIONS
 
-    return _run_named("reproduce", REPRODUCTIONS[args.name], args, progress_kw={"progress": True})
+    return _run_named("reproduce", REPRODUCTIONS[args.name], args, progress_kw={"progress": True, "fresh": args.fresh})
 
 
 def _run_named(command: str, func, args, progress_kw: dict) -> int:
@@ -153,6 +157,38 @@ def _run_named(command: str, func, args, progress_kw: dict) -> int:
     return 0
 
 
+def _at_least(low: int):
+    """An argparse type: an integer >= low (argparse names the option in its error)."""
+
+    def parse(text: str) -> int:
+        try:
+            val = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"must be an integer >= {low}, got {text!r}") from None
+        if val < low:
+            raise argparse.ArgumentTypeError(f"must be an integer >= {low}, got {text!r}")
+        return val
+
+    return parse
+
+
+def _positive(text: str, allow_inf: bool = False) -> float:
+    """An argparse type: a finite number > 0 (or inf with ``allow_inf``)."""
+    what = "a number > 0 (inf allowed)" if allow_inf else "a finite number > 0"
+    try:
+        val = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be {what}, got {text!r}") from None
+    if not (val > 0 and (np.isfinite(val) or (allow_inf and val == np.inf))):
+        raise argparse.ArgumentTypeError(f"must be {what}, got {text!r}")
+    return val
+
+
+def _weight(text: str) -> float:
+    """An argparse type for the Fisher weight beta: > 0, inf for no Fisher term."""
+    return _positive(text, allow_inf=True)
+
+
 def _sweep_arguments(parser: argparse.ArgumentParser, out: str, executor: str, quick_help: str) -> None:
     """The options shared by ``reproduce`` and ``study``: quick form, output, where sweep points run."""
     parser.add_argument("--quick", action="store_true", help=quick_help)
@@ -161,7 +197,7 @@ def _sweep_arguments(parser: argparse.ArgumentParser, out: str, executor: str, q
         "--executor", choices=("process", "serial", "dask"), default=executor, help="where sweep points run"
     )
     parser.add_argument("--scheduler", default=None, help="Dask scheduler address (tcp://host:port)")
-    parser.add_argument("--workers", type=int, default=None, help="local workers (default: CPU count)")
+    parser.add_argument("--workers", type=_at_least(1), default=None, help="local workers (default: CPU count)")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -169,7 +205,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--version", action="version", version=f"jko-cvx {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
     p_run = sub.add_parser("run", help="run a scene (default: the built-in homogeneous gamma = 1, g1 scene)")
-    p_run.add_argument("scene", nargs="?", type=Path, help="scene TOML file (studies/scenes/*.toml)")
+    p_run.add_argument(
+        "scene", nargs="?", type=Path, help="scene TOML file, or the name of a shipped scene (jko_cvx/scenes/*.toml)"
+    )
     p_run.add_argument("--out", type=Path, default=None, help="run directory (default runs/<scene name>)")
     again = p_run.add_mutually_exclusive_group()
     again.add_argument("--resume", action="store_true", help="continue an interrupted run from its checkpoint")
@@ -179,17 +217,18 @@ def main(argv: list[str] | None = None) -> int:
     p_exp.add_argument("run_dir", type=Path, help="run directory (jko-cvx run --out)")
     p_exp.add_argument("--netcdf", type=Path, required=True, help="the netCDF file to write")
     p_solve = sub.add_parser("solve", help="one collision step with every method, side by side")
-    p_solve.add_argument("--gamma", type=float, default=1.0)
-    p_solve.add_argument("--n", type=int, default=121)
-    p_solve.add_argument("--L", type=float, default=2.0)
-    p_solve.add_argument("--dt", type=float, default=0.01)
-    p_solve.add_argument("--beta", type=float, default=10.0)
+    p_solve.add_argument("--gamma", type=_positive, default=1.0)
+    p_solve.add_argument("--n", type=_at_least(3), default=121)
+    p_solve.add_argument("--L", type=_positive, default=2.0)
+    p_solve.add_argument("--dt", type=_positive, default=0.01)
+    p_solve.add_argument("--beta", type=_weight, default=10.0)
     sub.add_parser("solvers", help="list the installed conic solvers")
     from .reproduce import REPRODUCTIONS
 
     p_rep = sub.add_parser("reproduce", help="regenerate one of the paper's tables or figures beside its numbers")
     p_rep.add_argument("name", choices=sorted(REPRODUCTIONS), help="which table or figure")
     _sweep_arguments(p_rep, "results/reproduce", "process", "a reduced version (under 2 minutes)")
+    p_rep.add_argument("--fresh", action="store_true", help="ignore the sweep cache: recompute every point")
     from .benchmarks import STUDIES
 
     p_std = sub.add_parser("study", help="a solver study: work-precision diagrams, cost growth, the extremes matrix")
@@ -199,12 +238,12 @@ def main(argv: list[str] | None = None) -> int:
     p_cmp = sub.add_parser("compare", help="every solver and tolerance on one collision step: one table")
     p_cmp.add_argument("scene", nargs="?", type=Path, help="scene TOML (default: a built-in problem, see --gamma ...)")
     p_cmp.add_argument("--t", type=float, default=0.0, help="take the step from the scene's state at this time")
-    p_cmp.add_argument("--gamma", type=float, default=1.0)
-    p_cmp.add_argument("--n", type=int, default=121)
-    p_cmp.add_argument("--L", type=float, default=2.0)
-    p_cmp.add_argument("--dt", type=float, default=0.01)
-    p_cmp.add_argument("--beta", type=float, default=10.0)
-    p_cmp.add_argument("--repeats", type=int, default=5)
+    p_cmp.add_argument("--gamma", type=_positive, default=1.0)
+    p_cmp.add_argument("--n", type=_at_least(3), default=121)
+    p_cmp.add_argument("--L", type=_positive, default=2.0)
+    p_cmp.add_argument("--dt", type=_positive, default=0.01)
+    p_cmp.add_argument("--beta", type=_weight, default=10.0)
+    p_cmp.add_argument("--repeats", type=_at_least(1), default=5)
     p_cmp.add_argument("--out", type=Path, default=Path("results/compare"), help="output directory")
     args = parser.parse_args(argv)
     try:
@@ -222,9 +261,16 @@ def main(argv: list[str] | None = None) -> int:
             return _study(args)
         print("\n".join(conic_solvers()))
         return 0
-    except (ValueError, TypeError, FileNotFoundError) as exc:
-        print(f"jko-cvx: error: {exc}", file=sys.stderr)
+    except EXPECTED_ERRORS as exc:
+        print(f"jko-cvx: error: {_one_line(exc)}", file=sys.stderr)
         return 2
+
+
+def _one_line(exc: BaseException) -> str:
+    """The exception's message on one line (OSError: the strerror and the path it names)."""
+    if isinstance(exc, OSError) and exc.strerror and exc.filename is not None:
+        return f"{exc.strerror}: {exc.filename}"
+    return " ".join(str(exc).split()) or type(exc).__name__
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -17,7 +17,7 @@ from jko_cvx.scene import SceneError, default_scene, load_scene, scene_from_dict
 from jko_cvx.simulate import simulate
 from jko_cvx.verdict import StopReason
 
-SCENES = Path(__file__).parent.parent / "studies" / "scenes"
+SCENES = Path(__file__).parent.parent / "jko_cvx" / "scenes"
 
 BASE = {
     "gamma": 1.0,
@@ -47,7 +47,7 @@ def _with(**changes):
         ({"v": {"L": 2.0, "n": 2}}, "v.n must be an integer >= 3"),
         ({"time": {"dt": 0.01, "policy": "rk4"}}, r"time.policy must be one of \['cfl', 'fixed', 'halving'\]"),
         ({"initial": {"kind": "spline"}}, "initial.kind must be one of"),
-        ({"initial": {"kind": "gaussians", "amplitudes": [1.0], "rates": [2.0]}}, r"missing \['centres'\]"),
+        ({"initial": {"kind": "gaussians", "amplitudes": [1.0], "rates": [2.0]}}, "initial.centres is required"),
         ({"initial": {"kind": "two_bump_phase", "a": 6, "b": 6, "c": 1.5, "d": 2}}, "needs an \\[x\\] grid"),
         ({"refine": {"x": {"bumps": 1}}}, "refine.x needs an \\[x\\] grid"),
         ({"refine": {"v": {"delta0": 1.5}}}, r"refine.v.delta0 must be in \(0, 1\)"),
@@ -56,7 +56,7 @@ def _with(**changes):
         ({"output": {"times": [0.05, 0.2]}}, r"output.times must be a list of numbers in \[0, t_end = 0.1\]"),
         ({"output": {"times": 0.05}}, "output.times must be a list"),
         ({"x": {"L": 4.0, "n": 11, "conserve_moment": 1}}, "x.conserve_moment must be of type bool"),
-        ({"stop": {"spread_v": -0.1}}, "stop.spread_v must be >= 0"),
+        ({"stop": {"spread_v": -0.1}}, "stop.spread_v must be a finite number >= 0"),
     ],
 )
 def test_scene_validation_names_the_key(changes, match):

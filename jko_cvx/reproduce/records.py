@@ -11,7 +11,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from pathlib import Path
 from typing import Any
@@ -27,12 +26,19 @@ __all__ = ["record_run", "reproduce_gk1_records"]
 
 def record_run(data: str, delta0: float, policy: str, t_end: float) -> dict[str, Any]:
     """One sweep point: the records (t, dt, min dv, max f) of a gamma = 1 run."""
-    s = blowup_scene(data, 0.0, 0.01, beta=1000.0)  # the weight the shipped gk1 records were run with
-    s = dataclasses.replace(s, refine_v=dataclasses.replace(s.refine_v, delta0=delta0), t_end=t_end)
+    variant: dict[str, Any] = {"refine.v.delta0": delta0, "t_end": t_end}
     if policy == "halving":
-        s = dataclasses.replace(
-            s, policy="halving", eps_t=5e-6, method="sqp", conserve_momentum=False, stop_on_solver_failure=True
+        variant.update(
+            {
+                "time.policy": "halving",
+                "time.eps_t": 5e-6,
+                "collision.method": "sqp",
+                "collision.conserve_momentum": False,
+                "stop.on_solver_failure": True,
+            }
         )
+    # beta = 1000: the weight the shipped gk1 records were run with
+    s = blowup_scene(data, 0.0, 0.01, beta=1000.0, overrides=variant)
     t0 = time.perf_counter()
     run = simulate(s)
     d = run.diagnostics
