@@ -24,14 +24,15 @@ Decisions where the paper is ambiguous (DESIGN.md):
   linear piece in value and slope** (C^1); it needs :math:`k s_1 < 5 r_1` (k the slope of the
   linear piece) to be increasing, else the map cannot be built.
 * The outer piece follows the paper's rule (quintic if :math:`r/\\delta \\le L`, else
-  logistic); where the logistic cannot join the points, a concave-down quintic is used
-  while it is increasing; between the two ranges no map of the family exists (the
-  constructor raises).  ``from_density`` caps r at the uniform share :math:`L\\delta` (a
-  wider set gains nothing from refinement: the map is the identity there) and keeps
-  :math:`r_2` clear of L.  A two-bump set resolved by a single grid point is widened to
-  that point's cell, and one reaching so close to 0 that the inner piece would be flat at
-  0 (spacings of 1e-8 there) is trimmed at :math:`r_1 = r_2 s_1/(4\\delta + s_1)`, where the
-  slope at 0 is a quarter of the inner piece's mean slope.
+  logistic; for ``mu2`` quintic iff :math:`(r_2 - r_1)/\\delta < L`); where the logistic
+  cannot join the points, a concave-down quintic is used while it is increasing; between
+  the two ranges no map of the family exists (the constructor raises).  ``from_density``
+  caps r at the uniform share :math:`L\\delta` (a wider set gains nothing from refinement:
+  the map is the identity there) and keeps :math:`r_2` clear of L.  A two-bump set
+  resolved by a single grid point is widened to that point's cell, and one reaching so
+  close to 0 that the inner piece would be flat at 0 (spacings of 1e-8 there) is trimmed
+  at :math:`r_1 = r_2 s_1/(4\\delta + s_1)`, where the slope at 0 is a quarter of the inner
+  piece's mean slope.
 * Remapping interpolates with PCHIP, floors at 1e-10 (the paper's floor) and rescales to
   the old mass with the grid's trapezoidal quadrature (``eqn:mass_conserv_v`` with one
   consistent quadrature).
@@ -56,6 +57,8 @@ from .conservation import restore_moments
 from .grid import Grid
 
 __all__ = ["OneBumpMap", "TwoBumpMap", "concentration_set", "remap"]
+
+_OUTER_RULES = ("paper", "slopes")
 
 
 def _check_fraction(name: str, x: float) -> float:
@@ -198,12 +201,21 @@ class TwoBumpMap(_OddMap):
     """The two-bump map ``mu2`` (concentrations at +-c, symmetric about 0).
 
     ``mu(1/2 - delta/2) = r1``, ``mu(1/2 + delta/2) = r2``, ``mu(1) = L``, odd extension.
+
+    ``outer_rule`` chooses the piece on ``[1/2 + delta/2, 1]``: ``"paper"`` (default,
+    ``eqn mu2``) takes :math:`a_3 s^5 + b_3 s` if :math:`(r_2 - r_1)/\\delta < L` and the
+    logistic otherwise; ``"slopes"`` (the rule before 2026-12-01) takes the quintic iff the
+    outer chord slope :math:`(L - r_2)/(1 - s_2)` is at least the linear piece's.  Where the
+    chosen logistic cannot join :math:`(s_2, r_2)` to :math:`(1, L)` the quintic is used
+    while it is increasing (as for ``mu1``).  At L = 4, r1 = 2, r2 = 3.5, delta = 0.5 the
+    paper's quintic exists while the slope rule asked for a logistic that does not.
     """
 
     L: float
     r1: float
     r2: float
     delta: float
+    outer_rule: str = "paper"
 
     def __post_init__(self) -> None:
         self._check_domain()
@@ -218,8 +230,19 @@ class TwoBumpMap(_OddMap):
             )
         a_in = (k * s1 - self.r1) / (4 * s1**5)
         inner = _Piece("quintic", a_in, k - 5 * a_in * s1**4)
-        outer_slope = (self.L - self.r2) / (1 - s2)
-        outer = _outer_piece(s2, self.r2, self.L, concave_up=outer_slope >= k)
+        if self.outer_rule not in _OUTER_RULES:
+            raise ValueError(f"outer_rule must be one of {_OUTER_RULES}, got {self.outer_rule!r}")
+        if self.outer_rule == "paper":
+            quintic = k < self.L  # eqn mu2: a3 s^5 + b3 s iff (r2 - r1)/delta < L
+        else:  # "slopes": the outer piece's chord slope against the linear piece's
+            quintic = (self.L - self.r2) / (1 - s2) >= k
+        try:
+            outer = _outer_piece(s2, self.r2, self.L, concave_up=quintic)
+        except ValueError:
+            if quintic:
+                raise
+            # the logistic cannot join (s2, r2) to (1, L): the quintic while it is increasing
+            outer = _outer_piece(s2, self.r2, self.L, concave_up=True)
         object.__setattr__(self, "_pieces", (s1, s2, inner, _Piece("linear", k, 0.0, s1, self.r1), outer))
 
     def __call__(self, s: ArrayLike) -> NDArray[np.float64]:
@@ -228,6 +251,11 @@ class TwoBumpMap(_OddMap):
         s1, s2, inner, mid, outer = self._pieces  # type: ignore[attr-defined]
         out = np.where(a < s1, inner(a), np.where(a <= s2, mid(a), outer(a)))
         return np.sign(s) * out
+
+    @property
+    def outer_kind(self) -> str:
+        """The piece on ``[1/2 + delta/2, 1]``: ``"quintic"`` or ``"logistic"``."""
+        return self._pieces[4].kind  # type: ignore[attr-defined]
 
     @classmethod
     def from_density(cls, grid: Grid, f: ArrayLike, delta0: float, delta: float) -> TwoBumpMap:

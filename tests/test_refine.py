@@ -116,3 +116,28 @@ def test_periodic_remap_can_keep_each_lines_first_moment():
     assert np.abs(moment(new, plain) / moment(old, f) - 1)[:2].max() > 1e-5  # PCHIP alone does not
     assert np.all(kept > 0)
     assert np.abs(kept - plain).max() < 0.05
+
+
+@pytest.mark.parametrize(
+    "r1, r2, delta, kind",
+    [
+        (2.0, 3.5, 0.5, "quintic"),  # (r2 - r1)/delta = 3 < L: the paper's a3 s^5 + b3 s (concave down here)
+        (1.8, 2.2, 0.5, "quintic"),  # 0.8 < L
+        (0.3, 2.4, 0.5, "quintic"),  # 4.2 >= L: the paper's logistic cannot join (2.4 -> 4): fallback
+    ],
+)
+def test_two_bump_outer_piece_follows_the_papers_test(r1, r2, delta, kind):
+    """``mu2``: the outer piece is a3 s^5 + b3 s iff (r2 - r1)/delta < L (``eqn mu2``), not by slopes."""
+    L = 4.0
+    mu = TwoBumpMap(L, r1, r2, delta)
+    assert mu.outer_kind == kind
+    _check_map(mu, L, delta, inside=lambda v: (np.abs(v) >= r1 - 1e-12) & (np.abs(v) <= r2 + 1e-12))
+    s2 = 0.5 + delta / 2
+    assert mu(s2) == pytest.approx(r2) and mu(s2 + 1e-10) == pytest.approx(r2, abs=1e-8)
+
+
+def test_two_bump_outer_logistic_where_the_paper_asks_for_it():
+    # (r2 - r1)/delta = 4.2 >= L = 4 and L/r2 = 1.05 within the logistic's range (1.083 at s2 = 0.75)
+    mu = TwoBumpMap(4.0, 1.7, 3.8, 0.5)
+    assert mu.outer_kind == "logistic"
+    assert np.all(np.diff(mu(S)) > 0)
