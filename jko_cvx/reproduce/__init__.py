@@ -15,6 +15,7 @@ from .ibu import reproduce_ibu
 from .inhomogeneous import reproduce_inhom_gamma3
 from .mesh_maps import reproduce_mesh_maps
 from .records import reproduce_gk1_records
+from .tab_bu_traces import reproduce_tab_bu_traces
 
 REPRODUCTIONS = {
     "tab_bu": reproduce_tab_bu,
@@ -26,6 +27,7 @@ REPRODUCTIONS = {
     "mesh_maps": reproduce_mesh_maps,
     "inhom_gamma1p5": reproduce_inhom_gamma1p5,
     "tab_g2bu": reproduce_tab_g2bu,
+    "tab_bu_traces": reproduce_tab_bu_traces,
 }
 
 __all__ = [
@@ -38,5 +40,6 @@ __all__ = [
     "reproduce_mesh_maps",
     "reproduce_tab_bu",
     "reproduce_tab_bu_tb2",
+    "reproduce_tab_bu_traces",
     "reproduce_tab_g2bu",
 ]
