@@ -53,7 +53,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.interpolate import PchipInterpolator
 from scipy.optimize import brentq, minimize_scalar
 
-from .conservation import restore_moments
+from .conservation import restore_moments, restore_three_moments
 from .grid import Grid
 
 __all__ = ["OneBumpMap", "TwoBumpMap", "concentration_set", "remap"]
@@ -303,7 +303,13 @@ def concentration_set(grid: Grid, f: ArrayLike, delta0: float, both_ends: bool =
 
 
 def remap(
-    old: Grid, f: ArrayLike, new: Grid, floor: float = 1e-10, axis: int = -1, conserve_momentum: bool = False
+    old: Grid,
+    f: ArrayLike,
+    new: Grid,
+    floor: float = 1e-10,
+    axis: int = -1,
+    conserve_momentum: bool = False,
+    conserve_energy: bool = False,
 ) -> NDArray[np.float64]:
     """PCHIP-interpolate ``f`` from ``old`` to ``new`` along ``axis``, floor, restore each line's mass.
 
@@ -312,6 +318,11 @@ def remap(
     With ``conserve_momentum`` (a velocity axis) the first moment
     :math:`\\sum_j v_j h_j f_j` of each line is restored too, by the smallest relative
     correction :math:`\\alpha + \\beta (v - \\bar v)` (:func:`jko_cvx.conservation.restore_moments`).
+    With ``conserve_energy`` (implies the momentum) the second moment :math:`\\sum_j v_j^2 h_j f_j`
+    is restored as well, by the quadratic tilt of
+    :func:`jko_cvx.conservation.restore_three_moments` (not in the paper): PCHIP on the
+    coarse side of a map adds energy, which ``prop:properties`` forbids once the collision
+    dissipates less than the interpolation adds (``jko-cvx reproduce property_budget``).
     """
     f = np.moveaxis(np.asarray(f, dtype=float), axis, -1)
     if f.shape[-1] != old.n:
@@ -322,6 +333,10 @@ def remap(
         interp = PchipInterpolator(old.points, f, axis=-1, extrapolate=True)
     g = interp(np.clip(new.points, old.points[0], old.points[-1]))
     g = np.maximum(g, floor)
+    if conserve_energy:
+        moments = [f @ (old.points**p * old.h) for p in (0, 1, 2)]
+        g, _ = restore_three_moments(g, new.h, new.points, *moments)
+        return np.moveaxis(g, -1, axis)
     momentum = f @ (old.points * old.h) if conserve_momentum else None
     g, _ = restore_moments(g, new.h, new.points, f @ old.h, momentum)
     return np.moveaxis(g, -1, axis)

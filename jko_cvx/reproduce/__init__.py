@@ -14,7 +14,9 @@ from .gamma1p5 import reproduce_inhom_gamma1p5
 from .ibu import reproduce_ibu
 from .inhomogeneous import reproduce_inhom_gamma3
 from .mesh_maps import reproduce_mesh_maps
+from .property_budget import reproduce_property_budget
 from .records import reproduce_gk1_records
+from .summary import reproduce_summary
 from .tab_bu_traces import reproduce_tab_bu_traces
 
 REPRODUCTIONS = {
@@ -28,6 +30,8 @@ REPRODUCTIONS = {
     "inhom_gamma1p5": reproduce_inhom_gamma1p5,
     "tab_g2bu": reproduce_tab_g2bu,
     "tab_bu_traces": reproduce_tab_bu_traces,
+    "property_budget": reproduce_property_budget,
+    "summary": reproduce_summary,
 }
 
 __all__ = [
@@ -38,6 +42,8 @@ __all__ = [
     "reproduce_inhom_gamma1p5",
     "reproduce_inhom_gamma3",
     "reproduce_mesh_maps",
+    "reproduce_property_budget",
+    "reproduce_summary",
     "reproduce_tab_bu",
     "reproduce_tab_bu_tb2",
     "reproduce_tab_bu_traces",

@@ -10,7 +10,7 @@ for ``mu1``, :math:`s = 1/2 \\mp \\delta/2` for ``mu2``), where the spacing jump
 Two mechanisms, both of the paper's grid-point set rule on its C^0-junction maps:
 
 * **g3, dt = 0.00125, eps_v <= 1e-3/4 (0.15125, exact 0.125).**  Mass piles up at the
-  outer junction of ``mu1`` (the spacing jumps by a factor of about 16 there): f there
+  outer junction of ``mu1`` (where the spacing jumps): f there
   reaches max f, so the set S keeps reaching the junction, r stays put and min dv
   stalls while max f grows; it fires only when the spike at the junction itself has been
   resolved.  With beta = 1000 the same entry fires at 0.12625 (case ``g3 beta=1000``).
@@ -97,7 +97,7 @@ def reproduce_tab_bu_traces(out: Path, quick: bool = False, **_sweep_opts: Any) 
     cases = CASES[::2] if quick else CASES
     for label, data, eps, dt, beta in cases:
         df = trace_entry(data, eps, dt, beta)
-        junction = [c for c in df.columns if c.startswith("f(")][0]  # outer (mu1) or lower (mu2) end
+        junction = next(c for c in df.columns if c.startswith("f("))  # outer (mu1) or lower (mu2) end
         before = df.iloc[:-1]
         j = int(before[junction].idxmax())
         lines.append(
