@@ -7,10 +7,13 @@ run on a local process pool or a Dask cluster (:mod:`jko_cvx.sweep`).
 
 from __future__ import annotations
 
+from .beta_scan import reproduce_tab_bu_beta_scan
 from .blowup_tables import reproduce_tab_bu, reproduce_tab_bu_tb2
 from .explicit import reproduce_explicit
+from .explicit_figures import reproduce_explicit_figures
 from .g2bu import reproduce_tab_g2bu
 from .gamma1p5 import reproduce_inhom_gamma1p5
+from .gk1_final import reproduce_gk1_final
 from .ibu import reproduce_ibu
 from .inhomogeneous import reproduce_inhom_gamma3
 from .mesh_maps import reproduce_mesh_maps
@@ -32,11 +35,16 @@ REPRODUCTIONS = {
     "tab_bu_traces": reproduce_tab_bu_traces,
     "property_budget": reproduce_property_budget,
     "summary": reproduce_summary,
+    "tab_bu_beta_scan": reproduce_tab_bu_beta_scan,
+    "explicit_figures": reproduce_explicit_figures,
+    "gk1_final": reproduce_gk1_final,
 }
 
 __all__ = [
     "REPRODUCTIONS",
     "reproduce_explicit",
+    "reproduce_explicit_figures",
+    "reproduce_gk1_final",
     "reproduce_gk1_records",
     "reproduce_ibu",
     "reproduce_inhom_gamma1p5",
@@ -45,6 +53,7 @@ __all__ = [
     "reproduce_property_budget",
     "reproduce_summary",
     "reproduce_tab_bu",
+    "reproduce_tab_bu_beta_scan",
     "reproduce_tab_bu_tb2",
     "reproduce_tab_bu_traces",
     "reproduce_tab_g2bu",
