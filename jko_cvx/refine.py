@@ -56,7 +56,7 @@ from scipy.optimize import brentq, minimize_scalar
 from .conservation import restore_moments, restore_three_moments
 from .grid import Grid
 
-__all__ = ["OneBumpMap", "TwoBumpMap", "concentration_set", "remap"]
+__all__ = ["OneBumpMap", "TwoBumpMap", "concentration_set", "quadrant_set", "remap"]
 
 _OUTER_RULES = ("paper", "slopes")
 
@@ -300,6 +300,29 @@ def concentration_set(grid: Grid, f: ArrayLike, delta0: float, both_ends: bool =
     if both_ends:
         return float(v[sel].min()), float(v[sel].max())
     return float(v[sel].max()), None
+
+
+def quadrant_set(x: ArrayLike, v: ArrayLike, f_star: ArrayLike, delta0: float):
+    """The concentration set of ``alg:SPMCSL-JKO`` step 4, as written: one set on the quadrant.
+
+    :math:`S = \\{(x_i, v_j) : f^*(x_i, v_j) > \\delta_0 \\max_{i,j} f^*, x_i > 0, v_j > 0\\}`
+    from the post-transport, pre-collision density :math:`f^*` (shape (Nx, Nv)).  Returns
+    ``((min x, max x), (min v, max v))`` over S, or ``None`` when S is empty -- which it is
+    for ``eqn:f0`` at t = 0 (its bumps sit in the quadrants x < 0 < v and v < 0 < x), where
+    the paper does not say what to do.  The time loop (``simulate``) builds its maps from
+    the post-collision f and separate projections instead (max over x for the v-set, max
+    over v for the x-set, each on its positive half-axis); this helper is the paper's rule
+    for a loop that wants it.
+    """
+    _check_fraction("delta0", delta0)
+    x, v, f = np.asarray(x, dtype=float), np.asarray(v, dtype=float), np.asarray(f_star, dtype=float)
+    if f.shape != (x.size, v.size):
+        raise ValueError(f"f_star must have shape (Nx, Nv) = ({x.size}, {v.size}), got {f.shape}")
+    sel = (f > delta0 * f.max()) & (x[:, None] > 0) & (v[None, :] > 0)
+    if not sel.any():
+        return None
+    xi, vj = np.nonzero(sel)
+    return (float(x[xi].min()), float(x[xi].max())), (float(v[vj].min()), float(v[vj].max()))
 
 
 def remap(

@@ -169,3 +169,21 @@ def test_three_moment_tilt_reports_an_unreachable_target():
     out, ok = restore_three_moments(f[None], g.h, g.points, f @ g.h, 0.0, 2 * f @ g.h)
     assert not ok[0]
     assert out[0] @ g.h == pytest.approx(f @ g.h)
+
+
+def test_quadrant_set_is_the_papers_and_empty_for_the_two_bump_phase_datum():
+    from jko_cvx.refine import quadrant_set
+
+    x = np.linspace(-4, 4, 81)
+    v = np.linspace(-4, 4, 81)
+    X, V = np.meshgrid(x, v, indexing="ij")
+    # eqn:f0-like: bumps at (x, v) = (-1.5, 2) and (1.5, -2): nothing in x > 0, v > 0
+    f = np.exp(-6 * (X + 1.5) ** 2 - 6 * (V - 2) ** 2) + np.exp(-6 * (X - 1.5) ** 2 - 6 * (V + 2) ** 2)
+    assert quadrant_set(x, v, f, 0.5) is None
+    g = np.exp(-6 * (X - 1) ** 2 - 6 * (V - 2) ** 2)
+    (x1, x2), (v1, v2) = quadrant_set(x, v, g, 0.5)
+    half = np.sqrt(np.log(2) / 6)
+    assert x1 == pytest.approx(1 - half, abs=0.1) and x2 == pytest.approx(1 + half, abs=0.1)
+    assert v1 == pytest.approx(2 - half, abs=0.1) and v2 == pytest.approx(2 + half, abs=0.1)
+    with pytest.raises(ValueError, match="f_star must have shape"):
+        quadrant_set(x, v, g[:, :-1], 0.5)

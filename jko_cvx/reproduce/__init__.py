@@ -11,6 +11,7 @@ from .beta_scan import reproduce_tab_bu_beta_scan
 from .blowup_tables import reproduce_tab_bu, reproduce_tab_bu_tb2
 from .explicit import reproduce_explicit
 from .explicit_figures import reproduce_explicit_figures
+from .fisher_width import reproduce_fisher_width
 from .g2bu import reproduce_tab_g2bu
 from .gamma1p5 import reproduce_inhom_gamma1p5
 from .gk1_final import reproduce_gk1_final
@@ -38,12 +39,14 @@ REPRODUCTIONS = {
     "tab_bu_beta_scan": reproduce_tab_bu_beta_scan,
     "explicit_figures": reproduce_explicit_figures,
     "gk1_final": reproduce_gk1_final,
+    "fisher_width": reproduce_fisher_width,
 }
 
 __all__ = [
     "REPRODUCTIONS",
     "reproduce_explicit",
     "reproduce_explicit_figures",
+    "reproduce_fisher_width",
     "reproduce_gk1_final",
     "reproduce_gk1_records",
     "reproduce_ibu",

@@ -1,4 +1,4 @@
-"""The numbers that ``studies/README.md`` quotes, computed from the shipped result files.
+"""The numbers ``studies/README.md`` and README.md's rows touched by issue 18 quote, from the result files.
 
 Every claim is (key, result file, function of that file, quote): the function returns the
 number(s) formatted as the README prints them, and ``quote`` is the README's text with
@@ -36,6 +36,7 @@ class Claim:
     compute: Callable[[Any], tuple[str, ...]]
     quote: str
     how: str
+    readme: str = "studies/README.md"
 
 
 def within(df: pd.DataFrame, tol: float) -> pd.Series:
@@ -77,6 +78,13 @@ def _trace(df, case):
 
 def _g3_paper(d, column: str) -> float:
     return float(d[(d.case == "gamma3 lambda10 61x61") & (d.v_remap == "paper")][column].iloc[0])
+
+
+def _fisher_width(d) -> tuple[str, ...]:
+    log = d[d.fisher == "log"]
+    ratio = log["error / error(beta = inf)"]
+    need = tuple(f"{log[(log.width == w) & (ratio <= 1.06)].beta.min():g}" for w in (0.5, 0.25, 0.125))
+    return (*need, f"{ratio[(log.width == 0.125) & (log.beta == 30)].iloc[0]:.1f}")
 
 
 def _seconds(df) -> tuple[str, ...]:
@@ -317,6 +325,16 @@ CLAIMS: tuple[Claim, ...] = (
         "f log f decreases in {} and {} steps of the gamma = 3 run (collision {}, x-remap {}, transport {})",
         "property_budget_summary.csv",
     ),
+    # Fisher weight against the data's width (README.md guidance row)
+    Claim(
+        "fisher_width",
+        "fisher_width.csv",
+        _fisher_width,
+        "smallest scanned beta with a bias under 6 %: {}, {}, {} for w = 0.5, 0.25, 0.125; beta = 30 multiplies "
+        "the error by {} at w = 0.125",
+        "log form; error / error(beta = inf) <= 1.06",
+        "README.md",
+    ),
     # explicit
     Claim(
         "explicit.widths",
@@ -385,7 +403,7 @@ def reproduce_summary(out: Path, quick: bool = False, **_sweep_opts: Any) -> pd.
     out = Path(out)
     values = claim_values(out)
     rows = [
-        {"key": c.key, "value": ", ".join(values[c.key]), "file": c.file, "how": c.how, "quoted as": c.quote}
+        {"key": c.key, "value": ", ".join(values[c.key]), "file": c.file, "how": c.how, "readme": c.readme}
         for c in CLAIMS
     ]
     df = pd.DataFrame(rows)
@@ -396,9 +414,9 @@ def reproduce_summary(out: Path, quick: bool = False, **_sweep_opts: Any) -> pd.
         "`tests/test_quoted_numbers.py` checks the README against it.  Tolerances on T_b "
         "are applied to |ours - paper| rounded to 5 decimals.",
         "",
-        "| key | value | file | how |",
-        "|:--|:--|:--|:--|",
+        "| key | value | file | how | quoted in |",
+        "|:--|:--|:--|:--|:--|",
     ]
-    lines += [f"| {r['key']} | {r['value']} | `{r['file']}` | {r['how']} |" for r in rows]
+    lines += [f"| {r['key']} | {r['value']} | `{r['file']}` | {r['how']} | {r['readme']} |" for r in rows]
     (out / "summary.md").write_text("\n".join(lines) + "\n")
     return df
