@@ -18,6 +18,7 @@ from .gk1_final import reproduce_gk1_final
 from .ibu import reproduce_ibu
 from .inhomogeneous import reproduce_inhom_gamma3
 from .mesh_maps import reproduce_mesh_maps
+from .panels import reproduce_g2bu_loglog, reproduce_g2bu_records, reproduce_ibu_panels
 from .property_budget import reproduce_property_budget
 from .records import reproduce_gk1_records
 from .summary import reproduce_summary
@@ -40,6 +41,9 @@ REPRODUCTIONS = {
     "explicit_figures": reproduce_explicit_figures,
     "gk1_final": reproduce_gk1_final,
     "fisher_width": reproduce_fisher_width,
+    "ibu_panels": reproduce_ibu_panels,
+    "g2bu_loglog": reproduce_g2bu_loglog,
+    "g2bu_records": reproduce_g2bu_records,
 }
 
 __all__ = [
@@ -47,9 +51,12 @@ __all__ = [
     "reproduce_explicit",
     "reproduce_explicit_figures",
     "reproduce_fisher_width",
+    "reproduce_g2bu_loglog",
+    "reproduce_g2bu_records",
     "reproduce_gk1_final",
     "reproduce_gk1_records",
     "reproduce_ibu",
+    "reproduce_ibu_panels",
     "reproduce_inhom_gamma1p5",
     "reproduce_inhom_gamma3",
     "reproduce_mesh_maps",

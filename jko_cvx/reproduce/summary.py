@@ -87,6 +87,20 @@ def _fisher_width(d) -> tuple[str, ...]:
     return (*need, f"{ratio[(log.width == 0.125) & (log.beta == 30)].iloc[0]:.1f}")
 
 
+def _level_sets(d) -> tuple[str, ...]:
+    d = d[d.n_v == 201]
+    split = d["split slice-steps"].str.split(" /").str[0].astype(int)
+    peak = d["secondary peak"]
+    low, high = d["lambda"] < 280, d["lambda"] >= 280
+    return (
+        *(str(x) for x in split[low]),
+        *(f"{x:.2f}" for x in peak[low]),
+        str(split[high].min()),
+        str(split[high].max()),
+        f"{peak[high].max():.2f}",
+    )
+
+
 def _seconds(df) -> tuple[str, ...]:
     return (f"{df.seconds.sum():.0f}",)
 
@@ -334,6 +348,42 @@ CLAIMS: tuple[Claim, ...] = (
         "the error by {} at w = 0.125",
         "log form; error / error(beta = inf) <= 1.06",
         "README.md",
+    ),
+    Claim(
+        "inhom_gamma1p5.grids",
+        "inhom_gamma1p5_resolution.csv",
+        lambda d: tuple(
+            f"{d[(d['lambda'] == lam) & (d.grid == g)][c].iloc[0]:.3f}"
+            for g, c in (
+                ("121 x 201 uniform", "t(sigma_v < 0.05)"),
+                ("41 x 41", "t(sigma_v < 0.05)"),
+                ("61 x 61", "T_b"),
+                ("61 x 61", "sigma_v (end)"),
+            )
+            for lam in (10.0, 5.0)
+        ),
+        "(dv = 0.05, coarser in v than the maps make it) {} and {}.  On 41 x 41 it comes later ({}, {}); "
+        "the 61 x 61 runs stop on the paper's criterion before it (t = {} and {}, sigma_v {} and {})",
+        "per grid: t(sigma_v < 0.05), T_b, sigma_v (end)",
+    ),
+    Claim(
+        "tab_g2bu.level_sets",
+        "tab_g2bu.csv",
+        _level_sets,
+        "(lambda = 220, 260: {} and {} split slice-steps, second peaks {} and {}; lambda >= 280: {}-{} split "
+        "slice-steps, second peaks up to {}; of 2-3.5e4 slice-steps, against a main peak of about 11)",
+        "split slice-steps, secondary peak (n_v = 201)",
+    ),
+    Claim(
+        "tab_g2bu.level_sets_nv",
+        "tab_g2bu.csv",
+        lambda d: tuple(
+            str(d[(d["lambda"] == 310) & (d.n_v == n)]["split slice-steps"].iloc[0].split(" /")[0]) for n in (201, 401)
+        )
+        + tuple(f"{d[(d['lambda'] == 310) & (d.n_v == n)]['secondary peak'].iloc[0]:.2f}" for n in (201, 401)),
+        "doubling N_v cuts the split slice-steps for lambda = 310 from {} to {} and the largest second peak "
+        "from {} to {}",
+        "lambda = 310, n_v = 201 and 401",
     ),
     # explicit
     Claim(
