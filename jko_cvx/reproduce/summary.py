@@ -385,6 +385,37 @@ CLAIMS: tuple[Claim, ...] = (
         "from {} to {}",
         "lambda = 310, n_v = 201 and 401",
     ),
+    # README.md, "Reproducing the paper"
+    Claim(
+        "readme.tab_bu",
+        "tab_bu.csv",
+        lambda d: (
+            str(int(within(d, 0.03).sum())),
+            str(len(d)),
+            _g(_entry(d, "g1", 1e-3 / 16, 0.00125), 5),
+            f"{d.seconds.sum():.0f}",
+        ),
+        "full `tab_bu` {} of {} entries within 0.03 of the paper's, the g1 entry at the smallest eps_v and dt {} "
+        "against the exact 0.5 (the points' run times sum to {} s)",
+        "as tab_bu.within, tab_bu.target, tab_bu.seconds",
+        "README.md",
+    ),
+    Claim(
+        "readme.inhom_gamma3",
+        "inhom_gamma3.csv",
+        _seconds,
+        "`inhom_gamma3` {} s; full `tab_g2bu`",
+        "sum of seconds",
+        "README.md",
+    ),
+    Claim(
+        "readme.g3_g2bu",
+        "tab_g2bu.csv",
+        lambda d: (f"{d.seconds.sum():.0f}", str(int(d[d.n_v == 201]["within 0.005"].sum()))),
+        "full `tab_g2bu` {} s, {} of 9 blow-up times within 0.005 of the paper's",
+        "sum of seconds; within 0.005 at n_v = 201",
+        "README.md",
+    ),
     # explicit
     Claim(
         "explicit.widths",
