@@ -176,6 +176,20 @@ CLAIMS: tuple[Claim, ...] = (
         "g2 at dt = 0.0025 ({} for eps_v = 1e-3 ... 1e-3/16)",
         "T_b, g2, dt = 0.0025",
     ),
+    Claim(
+        "tab_bu.beta_scan",
+        "tab_bu_beta_scan_summary.csv",
+        lambda d: (
+            "; ".join(
+                f"{b:g}: {w} / {n} / {g:.5g}"
+                for b, w, n, g in zip(
+                    d.beta, d["within 0.03"], d["never fire"], d["g1 at eps_v = 1e-3/16, dt = 0.00125"], strict=True
+                )
+            ),
+        ),
+        "(entries within 0.03 / runs that never fire / the g1 entry at the smallest eps_v and dt): {}.",
+        "tab_bu_beta_scan_summary.csv",
+    ),
     # traces
     Claim(
         "traces.g3",
