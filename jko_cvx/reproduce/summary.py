@@ -198,9 +198,12 @@ CLAIMS: tuple[Claim, ...] = (
             _g(_trace(d, "g3").T_b.iloc[0], 5),
             f"{_trace(d, 'g3')['f(upper junction)/max f'].iloc[:-1].max():.2f}",
             _g(_trace(d, "g3 beta=1000").T_b.iloc[0], 5),
+            f"{_trace(d, 'g3 beta=1000')['f(upper junction)/max f'].iloc[:-1].max():.2f}",
+            f"{_trace(d, 'g2 dt=0.0025')['f(upper junction)/max f'].iloc[:-1].max():.2f}",
         ),
         "g3 at dt = 0.00125, eps_v = 1e-3/4 fires at {}; f at the junction reaches {} max f before; "
-        "with beta = 1000 the same entry fires at {}",
+        "with beta = 1000 the same entry fires at {} (f at the junction at most {} max f).  g2 at dt = 0.0025, "
+        "eps_v = 1e-3/8: f at the junction reaches {} max f",
         "tab_bu_traces.csv, cases g3 and g3 beta=1000",
     ),
     Claim(
