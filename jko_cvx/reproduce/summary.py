@@ -445,6 +445,25 @@ CLAIMS: tuple[Claim, ...] = (
         "sum of seconds; within 0.005 at n_v = 201",
         "README.md",
     ),
+    Claim(
+        "gk1_final",
+        "gk1_final.md",
+        _md_number(r"\|\s+0\.5 \|\s+([0-9.]+) \|\s+[0-9.e-]+ \|\s+([0-9.]+) \|\s+([0-9.]+) \|"),
+        "max f {} at t = 0.5, {} of the mass within |v| <= 0.01 and {} within 0.05",
+        "gk1_final.md table",
+    ),
+    Claim(
+        "explicit_figures",
+        "explicit_figures.csv",
+        lambda d: (
+            f"{d['max abs(X numerical - closed form)'].iloc[:2].max():.0e}",
+            f"{d['crossing time (numerical)'].iloc[2]:.5f}",
+            f"{d['crossing time (closed form)'].iloc[2]:.5f}",
+        ),
+        "the numerical characteristics of `eq` follow the closed form to {}; the `eqgamma` one crosses x = 0 "
+        "at t = {} (closed form {})",
+        "explicit_figures.csv",
+    ),
     # explicit
     Claim(
         "explicit.widths",
