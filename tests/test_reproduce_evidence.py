@@ -1,6 +1,9 @@
 """The evidence entries of issue 18: traces, property budget, explicit characteristics, gk1_final."""
 
+from pathlib import Path
+
 import numpy as np
+import pandas as pd
 import pytest
 
 from jko_cvx.reproduce.blowup_tables import blowup_time
@@ -45,3 +48,14 @@ def test_gk1_final_quick_concentrates_and_conserves(tmp_path):
     assert rec["failed steps"] == 0 and abs(rec["centre of mass"]) < 1e-12
     # exact: f(t, 0) = g(0) / (1 - 2 g(0) t) = 2.5 at t = 0.3 (Burgers characteristics, sec31)
     assert rec["max f"] == pytest.approx(2.5, rel=0.02)
+
+
+@pytest.mark.slow
+def test_quick_beta_scan_reproduces_the_shipped_target_entries(tmp_path):
+    from jko_cvx.reproduce.beta_scan import reproduce_tab_bu_beta_scan
+
+    quick = reproduce_tab_bu_beta_scan(tmp_path, quick=True, executor="serial", progress=False).set_index("beta")
+    shipped = pd.read_csv(Path(__file__).parents[1] / "studies/results/reproduce/tab_bu_beta_scan_summary.csv")
+    target = "g1 at eps_v = 1e-3/16, dt = 0.00125"
+    for beta in (1000.0, 6000.0):
+        assert quick.loc[beta, target] == shipped.set_index("beta").loc[beta, target]
