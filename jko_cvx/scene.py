@@ -25,15 +25,16 @@ A scene file (the shipped ones are package data, ``jko_cvx/scenes/*.toml``; see
     centres = [0.0]
 
     [time]
-    policy = "fixed"         # "fixed" | "halving" | "cfl"
+    policy = "fixed"         # "fixed" | "halving" (alg:MR_JKO_ver2 as written) | "halving_reset" | "cfl"
     dt = 0.01
-    eps_t = 1e-6             # halving only
+    eps_t = 1e-6             # halving only: the run ends after an accepted step <= eps_t
 
     [refine.v]               # and [refine.x]; omit for a fixed grid
     bumps = 1                # 1 (mu1) or 2 (mu2)
     delta0 = 0.5
     delta = 0.5
     tol = 0.0                # 0: remesh every step (paper); > 0: when the set moved by tol x width
+    conserve_energy = false  # refine.v only: the v-remap also restores each slice's second moment
 
     [collision]
     method = "newton"
@@ -122,6 +123,7 @@ class RefineSpec:
     delta0: float = 0.5
     delta: float = 0.5
     tol: float = 0.0
+    conserve_energy: bool = False
 
 
 @dataclass(frozen=True)
@@ -171,8 +173,8 @@ class Scene:
     def step_policy(self):
         if self.policy == "fixed":
             return FixedStep(self.dt)
-        if self.policy == "halving":
-            return HalvingStep(self.dt, self.eps_t)
+        if self.policy in ("halving", "halving_reset"):
+            return HalvingStep(self.dt, self.eps_t, reset=self.policy == "halving_reset")
         return CFLStep(self.dt)
 
     def initial_density(self, xgrid: PeriodicGrid | None, vgrid: Grid) -> NDArray[np.float64]:
@@ -296,7 +298,10 @@ def _parse_refine(data: Any, has_x: bool) -> dict[str, RefineSpec]:
     check_known(data, ("v", "x"), "refine")
     if "x" in data and not has_x:
         raise SceneError("refine.x needs an [x] grid")
-    return {axis: RefineSpec(**asdict(parse_table(RefineTable, data[axis], f"refine.{axis}"))) for axis in data}
+    specs = {axis: RefineSpec(**asdict(parse_table(RefineTable, data[axis], f"refine.{axis}"))) for axis in data}
+    if "x" in specs and specs["x"].conserve_energy:
+        raise SceneError("refine.x.conserve_energy must be false: the kinetic energy is a moment in v (refine.v only)")
+    return specs
 
 
 def _check_combinations(top, v, x, t, c, s, o) -> None:
@@ -313,7 +318,7 @@ def _check_combinations(top, v, x, t, c, s, o) -> None:
             f"collision.beta = {c.beta:g} with time.dt = {t.dt:g}: the Fisher weight (dt/beta)^2 overflows; "
             "beta must be a number > 0 well above dt * 1e-150 (inf allowed)"
         )
-    if t.policy == "halving" and not t.eps_t < t.dt:
+    if t.policy in ("halving", "halving_reset") and not t.eps_t < t.dt:
         raise SceneError(f"time.eps_t must be < time.dt = {t.dt:g} (the halving floor), got {t.eps_t:g}")
     if x is None and s.eps_x > 0:
         raise SceneError("stop.eps_x needs an [x] grid (a homogeneous scene has no x-cells)")

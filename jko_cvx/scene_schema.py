@@ -281,7 +281,7 @@ class TimeTable(_Table):
     """``[time]``: the step policy, its (first / largest) step and the halving floor."""
 
     dt: float = key(_POS)
-    policy: str = key(Rule("str", choices=("fixed", "halving", "cfl")), "fixed")
+    policy: str = key(Rule("str", choices=("fixed", "halving", "halving_reset", "cfl")), "fixed")
     eps_t: float = key(_POS, 1e-6)
 
 
@@ -293,6 +293,7 @@ class RefineTable(_Table):
     delta0: float = key(_FRAC, 0.5)
     delta: float = key(_FRAC, 0.5)
     tol: float = key(Rule(_FLOAT, lo=0.0, hi=1.0, hi_open=True), 0.0)
+    conserve_energy: bool = key(_BOOL, False)
 
 
 @dataclass(frozen=True)

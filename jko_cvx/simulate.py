@@ -73,7 +73,8 @@ def _refine_v(scene: Scene, vgrid: Grid, f: np.ndarray, params):
     if not _moved(spec, params, new):
         return f, vgrid, params
     grid = mu.grid(vgrid.n)
-    return remap(vgrid, f, grid, axis=-1, conserve_momentum=scene.conserve_momentum), grid, new
+    f = remap(vgrid, f, grid, axis=-1, conserve_momentum=scene.conserve_momentum, conserve_energy=spec.conserve_energy)
+    return f, grid, new
 
 
 def _refine_x(scene: Scene, xgrid: PeriodicGrid, f: np.ndarray, params):
@@ -107,6 +108,7 @@ class _Outcome:
     dt: float
     res: Any
     ok: bool
+    retries: int = 0
 
 
 class Stepper:
@@ -137,8 +139,12 @@ class Stepper:
         """Transport and collision from ``state`` with the policy's dt, halved while the policy allows."""
         sc = self.scene
         xg = state.xgrid
-        dt = self.policy.first(float(state.vgrid.dv.min()), None if xg is None else float(xg.dx.min()), sc.v_L, sc.x_L)
+        carried = state.rows[-1]["dt"] if state.step > 0 else None  # the last accepted step
+        dt = self.policy.first(
+            float(state.vgrid.dv.min()), None if xg is None else float(xg.dx.min()), sc.v_L, sc.x_L, carried
+        )
         dt = min(dt, sc.t_end - state.t)
+        retries = 0
         while True:
             t0 = time.perf_counter()
             fh = (
@@ -156,8 +162,8 @@ class Stepper:
             ok = self.accepted(res)
             retry = None if ok else self.policy.retry(dt)
             if retry is None:
-                return _Outcome(dt, res, ok)
-            dt = retry
+                return _Outcome(dt, res, ok, retries)
+            dt, retries = retry, retries + 1
 
     def commit(self, state: RunState, out: _Outcome) -> StepInfo:
         """Advance ``state`` by the solved step: refine, then t and step."""
@@ -172,7 +178,7 @@ class Stepper:
         state.t += out.dt
         state.step += 1
         it = np.atleast_1d(out.res.iterations)
-        return StepInfo(out.dt, int(it.max()), int(np.sum(~np.atleast_1d(out.res.success))))
+        return StepInfo(out.dt, int(it.max()), int(np.sum(~np.atleast_1d(out.res.success))), out.retries)
 
 
 def _loop(scene: Scene, stepper: Stepper, state: RunState, trackers: list[Tracker], guard: InterruptGuard) -> None:
@@ -181,7 +187,7 @@ def _loop(scene: Scene, stepper: Stepper, state: RunState, trackers: list[Tracke
         out = stepper.solve(state)
         if not out.ok:
             statuses = sorted({s.name for s in np.ravel(np.atleast_1d(out.res.status)) if not s.success})
-            if failure.record(state, statuses):
+            if failure.record(state, statuses, out.dt):
                 break
         with guard.deferred():
             info = stepper.commit(state, out)

@@ -30,6 +30,7 @@ if TYPE_CHECKING:
 __all__ = [
     "Checkpoints",
     "Diagnostics",
+    "EpsT",
     "EpsV",
     "EpsX",
     "Progress",
@@ -50,6 +51,7 @@ class StepInfo:
     dt: float
     iterations: int = 0
     failed: int = 0
+    retries: int = 0
 
 
 class Tracker:
@@ -85,6 +87,7 @@ class Diagnostics(Tracker):
             **d,
             "iterations": step.iterations,
             "failed": step.failed,
+            "retries": step.retries,
         }
 
 
@@ -129,17 +132,33 @@ class SpreadV(StopRule):
     reason, column, label = StopReason.SPREAD_V, "min_spread_v", "min spread_v"
 
 
+class EpsT(Tracker):
+    """``alg:MR_JKO_ver2`` with adaptive steps: the run ends after an accepted step ``<= eps_t``."""
+
+    def __init__(self, policy) -> None:
+        self.policy = policy
+
+    def handle(self, state: RunState, step: StepInfo) -> None:
+        if self.policy.exhausted(step.dt):
+            text = f"dt = {step.dt:.3g} <= eps_t = {self.policy.eps_t:.3g}"
+            state.verdict = state.verdict.stopped(StopReason.EPS_T, state.t, text)
+
+
 class SolverFailure:
     """``e_f``: a collision solve the step policy could not cure; stops the run (as ``B_v``) when ``stop``."""
 
     def __init__(self, stop: bool) -> None:
         self.stop = bool(stop)
 
-    def record(self, state: RunState, statuses: list[str]) -> bool:
-        """Record the failure on ``state.verdict``; True when the run must stop."""
+    def record(self, state: RunState, statuses: list[str], dt: float = 0.0) -> bool:
+        """Record the failure of the step of length ``dt`` from ``state.t``; True when the run must stop.
+
+        ``T_b`` is the end of the failing step, ``state.t + dt``: ``alg:MR_JKO_ver2`` advances
+        ``t`` by the step whose solve set ``e_f`` before it tests the indicators.
+        """
         if self.stop:
             reason = f"{StopReason.SOLVER_FAILURE.value} ({', '.join(statuses)})"
-            state.verdict = state.verdict.stopped(StopReason.SOLVER_FAILURE, state.t, reason)
+            state.verdict = state.verdict.stopped(StopReason.SOLVER_FAILURE, state.t + dt, reason)
         else:
             state.verdict = state.verdict.solver_failed()
         return self.stop
@@ -233,7 +252,11 @@ def default_trackers(
     trackers: list[Tracker] = [Diagnostics(), EpsV(scene.eps_v)]
     if not scene.homogeneous:
         trackers.append(EpsX(scene.eps_x))
-    trackers += [SpreadV(scene.spread_v), snaps]
+    trackers.append(SpreadV(scene.spread_v))
+    policy = scene.step_policy()
+    if policy.exhausted(0.0):  # a policy whose runs end on eps_t (alg:MR_JKO_ver2's halving)
+        trackers.append(EpsT(policy))
+    trackers.append(snaps)
     if rundir is not None:
         trackers.append(Checkpoints(rundir, scene.checkpoint_every, scene.t_end))
     if progress:

@@ -28,6 +28,7 @@ class StopReason(Enum):
     EPS_X = "min dx < eps_x"
     SPREAD_V = "min spread_v < spread_v"
     SOLVER_FAILURE = "collision solver failed"
+    EPS_T = "dt <= eps_t"
 
     @property
     def blowup(self) -> bool:
@@ -71,7 +72,8 @@ class Verdict(Mapping):
         if not stop.blowup:
             raise ValueError("stopped() records a blow-up rule; reaching t_end is the default verdict")
         flag = {"B_x": True} if stop is StopReason.EPS_X else {"B_v": True}
-        e_f = self.e_f or stop is StopReason.SOLVER_FAILURE
+        # the step collapses below eps_t only through repeated failed solves (alg:MR_JKO_ver2)
+        e_f = self.e_f or stop in (StopReason.SOLVER_FAILURE, StopReason.EPS_T)
         return dataclasses.replace(self, stop=stop, T_b=float(t), reason=reason, e_f=e_f, **flag)
 
     def solver_failed(self) -> Verdict:
