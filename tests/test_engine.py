@@ -46,7 +46,10 @@ def _with(**changes):
         ({"gamma": -1.0}, "gamma must be a finite number > 0"),
         ({"colour": "red"}, r"unknown top-level key\(s\) \['colour'\]"),
         ({"v": {"L": 2.0, "n": 2}}, "v.n must be an integer >= 3"),
-        ({"time": {"dt": 0.01, "policy": "rk4"}}, r"time.policy must be one of \['cfl', 'fixed', 'halving', 'halving_reset'\]"),
+        (
+            {"time": {"dt": 0.01, "policy": "rk4"}},
+            r"time.policy must be one of \['cfl', 'fixed', 'halving', 'halving_reset'\]",
+        ),
         ({"initial": {"kind": "spline"}}, "initial.kind must be one of"),
         ({"initial": {"kind": "gaussians", "amplitudes": [1.0], "rates": [2.0]}}, "initial.centres is required"),
         ({"initial": {"kind": "two_bump_phase", "a": 6, "b": 6, "c": 1.5, "d": 2}}, "needs an \\[x\\] grid"),
