@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import time
 import weakref
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -50,7 +51,7 @@ from .linalg import divergence, divergence_adjoint
 from .problem import CollisionProblem, TermParts, add_pentadiagonal
 from .result import CollisionResult, Status
 
-__all__ = ["solve_newton"]
+__all__ = ["NewtonOptions", "NewtonState", "solve_newton"]
 
 _FRACTION_TO_BOUNDARY = 0.995
 _ARMIJO = 1e-4
@@ -70,6 +71,7 @@ _KEEP = 0.99
 _JAM = 5
 _JAM_STEP = 1e-3
 _MAX_BACKTRACKS = 60
+_TINY = np.finfo(float).tiny
 # Tolerance of the positive-definiteness test on the Jacobi-scaled (unit-diagonal) reduced
 # Hessian: smallest eigenvalue >= -_PD_TOL counts as convex (the factorised matrix is
 # shifted by it, a relative perturbation of the Newton step of the same size).
@@ -310,6 +312,8 @@ def _interior_damped(
     pf = -divergence(p) / h
     alpha = _boundary_step(f, pf)
     todo = jammed & (alpha < 1.0)
+    if not todo.any():
+        return p, alpha
     mu = 1e-2 * np.abs(np.einsum("bi,bi->b", g, p))
     for _ in range(12):
         if not todo.any():
@@ -385,6 +389,364 @@ def _newton_direction(H: NDArray, rhs: NDArray | None) -> tuple[NDArray | None, 
     return x, pd
 
 
+@dataclass(frozen=True)
+class NewtonOptions:
+    """The options of :func:`solve_newton`, checked once (see its docstring)."""
+
+    tol: float = 1e-10
+    kkt_tol: float = 1e-10
+    max_iter: int = 100
+    start: str = "explicit"
+    check_convexity: bool = True
+
+
+@dataclass(frozen=True)
+class _Attempt:
+    """How one pass of the iteration runs: interior damping on, and whether a jam ends it."""
+
+    damping: bool
+    jam_exit: bool
+
+
+@dataclass
+class NewtonState:
+    """Per-slice state of the (batched) Newton iteration; one row per slice.
+
+    ``status`` is None while a slice iterates; a slice that stopped at a solution (residual
+    within ``tol``, or stalled at its rounding floor) holds ``CONVERGED`` until
+    :func:`~jko_cvx.collision.certify.certify` judges it at the end.
+    """
+
+    f_star: NDArray[np.float64]
+    m: NDArray[np.float64]
+    f: NDArray[np.float64]
+    phi: NDArray[np.float64]  # J at the current iterate (the line search's merit function)
+    status: NDArray  # object array of Status or None
+    warm: NDArray[np.bool_]
+    iterations: NDArray[np.int_] = field(init=False)
+    kkt: NDArray[np.float64] = field(init=False)  # last residual computed
+    kkt_here: NDArray[np.bool_] = field(init=False)  # ... and it belongs to the current iterate
+    near: NDArray[np.bool_] = field(init=False)  # last decrement small: check the residual next
+    stall: NDArray[np.int_] = field(init=False)  # consecutive checks without progress at rounding level
+    second: NDArray[np.bool_] = field(init=False)  # second-order test where the slice stopped
+    decrement: NDArray[np.float64] = field(init=False)  # last Newton decrement -g.p/|phi|
+    flat: NDArray[np.int_] = field(init=False)  # consecutive jammed steps
+    jammed: NDArray[np.bool_] = field(init=False)
+
+    def __post_init__(self) -> None:
+        b = self.m.shape[0]
+        self.iterations = np.zeros(b, dtype=int)
+        self.kkt = np.full(b, np.nan)
+        self.kkt_here = np.zeros(b, dtype=bool)
+        self.near = np.zeros(b, dtype=bool)
+        self.stall = np.zeros(b, dtype=int)
+        self.second = np.zeros(b, dtype=bool)
+        self.decrement = np.full(b, np.inf)
+        self.flat = np.zeros(b, dtype=int)
+        self.jammed = np.zeros(b, dtype=bool)
+
+
+def _explicit_start(P: CollisionProblem, F_star: NDArray, m: NDArray, use: NDArray[np.bool_]) -> NDArray:
+    """The damped explicit step (first SQP step) where ``use`` and where it lowers J, else ``m``.
+
+    The step is damped to keep ``f >= f*/2``.
+    """
+    zero = np.zeros_like(m)
+    pf, pm = explicit_step(P)
+    ratio = np.where(pf < 0, -F_star / np.where(pf < 0, pf, -1.0), np.inf).min(axis=-1)
+    alpha = np.minimum(1.0, 0.5 * ratio)
+    cand = _on_momentum_plane(P, alpha[:, None] * pm)
+    fc = F_star - divergence(cand) / P.grid.h
+    better = (
+        use
+        & np.all(np.isfinite(cand), axis=-1)
+        & np.all(fc > 0, axis=-1)
+        & (_objective_interior(P, fc, cand) < _objective_interior(P, F_star, zero))
+    )
+    return np.where(better[:, None], cand, m)
+
+
+def _start(P: CollisionProblem, m0: NDArray | None, opts: NewtonOptions) -> NewtonState:
+    """The first iterate: ``m0`` where it keeps f > 0, else the explicit step (or 0)."""
+    F_star = P.f_star
+    B, n = F_star.shape
+    h = P.grid.h
+    m = np.zeros((B, n - 1))
+    warm = np.zeros(B, dtype=bool)
+    if m0 is not None:
+        M0 = _on_momentum_plane(P, np.broadcast_to(m0, (B, n - 1)))
+        warm = np.all(F_star - divergence(M0) / h > 0, axis=-1) & np.all(np.isfinite(M0), axis=-1)
+        m[warm] = M0[warm]
+    status = np.full(B, None, dtype=object)
+    positive = np.all(F_star > 0, axis=-1)
+    status[~positive] = Status.NUMERICAL_ERROR  # an interior method cannot start from exact zeros
+    with np.errstate(all="ignore"):
+        if opts.start == "explicit" and positive.any():
+            m = _explicit_start(P, F_star, m, ~warm & positive)
+        f = F_star - divergence(m) / h
+        phi = _objective_interior(P, f, m)
+    return NewtonState(F_star, m, f, phi, status, warm)
+
+
+def _residual_test(
+    Pa: CollisionProblem, st: NewtonState, idx: NDArray, parts, pd: NDArray, check: NDArray, opts: NewtonOptions
+) -> NDArray[np.bool_]:
+    """KKT residual where ``check``: slices within ``tol`` or stalled at their rounding floor stop.
+
+    Returns the stopped slices (of ``idx``).  A residual that no longer halves while the
+    Newton decrement is at rounding level (``_STALL_CHECKS`` times) has reached its floor.
+    """
+    fa, ma = st.f[idx], st.m[idx]
+    kk = Pa.kkt_residual(fa, ma, parts).total
+    prev = st.kkt[idx]
+    st.kkt[idx[check]] = kk[check]
+    st.kkt_here[idx[check]] = True
+    done = check & (kk <= opts.tol)
+    worse = check & ~done & (prev == prev) & (kk > 0.5 * prev) & (st.decrement[idx] <= 1e-14)
+    st.stall[idx] = np.where(check, np.where(worse, st.stall[idx] + 1, 0), st.stall[idx])
+    stop = done | (check & (st.stall[idx] >= _STALL_CHECKS))
+    if stop.any():
+        # pd is the (shifted) Cholesky of the reduced Hessian at this very point: the
+        # second-order test comes for free; certify() judges the point at the end.
+        st.second[idx[stop]] = _second_order(Pa, fa, ma, pd, stop)[stop]
+        st.status[idx[stop]] = Status.CONVERGED
+    return stop
+
+
+def _no_descent(st: NewtonState, idx: NDArray, g: NDArray, bands, p: NDArray, valid: NDArray) -> NDArray[np.bool_]:
+    """Slices (of ``idx``) with a usable direction; the others stop here.
+
+    No descent direction even shifted: non-convexity where the model is finite; an
+    iterate at the vacuum boundary (f underflowed, inf curvature) or a non-finite step
+    is a numerical failure, which the interior-damped retry resolves.
+    """
+    go = valid & np.all(np.isfinite(p), axis=-1)
+    if not go.all():
+        finite = _finite_model(g, bands)
+        st.status[idx[~valid & finite]] = Status.NONCONVEX
+        st.status[idx[~valid & ~finite]] = Status.NUMERICAL_ERROR
+        st.status[idx[valid & ~go]] = Status.NUMERICAL_ERROR
+    return go
+
+
+def _line_search(
+    Pl: CollisionProblem, m: NDArray, p: NDArray, alpha: NDArray, phi0: NDArray, slope: NDArray, dec: NDArray
+) -> tuple[NDArray[np.bool_], NDArray, NDArray]:
+    """Armijo backtracking on J from ``m`` along ``p``, starting at the boundary-safe ``alpha``.
+
+    Where the predicted decrease is below the rounding of J (decrement <= 1e-12) Armijo
+    cannot tell (it would truncate the steps at random); the quadratic model is exact
+    there, so the full, boundary-safe step is taken.  Returns (accepted, alpha, J at the
+    accepted point, NaN where it was taken without a trial).
+    """
+    h = Pl.grid.h
+    accepted = dec <= 1e-12
+    phi_new = np.full_like(phi0, np.nan)
+    for _ in range(_MAX_BACKTRACKS):
+        if accepted.all():
+            break
+        trial = m + alpha[:, None] * p
+        ft = Pl.f_star - divergence(trial) / h
+        phit = _objective_interior(Pl, ft, trial)
+        ok = ~accepted & np.all(ft > 0, axis=-1) & (phit <= phi0 + _ARMIJO * alpha * slope)
+        phi_new = np.where(ok, phit, phi_new)
+        accepted |= ok
+        alpha = np.where(accepted, alpha, 0.5 * alpha)
+    return accepted, alpha, phi_new
+
+
+def _step(
+    P: CollisionProblem, st: NewtonState, sel: NDArray, g: NDArray, p: NDArray, bands, run: _Attempt, tol: float
+) -> None:
+    """Damp, line-search and take the step on the slices ``sel``; update jam bookkeeping."""
+    B = st.m.shape[0]
+    full = sel.size == B
+    Pl = P if full else P.rows(sel)
+    fa, ma = (st.f, st.m) if full else (st.f[sel], st.m[sel])
+    p, alpha = _interior_damped(Pl, bands, g, fa, p, np.full(sel.size, run.damping))
+    phi0 = st.phi[sel]
+    slope = np.einsum("bi,bi->b", g, p)
+    dec = -slope / np.maximum(np.abs(phi0), _TINY)
+    st.decrement[sel] = dec
+    # Quadratic convergence: after a step with decrement dec the next decrement is ~dec^2
+    # and the residual far below dec, so the KKT residual is checked once dec reaches tol
+    # (or the rounding level 1e-13, below which it cannot fall further).
+    st.near[sel] = dec <= max(tol, 1e-13)
+    accepted, alpha, phi_new = _line_search(Pl, ma, p, alpha, phi0, slope, dec)
+    if not accepted.all():
+        st.status[sel[~accepted]] = Status.NUMERICAL_ERROR  # no decrease even along a tiny step
+        sel, ma, p, alpha, dec, phi_new = (x[accepted] for x in (sel, ma, p, alpha, dec, phi_new))
+    upd = slice(None) if sel.size == B else sel
+    st.m[upd] = ma + alpha[:, None] * p
+    st.f[upd] = st.f_star[upd] - divergence(st.m[upd]) / P.grid.h
+    fresh = np.isnan(phi_new)  # full steps were taken without evaluating J
+    st.phi[upd] = phi_new
+    if fresh.any():
+        up = sel[fresh]
+        Pu = P if up.size == B else P.rows(up)
+        st.phi[up] = _objective_interior(Pu, st.f[up], st.m[up])
+    st.iterations[upd] += 1
+    st.kkt_here[upd] = False
+    if run.jam_exit:  # jam: tiny accepted steps where the model promises a decrease
+        flat = np.where((alpha < _JAM_STEP) & (dec > 1e-12), st.flat[upd] + 1, 0)
+        st.flat[upd] = flat
+        if flat.max() >= _JAM:
+            jam = sel[flat >= _JAM]
+            st.status[jam] = Status.MAX_ITERATIONS
+            st.jammed[jam] = True
+
+
+def _iterate(P: CollisionProblem, st: NewtonState, opts: NewtonOptions, run: _Attempt) -> None:
+    """The Newton loop: residual test, direction, step, until every slice has stopped.
+
+    Arrays are subset only when some slices have stopped (``_rows``): a batch of one, the
+    single-problem case, then costs no more bookkeeping than a scalar loop.
+    """
+    B = st.m.shape[0]
+    with np.errstate(all="ignore"):
+        for it in range(opts.max_iter + 1):
+            idx = np.flatnonzero(np.equal(st.status, None))
+            if idx.size == 0:
+                break
+            full = idx.size == B
+            Pa = P if full else P.rows(idx)
+            check = st.near[idx] | (it == opts.max_iter)
+            fa, ma = (st.f, st.m) if full else (st.f[idx], st.m[idx])
+            g, bands, parts = _fused(Pa, fa, ma, want_parts=bool(check.any()))
+            p, pd, valid = _direction(Pa, bands, g)
+            stop = _residual_test(Pa, st, idx, parts, pd, check, opts) if check.any() else None
+            if it == opts.max_iter:
+                # Out of iterations where the Hessian still needed a shift: loss of convexity
+                # is what stopped the solver (typically a minimiser on the vacuum boundary).
+                rest = np.ones(idx.size, dtype=bool) if stop is None else ~stop
+                ok = pd[rest] | (not opts.check_convexity)
+                st.status[idx[rest]] = [Status.MAX_ITERATIONS if o else Status.NONCONVEX for o in ok]
+                break
+            if stop is not None and stop.any():
+                keep = ~stop
+                idx, g, p, valid, bands = _rows(keep, idx, g, p, valid, *bands)
+            go = _no_descent(st, idx, g, bands, p, valid)
+            if not go.all():
+                idx, g, p, bands = _rows(go, idx, g, p, *bands)
+            if idx.size:
+                _step(P, st, idx, g, p, bands, run, opts.tol)
+
+
+def _rows(keep: NDArray[np.bool_], idx: NDArray, *arrays: NDArray) -> tuple:
+    """``idx[keep]`` and the rows ``keep`` of each array; the trailing arrays (bands) as one tuple."""
+    out = [idx[keep]] + [a[keep] for a in arrays]
+    return (*out[: len(out) - 3], tuple(out[-3:]))
+
+
+def _finalise(P: CollisionProblem, st: NewtonState, opts: NewtonOptions, t0: float) -> CollisionResult:
+    """Certify every slice at its last iterate and build the result.
+
+    Iterates are feasible (f = f* - Dm/h) and strictly positive by construction: they are
+    returned as they are, so the residual reported is that of the returned point; only
+    slices that are not strictly positive (data with zeros, which never iterate) are
+    projected, and the residual is recomputed only where none belongs to the returned point.
+    """
+    with np.errstate(all="ignore"):
+        positive = np.all(st.f > 0, axis=-1)
+        f_out, m_out = st.f.copy(), st.m.copy()
+        if not positive.all():
+            Pb = P.rows(~positive)
+            f_out[~positive], m_out[~positive] = Pb.project_feasible(st.f[~positive])
+        kkt = st.kkt.copy()
+        redo = ~positive | ~st.kkt_here | ~np.isfinite(kkt)
+        if redo.any():
+            Pr = P if redo.all() else P.rows(redo)
+            kkt[redo] = Pr.kkt_residual(f_out[redo], m_out[redo]).total
+        cert = certify(
+            P,
+            f_out,
+            m_out,
+            kkt_tol=opts.kkt_tol,
+            check_convexity=opts.check_convexity,
+            claimed=st.status,
+            residual=kkt,
+            second_order=st.second,
+        )
+    info = {"warm_started": st.warm, "jammed": st.jammed}
+    return CollisionResult.from_certificate(
+        P, f_out, m_out, cert, "newton", st.iterations, time.perf_counter() - t0, info
+    )
+
+
+def _attempt(P: CollisionProblem, m0: NDArray | None, opts: NewtonOptions, run: _Attempt) -> CollisionResult:
+    """One pass of the iteration over the batch ``P``, from the start point to certification."""
+    t0 = time.perf_counter()
+    st = _start(P, m0, opts)
+    _iterate(P, st, opts, run)
+    return _finalise(P, st, opts, t0)
+
+
+# Statuses after which a slice is solved again with interior damping.
+_RETRY = (Status.MAX_ITERATIONS, Status.NUMERICAL_ERROR)
+
+
+def _merge(res: CollisionResult, rows: NDArray[np.bool_], again: CollisionResult, take: NDArray[np.bool_]) -> None:
+    """Overwrite the batch rows ``rows`` of ``res`` with the rows ``take`` of a later attempt.
+
+    Every attempt's iterations count, whether or not its point is kept.
+    """
+    idx = np.flatnonzero(rows)
+    res.iterations[idx] += again.iterations
+    for name in ("f", "m", "objective", "kkt_residual", "mass_error", "status"):
+        getattr(res, name)[idx[take]] = getattr(again, name)[take]
+
+
+def _cascade(P: CollisionProblem, m0: NDArray | None, opts: NewtonOptions) -> CollisionResult:
+    """The retry cascade, per slice.
+
+    1. Undamped, ending a slice whose iterates jam at the vacuum boundary.
+    2. Slices that ended without a solution (``_RETRY``): again with interior damping.
+    3. Slices that had jammed and still are not ``CONVERGED``: a third time undamped
+       without the jam test (a slice may only look jammed: gamma = 3, lambda = 10); the
+       attempt with the smaller residual is kept.
+    """
+    res = _attempt(P, m0, opts, _Attempt(damping=False, jam_exit=True))
+    jammed = res.info["jammed"]
+    damped = np.zeros_like(jammed)
+    retry = np.array([s in _RETRY for s in res.status]) & np.all(P.f_star > 0, axis=-1)
+    if retry.any():
+        again = _attempt(P.rows(retry), _m0_rows(m0, retry), opts, _Attempt(True, False))
+        _merge(res, retry, again, np.ones(int(retry.sum()), dtype=bool))
+        damped[retry] = True
+        fallback = retry & jammed
+        fallback[fallback] = res.status[fallback] != Status.CONVERGED
+        if fallback.any():
+            plain = _attempt(P.rows(fallback), _m0_rows(m0, fallback), opts, _Attempt(False, False))
+            better = plain.kkt_residual < res.kkt_residual[fallback]
+            _merge(res, fallback, plain, better)
+            damped[np.flatnonzero(fallback)[better]] = False
+    res.info.update(jammed=jammed, interior_damping=damped)
+    return res
+
+
+def _m0_rows(m0: NDArray | None, rows: NDArray[np.bool_]) -> NDArray | None:
+    """The warm start restricted to the batch rows ``rows``."""
+    return None if m0 is None else m0[rows]
+
+
+def _single(res: CollisionResult) -> CollisionResult:
+    """The one-slice batch result as an unbatched one."""
+    info = {key: value[0] if isinstance(value, np.ndarray) else value for key, value in res.info.items()}
+    info = {key: bool(v) if isinstance(v, np.bool_) else v for key, v in info.items()}
+    return CollisionResult(
+        res.f[0],
+        res.m[0],
+        res.status[0],
+        res.method,
+        int(res.iterations[0]),
+        float(res.objective[0]),
+        float(res.kkt_residual[0]),
+        float(res.mass_error[0]),
+        res.seconds,
+        info,
+    )
+
+
 def solve_newton(
     problem: CollisionProblem,
     *,
@@ -409,21 +771,18 @@ def solve_newton(
     kkt_tol : float, optional
         Certification threshold (the same for every method,
         :func:`~jko_cvx.collision.certify.certify`): a slice that stopped is ``CONVERGED``
-        only if its residual is at most ``kkt_tol``, else ``NOT_CERTIFIED``.  Default:
-        ``tol`` -- Newton certifies what it was asked for (its iterations reach ``tol``
-        quadratically, so a looser threshold would only relabel slices that stalled at
-        their rounding floor above ``tol``).
+        only if its residual is at most ``kkt_tol``, else ``NOT_CERTIFIED``.  Default
+        ``tol``: its iterations reach ``tol`` quadratically, so a looser threshold would
+        only relabel slices that stalled at their rounding floor above ``tol``.
     max_iter : int, default 100
-        Newton iterations (status ``MAX_ITERATIONS`` beyond).
+        Newton iterations per attempt (status ``MAX_ITERATIONS`` beyond).
     m0 : array_like, optional
         Warm start: fluxes of shape ``(N-1,)`` or ``(B, N-1)`` (e.g. the previous
-        solution's ``m``).  It is used only where it keeps ``f(m0) > 0``; otherwise the
-        solver starts from ``m = 0``.  With ``conserve_momentum`` it is first projected
-        onto the constraint :math:`\\sum_k m_k\\Delta v_k = 0`.
+        solution's ``m``), used only where it keeps ``f(m0) > 0`` (else ``start``).  With
+        ``conserve_momentum`` it is first projected onto :math:`\\sum_k m_k\\Delta v_k = 0`.
     start : {"explicit", "zero"}, default "explicit"
-        Starting point without ``m0``: the explicit step (the first step of the paper's
-        SQP, one tridiagonal solve; damped to keep f >= f*/2 and kept only if it lowers J;
-        it saves one Newton iteration for moderate Fisher weights) or ``m = 0``.
+        Starting point without ``m0``: the explicit step (:func:`~jko_cvx.collision.explicit.explicit_step`,
+        damped to keep f >= f*/2 and kept only if it lowers J) or ``m = 0``.
     check_convexity : bool, default True
         Report ``NONCONVEX`` when the reduced Hessian at the final point is not positive
         definite (a stationary point that is not a minimiser).
@@ -434,404 +793,31 @@ def solve_newton(
         One status per slice for a batched problem.  ``info`` holds ``warm_started``,
         ``jammed`` (the first, undamped attempt ended on a jam) and ``interior_damping``
         (the returned point comes from the interior-damped attempt); per slice when batched.
+        A single problem is solved as a batch of one.
     """
-    tol, kkt_tol, max_iter, m0 = _check_newton_args(problem, tol, kkt_tol, max_iter, m0, start, check_convexity)
+    opts, m0 = _check_newton_args(problem, tol, kkt_tol, max_iter, m0, start, check_convexity)
     t0 = time.perf_counter()
-    args = (tol, kkt_tol, max_iter, m0, start, check_convexity, t0)
-    if not problem.batched:
-        res = _solve_single(problem, *args, damping=False, jam_exit=True)
-        res.info["interior_damping"] = False
-        if res.status not in _RETRY or not np.all(problem.f_star > 0):
-            return res
-        again = _solve_single(problem, *args, damping=True, jam_exit=False)
-        again.iterations += res.iterations
-        again.info.update(interior_damping=True, jammed=res.info["jammed"])
-        if not res.info["jammed"] or again.status is Status.CONVERGED:
-            return again
-        plain = _solve_single(problem, *args, damping=False, jam_exit=False)
-        plain.iterations += again.iterations
-        plain.info.update(interior_damping=False, jammed=True)
-        return plain if plain.kkt_residual < again.kkt_residual else again
-    res = _solve_batched(problem, *args, damping=False, jam_exit=True)
-    jammed = res.info["jammed"]
-    retry = np.array([st in _RETRY for st in res.status]) & np.all(problem.f_star > 0, axis=-1)
-    res.info["interior_damping"] = np.zeros_like(retry)
-    if retry.any():
-        again = _solve_batched(
-            problem.with_f_star(problem.f_star[retry]), *_subset(args, retry, res.m.shape), damping=True, jam_exit=False
-        )
-        _merge(res, retry, again, np.ones(int(retry.sum()), dtype=bool))
-        res.info["interior_damping"][retry] = True
-        fallback = retry & jammed
-        fallback[fallback] = res.status[fallback] != Status.CONVERGED
-        if fallback.any():
-            plain = _solve_batched(
-                problem.with_f_star(problem.f_star[fallback]),
-                *_subset(args, fallback, res.m.shape),
-                damping=False,
-                jam_exit=False,
-            )
-            better = plain.kkt_residual < res.kkt_residual[fallback]
-            _merge(res, fallback, plain, better)
-            res.info["interior_damping"][np.flatnonzero(fallback)[better]] = False
-    res.info["jammed"] = jammed
+    batch = problem if problem.batched else problem.rows(slice(None))
+    res = _cascade(batch, None if m0 is None else np.broadcast_to(m0, batch.f_star.shape[:1] + m0.shape[-1:]), opts)
     res.seconds = time.perf_counter() - t0
-    return res
-
-
-# Statuses after which a slice is solved again with interior damping.
-_RETRY = (Status.MAX_ITERATIONS, Status.NUMERICAL_ERROR)
-
-
-def _subset(args: tuple, rows: NDArray[np.bool_], shape: tuple[int, int]) -> tuple:
-    """The solver arguments ``(tol, kkt_tol, max_iter, m0, ...)`` restricted to the batch rows ``rows``."""
-    tol, kkt_tol, max_iter, m0, *rest = args
-    m0r = None if m0 is None else np.broadcast_to(np.asarray(m0, dtype=float), shape)[rows]
-    return (tol, kkt_tol, max_iter, m0r, *rest)
-
-
-def _merge(res: CollisionResult, rows: NDArray[np.bool_], again: CollisionResult, take: NDArray[np.bool_]) -> None:
-    """Overwrite the batch rows ``rows`` of ``res`` with the rows ``take`` of a later attempt.
-
-    Every attempt's iterations count, whether or not its point is kept.
-    """
-    idx = np.flatnonzero(rows)
-    res.iterations[idx] += again.iterations
-    for name in ("f", "m", "objective", "kkt_residual", "mass_error", "status"):
-        getattr(res, name)[idx[take]] = getattr(again, name)[take]
-
-
-def _solve_batched(
-    P: CollisionProblem,
-    tol: float,
-    kkt_tol: float,
-    max_iter: int,
-    m0: Any,
-    start: str,
-    check_convexity: bool,
-    t0: float,
-    *,
-    damping: bool,
-    jam_exit: bool,
-) -> CollisionResult:
-    """The batched Newton loop of :func:`solve_newton`.
-
-    ``damping`` turns interior damping on; ``jam_exit`` ends a slice whose iterates jam
-    (``info["jammed"]``, status ``MAX_ITERATIONS``) so that it can be solved again.
-    """
-    F_star = P.f_star
-    B, n = F_star.shape
-    h = P.grid.h
-    m = np.zeros((B, n - 1))
-    warm = np.zeros(B, dtype=bool)
-    if m0 is not None:
-        M0 = _on_momentum_plane(P, np.broadcast_to(np.asarray(m0, dtype=float), (B, n - 1)))
-        f0 = F_star - divergence(M0) / h
-        warm = np.all(f0 > 0, axis=-1) & np.all(np.isfinite(M0), axis=-1)
-        m[warm] = M0[warm]
-    status = np.full(B, None, dtype=object)
-    iters = np.zeros(B, dtype=int)
-    positive = np.all(F_star > 0, axis=-1)
-    status[~positive] = Status.NUMERICAL_ERROR
-    if start == "explicit" and positive.any():
-        with np.errstate(all="ignore"):
-            m = _explicit_start(P, F_star, m, ~warm & positive)
-    f = F_star - divergence(m) / h
-    kkt_last = np.full(B, np.nan)
-    # "near": the last Newton decrement -g.p/|phi| was small, so the KKT residual (the
-    # stopping test) is worth its cost at the new point.
-    near = np.zeros(B, dtype=bool)
-    stall = np.zeros(B, dtype=int)
-    second = np.zeros(B, dtype=bool)  # second-order test at the point where a slice stopped
-    damped = np.full(B, damping)
-    jammed = np.zeros(B, dtype=bool)
-    flat = np.zeros(B, dtype=int)  # consecutive jammed iterations, per slice
-    dec_last = np.full(B, np.inf)
-    kkt_here = np.zeros(B, dtype=bool)  # kkt_last belongs to the current (f, m)
-    active = status == None  # noqa: E711 (object array): slices still iterating
-    with np.errstate(all="ignore"):
-        phi = _objective_interior(P, f, m)
-        for it in range(max_iter + 1):
-            idx = np.flatnonzero(active)
-            if idx.size == 0:
-                break
-            sub = idx.size < B
-            Pa = P.with_f_star(F_star[idx]) if sub else P
-            fa, ma = (f[idx], m[idx]) if sub else (f, m)
-            check = near[idx] | (it == max_iter)
-            g, bands, parts = _fused(Pa, fa, ma, want_parts=bool(check.any()))
-            p, pd, valid = _direction(Pa, bands, g)
-            done = np.zeros(idx.size, dtype=bool)
-            if check.any():
-                kk = Pa.kkt_residual(fa, ma, parts).total
-                prev = kkt_last[idx]
-                kkt_last[idx[check]] = kk[check]
-                kkt_here[idx[check]] = True
-                done = check & (kk <= tol)
-                worse = check & ~done & (prev == prev) & (kk > 0.5 * prev) & (dec_last[idx] <= 1e-14)
-                stall[idx] = np.where(check, np.where(worse, stall[idx] + 1, 0), stall[idx])
-                stalled = check & ~done & (stall[idx] >= _STALL_CHECKS)  # the residual's rounding floor
-                # Stopped (converged, or stalled at the rounding floor): certify() judges the
-                # point at the end.  pd is the (shifted) Cholesky of the reduced Hessian at
-                # this very point: the second-order test comes for free.
-                stop = done | stalled
-                if stop.any():
-                    second[idx[stop]] = _second_order(Pa, fa, ma, pd, stop)[stop]
-                    status[idx[stop]] = Status.CONVERGED
-                    active[idx[stop]] = False
-            if it == max_iter:
-                # Out of iterations where the Hessian still needed a shift: loss of convexity
-                # is what stopped the solver (typically a minimiser on the vacuum boundary).
-                status[idx[~done]] = [
-                    Status.MAX_ITERATIONS if (ok or not check_convexity) else Status.NONCONVEX for ok in pd[~done]
-                ]
-                break
-            if check.any():
-                done = done | stalled
-            go = ~done & valid & np.all(np.isfinite(p), axis=-1)
-            if not go.all():
-                # No descent direction even shifted: non-convexity where the Hessian is
-                # finite; an iterate at the vacuum boundary (f underflowed, inf curvature)
-                # is a numerical failure, which the interior-damped retry resolves.
-                finite = _finite_model(g, bands)
-                status[idx[~done & ~valid & finite]] = Status.NONCONVEX
-                status[idx[~done & ~valid & ~finite]] = Status.NUMERICAL_ERROR
-                status[idx[~done & valid & ~go]] = Status.NUMERICAL_ERROR
-                active[idx[~go]] = False
-            if not go.any():
-                continue
-            sel, g, p = idx[go], g[go], p[go]
-            fa, ma = fa[go], ma[go]
-            Pl = P.with_f_star(F_star[sel]) if sel.size < B else P
-            p, alpha = _interior_damped(Pl, tuple(band[go] for band in bands), g, fa, p, damped[sel])
-            phi0 = phi[sel]
-            slope = np.einsum("bi,bi->b", g, p)
-            dec = -slope / np.maximum(np.abs(phi0), np.finfo(float).tiny)
-            dec_last[sel] = dec
-            # Quadratic convergence: after a step with decrement dec the next decrement is
-            # ~dec^2 and the residual far below dec, so the KKT residual is checked once dec
-            # reaches tol (or the rounding level 1e-13, below which it cannot fall further).
-            near[sel] = dec <= max(tol, 1e-13)
-            # Where the predicted decrease is below the rounding of phi, Armijo cannot tell
-            # (it would truncate the steps at random); the quadratic model is exact there,
-            # so the full, boundary-safe Newton step is taken.
-            accepted = dec <= 1e-12
-            phi_new = phi0.copy()
-            for _ in range(_MAX_BACKTRACKS):
-                if accepted.all():
-                    break
-                trial = ma + alpha[:, None] * p
-                ft = Pl.f_star - divergence(trial) / h
-                phit = _objective_interior(Pl, ft, trial)
-                ok = ~accepted & np.all(ft > 0, axis=-1) & (phit <= phi0 + _ARMIJO * alpha * slope)
-                phi_new = np.where(ok, phit, phi_new)
-                accepted |= ok
-                alpha = np.where(accepted, alpha, 0.5 * alpha)
-            if not accepted.all():
-                status[sel[~accepted]] = Status.NUMERICAL_ERROR  # no decrease even along a tiny step
-                active[sel[~accepted]] = False
-            upd = sel[accepted]
-            m[upd] = ma[accepted] + alpha[accepted, None] * p[accepted]
-            f[upd] = F_star[upd] - divergence(m[upd]) / h
-            full = dec[accepted] <= 1e-12
-            phi[upd] = phi_new[accepted]
-            if full.any():
-                up = upd[full]
-                Pu = P.with_f_star(F_star[up]) if up.size < B else P
-                phi[up] = _objective_interior(Pu, f[up], m[up])
-            iters[upd] += 1
-            kkt_here[upd] = False
-            if jam_exit:  # jam: tiny accepted steps where the model promises a decrease
-                tiny_step = (alpha[accepted] < _JAM_STEP) & (dec[accepted] > 1e-12)
-                flat[upd] = np.where(tiny_step, flat[upd] + 1, 0)
-                jam = upd[flat[upd] >= _JAM]
-                status[jam] = Status.MAX_ITERATIONS
-                jammed[jam] = True
-                active[jam] = False
-        # Results: project (clip rounding, exact mass); re-evaluate the residual only where
-        # the projection moved f beyond rounding or no residual was computed.
-        # Iterates are feasible and positive by construction: return them as they are (the
-        # reported residual is then that of the returned point); project only slices that
-        # are not strictly positive (data with zeros, which never iterate).
-        positive_rows = np.all(f > 0, axis=-1)
-        f_out, m_out = f.copy(), m.copy()
-        if not positive_rows.all():
-            bad = ~positive_rows
-            Pb = P.with_f_star(F_star[bad]) if bad.sum() < B else P
-            f_out[bad], m_out[bad] = Pb.project_feasible(f[bad])
-        kkt_all = kkt_last.copy()
-        redo = ~positive_rows | ~kkt_here | ~np.isfinite(kkt_all)
-        if redo.any():
-            Pr = P.with_f_star(F_star[redo]) if redo.sum() < B else P
-            kkt_all[redo] = Pr.kkt_residual(f_out[redo], m_out[redo]).total
-        cert = certify(
-            P,
-            f_out,
-            m_out,
-            kkt_tol=kkt_tol,
-            check_convexity=check_convexity,
-            claimed=status,
-            residual=kkt_all,
-            second_order=second,
-        )
-    info = {"warm_started": warm, "jammed": jammed}
-    return CollisionResult.from_certificate(P, f_out, m_out, cert, "newton", iters, time.perf_counter() - t0, info)
+    return res if problem.batched else _single(res)
 
 
 solve_newton.batched = True  # type: ignore[attr-defined]
 
 
-def _explicit_start(P: CollisionProblem, F_star: NDArray, m: NDArray, use: NDArray[np.bool_] | bool) -> NDArray:
-    """The damped explicit step (first SQP step) where ``use`` and where it lowers J, else ``m``.
-
-    Works on one problem (1-D arrays) or a batch (2-D); the step is damped to keep
-    ``f >= f*/2``.
-    """
-    zero = np.zeros_like(m)
-    pf, pm = explicit_step(P)
-    ratio = np.where(pf < 0, -F_star / np.where(pf < 0, pf, -1.0), np.inf).min(axis=-1)
-    alpha = np.minimum(1.0, 0.5 * ratio)
-    cand = _on_momentum_plane(P, np.asarray(alpha)[..., None] * pm)
-    fc = F_star - divergence(cand) / P.grid.h
-    better = (
-        use
-        & np.all(np.isfinite(cand), axis=-1)
-        & np.all(fc > 0, axis=-1)
-        & (_objective_interior(P, fc, cand) < _objective_interior(P, F_star, zero))
-    )
-    return np.where(np.asarray(better)[..., None], cand, m)
-
-
-def _solve_single(
-    P: CollisionProblem,
-    tol: float,
-    kkt_tol: float,
-    max_iter: int,
-    m0: Any,
-    start: str,
-    check_convexity: bool,
-    t0: float,
-    *,
-    damping: bool,
-    jam_exit: bool,
-) -> CollisionResult:
-    """The same algorithm as the batched loop of :func:`solve_newton`, on plain 1-D arrays.
-
-    At N ~ 100 a Newton iteration costs tens of NumPy calls of ~1 microsecond each; the
-    per-slice bookkeeping of the batched loop would double that, so one problem takes
-    this path (tests check that both paths agree).
-    """
-    h = P.grid.h
-    f_star = P.f_star
-    n = P.n
-    m = np.zeros(n - 1)
-    warm = False
-    if m0 is not None:
-        cand = _on_momentum_plane(P, np.asarray(m0, dtype=float).reshape(n - 1))
-        fc = f_star - divergence(cand) / h
-        if np.all(np.isfinite(cand)) and np.all(fc > 0):
-            m, warm = cand.copy(), True
-    status, iters, kkt, stall, dec_last, kkt_here = None, 0, np.nan, 0, np.inf, False
-    flat, jammed = 0, False  # consecutive jammed iterations; whether the attempt ended on a jam
-    second = None  # second-order test at the point where the iteration stopped
-    if not np.all(f_star > 0):
-        status = Status.NUMERICAL_ERROR
-    tiny = np.finfo(float).tiny
-    with np.errstate(all="ignore"):
-        if status is None and start == "explicit" and not warm:
-            m = _explicit_start(P, f_star, m, True)
-        f = f_star - divergence(m) / h
-        phi = float(_objective_interior(P, f, m))
-        near = False
-        for it in range(max_iter + 1):
-            if status is not None:
-                break
-            check = near or it == max_iter
-            g, bands, parts = _fused(P, f, m, want_parts=check)
-            p, pd, valid = _direction(P, tuple(b[None] for b in bands), g[None])
-            p, pd, valid = p[0], bool(pd[0]), bool(valid[0])
-            if check:
-                prev, kkt = kkt, float(P.kkt_residual(f, m, parts).total)
-                kkt_here = True  # the residual belongs to the current (f, m)
-                stall = stall + 1 if (prev == prev and kkt > 0.5 * prev and dec_last <= 1e-14) else 0
-                # Stopped (converged, or the residual no longer falls: its rounding floor):
-                # certify() judges the point below.
-                if kkt <= tol or stall >= _STALL_CHECKS:
-                    second = pd or (P.conserve_momentum and P.is_local_minimiser(f, m))
-                    status = Status.CONVERGED
-                    break
-            if it == max_iter:
-                status = Status.MAX_ITERATIONS if (pd or not check_convexity) else Status.NONCONVEX
-                break
-            if not valid:  # no descent direction even shifted (see the batched loop)
-                finite = bool(_finite_model(g[None], tuple(b[None] for b in bands))[0])
-                status = Status.NONCONVEX if finite else Status.NUMERICAL_ERROR
-                break
-            if not np.all(np.isfinite(p)):
-                status = Status.NUMERICAL_ERROR
-                break
-            pb, ab = _interior_damped(
-                P, tuple(band[None] for band in bands), g[None], f[None], p[None].copy(), np.array([damping])
-            )
-            p, alpha = pb[0], float(ab[0])
-            slope = float(g @ p)
-            dec = dec_last = -slope / max(abs(phi), tiny)
-            near = dec <= max(tol, 1e-13)
-            if dec <= 1e-12:  # decrease below the rounding of phi: full, boundary-safe step
-                m = m + alpha * p
-                f = f_star - divergence(m) / h
-                phi = float(_objective_interior(P, f, m))
-            else:
-                for _ in range(_MAX_BACKTRACKS):
-                    trial = m + alpha * p
-                    ft = f_star - divergence(trial) / h
-                    phit = float(_objective_interior(P, ft, trial))
-                    if np.all(ft > 0) and phit <= phi + _ARMIJO * alpha * slope:
-                        m, f, phi = trial, ft, phit
-                        break
-                    alpha *= 0.5
-                else:
-                    status = Status.NUMERICAL_ERROR  # no decrease even along a tiny step
-                    break
-            iters += 1
-            kkt_here = False
-            if jam_exit:  # jam: tiny accepted steps where the model promises a decrease
-                flat = flat + 1 if (alpha < _JAM_STEP and dec > 1e-12) else 0
-                if flat >= _JAM:
-                    status, jammed = Status.MAX_ITERATIONS, True
-                    break
-        # The iterates are feasible by construction (f = f* - Dm/h) and strictly positive:
-        # return the last one itself, so the residual reported is that of the returned point.
-        if np.all(f > 0):
-            f_out, m_out = f, m
-        else:
-            f_out, m_out = P.project_feasible(f)
-            kkt_here = False
-        if not kkt_here:
-            kkt = float(P.kkt_residual(f_out, m_out).total)
-        cert = certify(
-            P,
-            f_out,
-            m_out,
-            kkt_tol=kkt_tol,
-            check_convexity=check_convexity,
-            claimed=status,
-            residual=kkt,
-            second_order=second,
-        )
-    info = {"warm_started": warm, "jammed": jammed}
-    return CollisionResult.from_certificate(P, f_out, m_out, cert, "newton", iters, time.perf_counter() - t0, info)
-
-
 def _check_newton_args(
     problem: CollisionProblem, tol: Any, kkt_tol: Any, max_iter: Any, m0: Any, start: Any, check_convexity: Any
-) -> tuple[float, float, int, NDArray | None]:
-    """Checked ``(tol, kkt_tol, max_iter, m0)``; errors name the option."""
+) -> tuple[NewtonOptions, NDArray | None]:
+    """The checked options and warm start; errors name the option."""
     tol = check_unit("tol", tol)
-    kkt_tol = tol if kkt_tol is None else check_unit("kkt_tol", kkt_tol)
-    max_iter = check_int("max_iter", max_iter)
-    check_choice("start", start, ("explicit", "zero"))
-    check_bool("check_convexity", check_convexity)
+    opts = NewtonOptions(
+        tol=tol,
+        kkt_tol=tol if kkt_tol is None else check_unit("kkt_tol", kkt_tol),
+        max_iter=check_int("max_iter", max_iter),
+        start=check_choice("start", start, ("explicit", "zero")),
+        check_convexity=check_bool("check_convexity", check_convexity),
+    )
     if m0 is not None:
         shape = (*problem.f_star.shape[:-1], problem.n - 1)
         try:
@@ -842,4 +828,4 @@ def _check_newton_args(
                 + (f" or {shape}" if problem.batched else "")
                 + f", got {np.shape(m0)}"
             ) from exc
-    return tol, kkt_tol, max_iter, m0
+    return opts, m0

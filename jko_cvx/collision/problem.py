@@ -67,6 +67,7 @@ linear constraint, one more multiplier) and the drift is 1.4e-15 over the same r
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 from typing import Literal
 
@@ -267,6 +268,20 @@ class CollisionProblem:
         return CollisionProblem(
             self.grid, self.kernel, f_star, self.dt, self.strength, self.beta, self.fisher, self.conserve_momentum
         )
+
+    def rows(self, index: ArrayLike | slice) -> CollisionProblem:
+        """The batch of rows ``f_star[index]`` (an unbatched problem counts as one row).
+
+        The rows were validated with this problem, so nothing is checked again: this is
+        the cheap form of :meth:`with_f_star` that the batched solvers use on the slices
+        still iterating.  The result is always batched.
+        """
+        sub = copy.copy(self)
+        f = self.f_star if self.batched else self.f_star[None]
+        sub.f_star = f[index]
+        sub.f_star.flags.writeable = False
+        sub.mass = np.atleast_1d(self.mass)[index]
+        return sub
 
     def with_dt(self, dt: float) -> CollisionProblem:
         """Same problem with a new time step."""
