@@ -35,8 +35,7 @@ stalled with the residual above tolerance).
 from __future__ import annotations
 
 import time
-import weakref
-from dataclasses import dataclass, field
+from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
@@ -50,6 +49,7 @@ from .explicit import explicit_step
 from .linalg import divergence, divergence_adjoint
 from .problem import CollisionProblem, TermParts, add_pentadiagonal
 from .result import CollisionResult, Status
+from .terms import FISHER_TERMS, band_coefficients, reduced_bands, wasserstein_derivatives, wasserstein_value
 
 __all__ = ["NewtonOptions", "NewtonState", "solve_newton"]
 
@@ -82,80 +82,45 @@ _PD_TOL = 1e-10
 _STALL_CHECKS = 3
 
 
-_BAND_CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
-
-
-def _band_coefficients(grid) -> tuple:
-    """Grid constants of the reduced-Hessian bands (T has columns a_k e_k + b_k e_{k+1}), cached per grid."""
-    c = _BAND_CACHE.get(grid)
-    if c is None:
-        h = grid.h
-        a, b = -1 / h[:-1], 1 / h[1:]
-        c = (h, a, b, a * a, 2 * a * b, b * b, a[:-1] * a[1:], b[:-1] * a[1:], b[:-1] * b[1:], b[:-2] * a[2:])
-        _BAND_CACHE[grid] = c
-    return c
-
-
 def _fused(
     problem: CollisionProblem, f: NDArray, m: NDArray, want_parts: bool = True
 ) -> tuple[NDArray, tuple, TermParts | None]:
     """Reduced gradient and the bands of the edge part of the reduced Hessian, in one pass.
 
-    Same formulas as :meth:`CollisionProblem.gradient` and
-    :meth:`CollisionProblem.reduced_hessian` (tests check they agree), computed once
-    for the shared quantities :math:`s`, :math:`m/s` and the Fisher terms.
+    The formulas of :mod:`~jko_cvx.collision.terms` (those of :meth:`CollisionProblem.gradient`
+    and :meth:`CollisionProblem.reduced_hessian`), evaluated once for the shared quantities
+    :math:`s` and :math:`m/s`, at interior points (no domain guards).
     """
-    h, a, b, aa, ab2, bb, o1a, o1b, o1c, o2 = _band_coefficients(problem.grid)
+    h = problem.grid.h
     x, y = f[..., :-1], f[..., 1:]
     s = x + y
-    w = problem.wass_coef
-    u = m / s
-    gm = 2 * w * u
-    gs = -w * u * u
-    hss = 2 * w * u * u / s
-    hsm = -2 * w * u / s
-    hmm = 2 * w / s
-    gx = gs.copy()
-    gy = gs.copy()
-    xx, yy, xy = hss.copy(), hss.copy(), hss.copy()
+    wd = wasserstein_derivatives(m, s, problem.wass_coef)
+    gx, gy = wd.g_s.copy(), wd.g_s.copy()
+    xx, yy, xy = wd.h_ss.copy(), wd.h_ss.copy(), wd.h_ss.copy()
     if problem.fisher is not None:
+        term = FISHER_TERMS[problem.fisher]
         c = problem.fisher_coef
-        if problem.fisher == "perspective":
-            r = (y - x) / s
-            gx += c * (-4 * r - 2 * r * r)
-            gy += c * (4 * r - 2 * r * r)
-            k = 16 * c / (s * s * s)
-            xx += k * y * y
-            yy += k * x * x
-            xy -= k * x * y
-        else:
-            L = np.log(y) - np.log(x)
-            gx += c * (-L * s / x + 0.5 * L * L)
-            gy += c * (L * s / y + 0.5 * L * L)
-            q = c * (s + L * (y - x))
-            xx += q / (x * x)
-            yy += q / (y * y)
-            xy += c * (-s + L * (x - y)) / (x * y)
+        fx, fy = term.gradient(x, y, s, c)
+        gx += fx
+        gy += fy
+        hx, hy, hxy = term.hessian(x, y, s, c)
+        xx += hx
+        yy += hy
+        xy += hxy
     gfe = 2 * problem.energy_coef * problem.energy.matvec(f)
     gf = gfe.copy()
     gf[..., :-1] += gx
     gf[..., 1:] += gy
-    g = gm - divergence_adjoint(gf / h)
+    g = wd.g_m - divergence_adjoint(gf / h)
     parts = None
     if want_parts:  # the per-term split, for the KKT residual's scale
         gfw = np.zeros_like(f)
-        gfw[..., :-1] += gs
-        gfw[..., 1:] += gs
+        gfw[..., :-1] += wd.g_s
+        gfw[..., 1:] += wd.g_s
         gff = gf - gfe - gfw
         zero = np.zeros_like(m)
-        parts = TermParts((gfw, gm), (gff, zero), (gfe, zero))
-    d = np.zeros_like(f)
-    d[..., :-1] += xx
-    d[..., 1:] += yy
-    diag = hmm + aa * d[..., :-1] + ab2 * xy + bb * d[..., 1:] + 2 * (a + b) * hsm
-    off1 = o1a * xy[..., :-1] + o1b * d[..., 1:-1] + o1c * xy[..., 1:] + b[:-1] * hsm[..., 1:] + a[1:] * hsm[..., :-1]
-    off2 = o2 * xy[..., 1:-1]
-    return g, (diag, off1, off2), parts
+        parts = TermParts((gfw, wd.g_m), (gff, zero), (gfe, zero))
+    return g, reduced_bands(problem.grid, xx, yy, xy, wd.h_sm, wd.h_mm), parts
 
 
 def _banded_cholesky(diag, off1, off2) -> tuple[NDArray | None, bool]:
@@ -259,8 +224,8 @@ def _direction(problem: CollisionProblem, bands, g: NDArray) -> tuple[NDArray, N
         H = add_pentadiagonal(scale * fb.dense, *bands)
         x, pd = _newton_direction(H, rhs)
     valid = pd.copy()
-    bad = np.flatnonzero(~pd)
-    if bad.size:
+    if not pd.all():
+        bad = np.nonzero(~pd)[0]
         Hb = (
             H[bad]
             if H is not None
@@ -308,7 +273,7 @@ def _interior_damped(
     (arrays of shape ``(B, ...)``).
     """
     h = problem.grid.h
-    _, _, _, aa, _, bb, _, o1b, _, _ = _band_coefficients(problem.grid)
+    _, _, _, aa, _, bb, _, o1b, _, _ = band_coefficients(problem.grid)
     pf = -divergence(p) / h
     alpha = _boundary_step(f, pf)
     todo = jammed & (alpha < 1.0)
@@ -351,14 +316,10 @@ def _objective_interior(problem: CollisionProblem, f: NDArray, m: NDArray) -> ND
     """:math:`J(f, m)` for strictly positive f (line-search trial points), without domain guards."""
     x, y = f[..., :-1], f[..., 1:]
     s = x + y
-    val = (m * m / s) @ problem.wass_coef
-    if problem.fisher == "perspective":
-        d = y - x
-        val = val + (2 * d * d / s) @ problem.fisher_coef
-    elif problem.fisher == "log":
-        L = np.log(y) - np.log(x)
-        val = val + (0.5 * L * L * s) @ problem.fisher_coef
-    return val + problem.energy_coef * np.einsum("...i,...i->...", f, problem.energy.matvec(f))
+    val = wasserstein_value(m, s) @ problem.wass_coef
+    if problem.fisher is not None:
+        val = val + FISHER_TERMS[problem.fisher].value(x, y, s) @ problem.fisher_coef
+    return val + problem.energy_coef * problem.energy.quadratic(f)
 
 
 def _newton_direction(H: NDArray, rhs: NDArray | None) -> tuple[NDArray | None, NDArray[np.bool_]]:
@@ -410,40 +371,49 @@ class _Attempt:
 
 @dataclass
 class NewtonState:
-    """Per-slice state of the (batched) Newton iteration; one row per slice.
+    """Per-slice state of the Newton iteration, one row per slice still iterating.
 
-    ``status`` is None while a slice iterates; a slice that stopped at a solution (residual
-    within ``tol``, or stalled at its rounding floor) holds ``CONVERGED`` until
-    :func:`~jko_cvx.collision.certify.certify` judges it at the end.
+    ``rows`` are the slices' indices in the batch.  A slice leaves the state (its row is
+    written to the result arrays by :func:`_retire`) as soon as it has a status: the
+    iteration then works on whole arrays, with no per-iteration gathers, and a batch of
+    one -- the single problem -- costs no more bookkeeping than a scalar loop.  ``status``
+    ``CONVERGED`` means "stopped at a solution by its own rule" (residual within ``tol``, or
+    stalled at its rounding floor) until :func:`~jko_cvx.collision.certify.certify` judges it.
     """
 
-    f_star: NDArray[np.float64]
+    rows: NDArray[np.int_]
     m: NDArray[np.float64]
     f: NDArray[np.float64]
     phi: NDArray[np.float64]  # J at the current iterate (the line search's merit function)
-    status: NDArray  # object array of Status or None
-    warm: NDArray[np.bool_]
-    iterations: NDArray[np.int_] = field(init=False)
-    kkt: NDArray[np.float64] = field(init=False)  # last residual computed
-    kkt_here: NDArray[np.bool_] = field(init=False)  # ... and it belongs to the current iterate
-    near: NDArray[np.bool_] = field(init=False)  # last decrement small: check the residual next
-    stall: NDArray[np.int_] = field(init=False)  # consecutive checks without progress at rounding level
-    second: NDArray[np.bool_] = field(init=False)  # second-order test where the slice stopped
-    decrement: NDArray[np.float64] = field(init=False)  # last Newton decrement -g.p/|phi|
-    flat: NDArray[np.int_] = field(init=False)  # consecutive jammed steps
-    jammed: NDArray[np.bool_] = field(init=False)
+    status: NDArray  # object array of Status or None (still iterating)
+    iterations: NDArray[np.int_]
+    kkt: NDArray[np.float64]  # last residual computed ...
+    kkt_here: NDArray[np.bool_]  # ... and whether it belongs to the current iterate
+    second: NDArray[np.bool_]  # second-order test where the slice stopped
+    jammed: NDArray[np.bool_]
+    near: NDArray[np.bool_]  # last decrement small: check the residual at the next iterate
+    stall: NDArray[np.int_]  # consecutive checks without progress at rounding level
+    decrement: NDArray[np.float64]  # last Newton decrement -g.p/|phi|
+    flat: NDArray[np.int_]  # consecutive jammed steps
 
-    def __post_init__(self) -> None:
-        b = self.m.shape[0]
-        self.iterations = np.zeros(b, dtype=int)
-        self.kkt = np.full(b, np.nan)
-        self.kkt_here = np.zeros(b, dtype=bool)
-        self.near = np.zeros(b, dtype=bool)
-        self.stall = np.zeros(b, dtype=int)
-        self.second = np.zeros(b, dtype=bool)
-        self.decrement = np.full(b, np.inf)
-        self.flat = np.zeros(b, dtype=int)
-        self.jammed = np.zeros(b, dtype=bool)
+    @classmethod
+    def initial(cls, m: NDArray, f: NDArray, phi: NDArray, status: NDArray) -> NewtonState:
+        """The state before the first iteration."""
+        b = m.shape[0]
+        return cls(
+            np.arange(b), m, f, phi, status, np.zeros(b, dtype=int), np.full(b, np.nan), np.zeros(b, dtype=bool),
+            np.zeros(b, dtype=bool), np.zeros(b, dtype=bool), np.zeros(b, dtype=bool), np.zeros(b, dtype=int),
+            np.full(b, np.inf), np.zeros(b, dtype=int),
+        )  # fmt: skip
+
+    def take(self, keep: NDArray[np.bool_]) -> NewtonState:
+        """The rows ``keep``."""
+        return NewtonState(*(getattr(self, name)[keep] for name in _STATE_FIELDS))
+
+
+_STATE_FIELDS = tuple(f.name for f in fields(NewtonState))
+# What a slice hands to the result when it leaves the iteration.
+_RESULT_FIELDS = ("m", "f", "status", "iterations", "kkt", "kkt_here", "second", "jammed")
 
 
 def _explicit_start(P: CollisionProblem, F_star: NDArray, m: NDArray, use: NDArray[np.bool_]) -> NDArray:
@@ -466,8 +436,8 @@ def _explicit_start(P: CollisionProblem, F_star: NDArray, m: NDArray, use: NDArr
     return np.where(better[:, None], cand, m)
 
 
-def _start(P: CollisionProblem, m0: NDArray | None, opts: NewtonOptions) -> NewtonState:
-    """The first iterate: ``m0`` where it keeps f > 0, else the explicit step (or 0)."""
+def _start(P: CollisionProblem, m0: NDArray | None, opts: NewtonOptions) -> tuple[NewtonState, NDArray[np.bool_]]:
+    """The first iterate (``m0`` where it keeps f > 0, else the explicit step or 0), and where m0 was used."""
     F_star = P.f_star
     B, n = F_star.shape
     h = P.grid.h
@@ -485,36 +455,47 @@ def _start(P: CollisionProblem, m0: NDArray | None, opts: NewtonOptions) -> Newt
             m = _explicit_start(P, F_star, m, ~warm & positive)
         f = F_star - divergence(m) / h
         phi = _objective_interior(P, f, m)
-    return NewtonState(F_star, m, f, phi, status, warm)
+    return NewtonState.initial(m, f, phi, status), warm
+
+
+def _retire(Pa: CollisionProblem, st: NewtonState, out: dict[str, NDArray]) -> tuple[CollisionProblem, NewtonState]:
+    """Move the slices that have a status from ``st`` to the result arrays ``out``."""
+    if all(s is None for s in st.status):  # a Python loop: cheaper than NumPy at B = 1
+        return Pa, st
+    done = np.not_equal(st.status, None)
+    rows = st.rows[done]
+    for name in _RESULT_FIELDS:
+        out[name][rows] = getattr(st, name)[done]
+    keep = ~done
+    return Pa.rows(keep), st.take(keep)
 
 
 def _residual_test(
-    Pa: CollisionProblem, st: NewtonState, idx: NDArray, parts, pd: NDArray, check: NDArray, opts: NewtonOptions
+    Pa: CollisionProblem, st: NewtonState, parts, pd: NDArray, check: NDArray, opts: NewtonOptions
 ) -> NDArray[np.bool_]:
     """KKT residual where ``check``: slices within ``tol`` or stalled at their rounding floor stop.
 
-    Returns the stopped slices (of ``idx``).  A residual that no longer halves while the
-    Newton decrement is at rounding level (``_STALL_CHECKS`` times) has reached its floor.
+    A residual that no longer halves while the Newton decrement is at rounding level
+    (``_STALL_CHECKS`` times) has reached its floor.  Returns the stopped slices.
     """
-    fa, ma = st.f[idx], st.m[idx]
-    kk = Pa.kkt_residual(fa, ma, parts).total
-    prev = st.kkt[idx]
-    st.kkt[idx[check]] = kk[check]
-    st.kkt_here[idx[check]] = True
+    kk = Pa.kkt_residual(st.f, st.m, parts).total
+    prev = st.kkt.copy()
+    st.kkt = np.where(check, kk, st.kkt)
+    st.kkt_here |= check
     done = check & (kk <= opts.tol)
-    worse = check & ~done & (prev == prev) & (kk > 0.5 * prev) & (st.decrement[idx] <= 1e-14)
-    st.stall[idx] = np.where(check, np.where(worse, st.stall[idx] + 1, 0), st.stall[idx])
-    stop = done | (check & (st.stall[idx] >= _STALL_CHECKS))
+    worse = check & ~done & (prev == prev) & (kk > 0.5 * prev) & (st.decrement <= 1e-14)
+    st.stall = np.where(check, np.where(worse, st.stall + 1, 0), st.stall)
+    stop = done | (check & (st.stall >= _STALL_CHECKS))
     if stop.any():
         # pd is the (shifted) Cholesky of the reduced Hessian at this very point: the
         # second-order test comes for free; certify() judges the point at the end.
-        st.second[idx[stop]] = _second_order(Pa, fa, ma, pd, stop)[stop]
-        st.status[idx[stop]] = Status.CONVERGED
+        st.second = np.where(stop, _second_order(Pa, st.f, st.m, pd, stop), st.second)
+        st.status[stop] = Status.CONVERGED
     return stop
 
 
-def _no_descent(st: NewtonState, idx: NDArray, g: NDArray, bands, p: NDArray, valid: NDArray) -> NDArray[np.bool_]:
-    """Slices (of ``idx``) with a usable direction; the others stop here.
+def _no_descent(st: NewtonState, g: NDArray, bands, p: NDArray, valid: NDArray) -> None:
+    """Stop the slices without a usable direction.
 
     No descent direction even shifted: non-convexity where the model is finite; an
     iterate at the vacuum boundary (f underflowed, inf curvature) or a non-finite step
@@ -522,15 +503,15 @@ def _no_descent(st: NewtonState, idx: NDArray, g: NDArray, bands, p: NDArray, va
     """
     go = valid & np.all(np.isfinite(p), axis=-1)
     if not go.all():
+        free = np.equal(st.status, None)
         finite = _finite_model(g, bands)
-        st.status[idx[~valid & finite]] = Status.NONCONVEX
-        st.status[idx[~valid & ~finite]] = Status.NUMERICAL_ERROR
-        st.status[idx[valid & ~go]] = Status.NUMERICAL_ERROR
-    return go
+        st.status[free & ~valid & finite] = Status.NONCONVEX
+        st.status[free & ~valid & ~finite] = Status.NUMERICAL_ERROR
+        st.status[free & valid & ~go] = Status.NUMERICAL_ERROR
 
 
 def _line_search(
-    Pl: CollisionProblem, m: NDArray, p: NDArray, alpha: NDArray, phi0: NDArray, slope: NDArray, dec: NDArray
+    Pa: CollisionProblem, m: NDArray, p: NDArray, alpha: NDArray, phi0: NDArray, slope: NDArray, dec: NDArray
 ) -> tuple[NDArray[np.bool_], NDArray, NDArray]:
     """Armijo backtracking on J from ``m`` along ``p``, starting at the boundary-safe ``alpha``.
 
@@ -539,15 +520,15 @@ def _line_search(
     there, so the full, boundary-safe step is taken.  Returns (accepted, alpha, J at the
     accepted point, NaN where it was taken without a trial).
     """
-    h = Pl.grid.h
+    h = Pa.grid.h
     accepted = dec <= 1e-12
     phi_new = np.full_like(phi0, np.nan)
     for _ in range(_MAX_BACKTRACKS):
         if accepted.all():
             break
         trial = m + alpha[:, None] * p
-        ft = Pl.f_star - divergence(trial) / h
-        phit = _objective_interior(Pl, ft, trial)
+        ft = Pa.f_star - divergence(trial) / h
+        phit = _objective_interior(Pa, ft, trial)
         ok = ~accepted & np.all(ft > 0, axis=-1) & (phit <= phi0 + _ARMIJO * alpha * slope)
         phi_new = np.where(ok, phit, phi_new)
         accepted |= ok
@@ -555,90 +536,77 @@ def _line_search(
     return accepted, alpha, phi_new
 
 
-def _step(
-    P: CollisionProblem, st: NewtonState, sel: NDArray, g: NDArray, p: NDArray, bands, run: _Attempt, tol: float
-) -> None:
-    """Damp, line-search and take the step on the slices ``sel``; update jam bookkeeping."""
-    B = st.m.shape[0]
-    full = sel.size == B
-    Pl = P if full else P.rows(sel)
-    fa, ma = (st.f, st.m) if full else (st.f[sel], st.m[sel])
-    p, alpha = _interior_damped(Pl, bands, g, fa, p, np.full(sel.size, run.damping))
-    phi0 = st.phi[sel]
+def _step(Pa: CollisionProblem, st: NewtonState, g: NDArray, p: NDArray, bands, run: _Attempt, tol: float) -> None:
+    """Damp, line-search and take the step on every slice of ``st``; jam bookkeeping."""
+    p, alpha = _interior_damped(Pa, bands, g, st.f, p, np.full(st.rows.size, run.damping))
     slope = np.einsum("bi,bi->b", g, p)
-    dec = -slope / np.maximum(np.abs(phi0), _TINY)
-    st.decrement[sel] = dec
+    dec = -slope / np.maximum(np.abs(st.phi), _TINY)
+    st.decrement = dec
     # Quadratic convergence: after a step with decrement dec the next decrement is ~dec^2
     # and the residual far below dec, so the KKT residual is checked once dec reaches tol
     # (or the rounding level 1e-13, below which it cannot fall further).
-    st.near[sel] = dec <= max(tol, 1e-13)
-    accepted, alpha, phi_new = _line_search(Pl, ma, p, alpha, phi0, slope, dec)
-    if not accepted.all():
-        st.status[sel[~accepted]] = Status.NUMERICAL_ERROR  # no decrease even along a tiny step
-        sel, ma, p, alpha, dec, phi_new = (x[accepted] for x in (sel, ma, p, alpha, dec, phi_new))
-    upd = slice(None) if sel.size == B else sel
-    st.m[upd] = ma + alpha[:, None] * p
-    st.f[upd] = st.f_star[upd] - divergence(st.m[upd]) / P.grid.h
-    fresh = np.isnan(phi_new)  # full steps were taken without evaluating J
-    st.phi[upd] = phi_new
+    st.near = dec <= max(tol, 1e-13)
+    accepted, alpha, phi_new = _line_search(Pa, st.m, p, alpha, st.phi, slope, dec)
+    if accepted.all():
+        st.m = st.m + alpha[:, None] * p
+        st.f = Pa.f_star - divergence(st.m) / Pa.grid.h
+    else:
+        st.status[~accepted] = Status.NUMERICAL_ERROR  # no decrease even along a tiny step
+        st.m[accepted] = st.m[accepted] + alpha[accepted, None] * p[accepted]
+        st.f[accepted] = Pa.f_star[accepted] - divergence(st.m[accepted]) / Pa.grid.h
+    fresh = accepted & np.isnan(phi_new)  # full steps were taken without evaluating J
+    st.phi = np.where(accepted, phi_new, st.phi)
     if fresh.any():
-        up = sel[fresh]
-        Pu = P if up.size == B else P.rows(up)
-        st.phi[up] = _objective_interior(Pu, st.f[up], st.m[up])
-    st.iterations[upd] += 1
-    st.kkt_here[upd] = False
+        Pu = Pa if fresh.all() else Pa.rows(fresh)
+        st.phi[fresh] = _objective_interior(Pu, st.f[fresh], st.m[fresh])
+    st.iterations += accepted
+    st.kkt_here &= ~accepted
     if run.jam_exit:  # jam: tiny accepted steps where the model promises a decrease
-        flat = np.where((alpha < _JAM_STEP) & (dec > 1e-12), st.flat[upd] + 1, 0)
-        st.flat[upd] = flat
-        if flat.max() >= _JAM:
-            jam = sel[flat >= _JAM]
+        tiny = accepted & (alpha < _JAM_STEP) & (dec > 1e-12)
+        st.flat = np.where(tiny, st.flat + 1, np.where(accepted, 0, st.flat))
+        jam = st.flat >= _JAM
+        if jam.any():
             st.status[jam] = Status.MAX_ITERATIONS
-            st.jammed[jam] = True
+            st.jammed |= jam
 
 
-def _iterate(P: CollisionProblem, st: NewtonState, opts: NewtonOptions, run: _Attempt) -> None:
+def _iterate(P: CollisionProblem, st: NewtonState, opts: NewtonOptions, run: _Attempt) -> dict[str, NDArray]:
     """The Newton loop: residual test, direction, step, until every slice has stopped.
 
-    Arrays are subset only when some slices have stopped (``_rows``): a batch of one, the
-    single-problem case, then costs no more bookkeeping than a scalar loop.
+    Returns each slice's final ``_RESULT_FIELDS``.
     """
-    B = st.m.shape[0]
+    out = {name: getattr(st, name).copy() for name in _RESULT_FIELDS}
+    Pa = P
     with np.errstate(all="ignore"):
         for it in range(opts.max_iter + 1):
-            idx = np.flatnonzero(np.equal(st.status, None))
-            if idx.size == 0:
+            Pa, st = _retire(Pa, st, out)
+            if st.rows.size == 0:
                 break
-            full = idx.size == B
-            Pa = P if full else P.rows(idx)
-            check = st.near[idx] | (it == opts.max_iter)
-            fa, ma = (st.f, st.m) if full else (st.f[idx], st.m[idx])
-            g, bands, parts = _fused(Pa, fa, ma, want_parts=bool(check.any()))
+            check = st.near | (it == opts.max_iter)
+            g, bands, parts = _fused(Pa, st.f, st.m, want_parts=bool(check.any()))
             p, pd, valid = _direction(Pa, bands, g)
-            stop = _residual_test(Pa, st, idx, parts, pd, check, opts) if check.any() else None
+            if check.any():
+                _residual_test(Pa, st, parts, pd, check, opts)
             if it == opts.max_iter:
                 # Out of iterations where the Hessian still needed a shift: loss of convexity
                 # is what stopped the solver (typically a minimiser on the vacuum boundary).
-                rest = np.ones(idx.size, dtype=bool) if stop is None else ~stop
-                ok = pd[rest] | (not opts.check_convexity)
-                st.status[idx[rest]] = [Status.MAX_ITERATIONS if o else Status.NONCONVEX for o in ok]
+                for i in np.nonzero(np.equal(st.status, None))[0]:
+                    st.status[i] = Status.MAX_ITERATIONS if (pd[i] or not opts.check_convexity) else Status.NONCONVEX
                 break
-            if stop is not None and stop.any():
-                keep = ~stop
-                idx, g, p, valid, bands = _rows(keep, idx, g, p, valid, *bands)
-            go = _no_descent(st, idx, g, bands, p, valid)
-            if not go.all():
-                idx, g, p, bands = _rows(go, idx, g, p, *bands)
-            if idx.size:
-                _step(P, st, idx, g, p, bands, run, opts.tol)
+            _no_descent(st, g, bands, p, valid)
+            if not all(s is None for s in st.status):
+                free = np.equal(st.status, None)
+                Pa, st = _retire(Pa, st, out)
+                g, p, bands = g[free], p[free], tuple(band[free] for band in bands)
+            if st.rows.size:
+                _step(Pa, st, g, p, bands, run, opts.tol)
+        _retire(Pa, st, out)
+    return out
 
 
-def _rows(keep: NDArray[np.bool_], idx: NDArray, *arrays: NDArray) -> tuple:
-    """``idx[keep]`` and the rows ``keep`` of each array; the trailing arrays (bands) as one tuple."""
-    out = [idx[keep]] + [a[keep] for a in arrays]
-    return (*out[: len(out) - 3], tuple(out[-3:]))
-
-
-def _finalise(P: CollisionProblem, st: NewtonState, opts: NewtonOptions, t0: float) -> CollisionResult:
+def _finalise(
+    P: CollisionProblem, out: dict[str, NDArray], warm: NDArray[np.bool_], opts: NewtonOptions, t0: float
+) -> CollisionResult:
     """Certify every slice at its last iterate and build the result.
 
     Iterates are feasible (f = f* - Dm/h) and strictly positive by construction: they are
@@ -647,13 +615,12 @@ def _finalise(P: CollisionProblem, st: NewtonState, opts: NewtonOptions, t0: flo
     projected, and the residual is recomputed only where none belongs to the returned point.
     """
     with np.errstate(all="ignore"):
-        positive = np.all(st.f > 0, axis=-1)
-        f_out, m_out = st.f.copy(), st.m.copy()
+        positive = np.all(out["f"] > 0, axis=-1)
+        f_out, m_out = out["f"], out["m"]
         if not positive.all():
-            Pb = P.rows(~positive)
-            f_out[~positive], m_out[~positive] = Pb.project_feasible(st.f[~positive])
-        kkt = st.kkt.copy()
-        redo = ~positive | ~st.kkt_here | ~np.isfinite(kkt)
+            f_out[~positive], m_out[~positive] = P.rows(~positive).project_feasible(out["f"][~positive])
+        kkt = out["kkt"]
+        redo = ~positive | ~out["kkt_here"] | ~np.isfinite(kkt)
         if redo.any():
             Pr = P if redo.all() else P.rows(redo)
             kkt[redo] = Pr.kkt_residual(f_out[redo], m_out[redo]).total
@@ -663,22 +630,21 @@ def _finalise(P: CollisionProblem, st: NewtonState, opts: NewtonOptions, t0: flo
             m_out,
             kkt_tol=opts.kkt_tol,
             check_convexity=opts.check_convexity,
-            claimed=st.status,
+            claimed=out["status"],
             residual=kkt,
-            second_order=st.second,
+            second_order=out["second"],
         )
-    info = {"warm_started": st.warm, "jammed": st.jammed}
-    return CollisionResult.from_certificate(
-        P, f_out, m_out, cert, "newton", st.iterations, time.perf_counter() - t0, info
-    )
+    info = {"warm_started": warm, "jammed": out["jammed"]}
+    seconds = time.perf_counter() - t0
+    return CollisionResult.from_certificate(P, f_out, m_out, cert, "newton", out["iterations"], seconds, info)
 
 
 def _attempt(P: CollisionProblem, m0: NDArray | None, opts: NewtonOptions, run: _Attempt) -> CollisionResult:
     """One pass of the iteration over the batch ``P``, from the start point to certification."""
     t0 = time.perf_counter()
-    st = _start(P, m0, opts)
-    _iterate(P, st, opts, run)
-    return _finalise(P, st, opts, t0)
+    st, warm = _start(P, m0, opts)
+    out = _iterate(P, st, opts, run)
+    return _finalise(P, out, warm, opts, t0)
 
 
 # Statuses after which a slice is solved again with interior damping.
