@@ -22,11 +22,20 @@ steps while the model still promises a decrease) is solved again with interior d
 Levenberg-Marquardt in the relative metric of f (``info["interior_damping"]``); if that
 does not converge either, a third time without either device, and the attempt with the
 smaller KKT residual is returned (``info["jammed"]`` marks these slices).  The
-solver terminates on the KKT residual of
-:class:`~jko_cvx.collision.problem.CollisionProblem`, never on step length alone.
+solver stops on the KKT residual of
+:class:`~jko_cvx.collision.problem.CollisionProblem` (``tol``), never on step length
+alone, and :func:`~jko_cvx.collision.certify.certify` judges the point (``kkt_tol``).
 
-Statuses: ``CONVERGED`` (KKT residual within tolerance and the reduced Hessian positive
-definite), ``NONCONVEX`` (the reduced Hessian is not positive definite at the final
+One algorithm for one problem and for a batch (a single problem is a batch of one):
+:class:`NewtonOptions` (checked once) and :class:`NewtonState` (one row per slice still
+iterating), and the phases as functions -- :func:`_start`, :func:`_residual_test`,
+:func:`_direction` (with the modified-Newton shifts), :func:`_step` (interior damping,
+:func:`_line_search`, jam bookkeeping), :func:`_finalise` -- driven by :func:`_iterate`;
+the retry cascade (:func:`_cascade`) is written once, per slice.
+
+Statuses: ``CONVERGED`` (KKT residual within ``kkt_tol`` and the reduced Hessian positive
+definite), ``NOT_CERTIFIED`` (stopped, at ``tol`` or at the residual's rounding floor, above
+``kkt_tol``), ``NONCONVEX`` (the reduced Hessian is not positive definite at the final
 point -- a stationary point that is not a minimiser -- or no shift gave a descent direction),
 ``MAX_ITERATIONS``, ``NUMERICAL_ERROR`` (non-finite values, or the line search
 stalled with the residual above tolerance).
