@@ -74,3 +74,38 @@ def test_bad_input_is_rejected_by_name():
         evolve_finite_volume(cells, k, np.ones(10), 0.1, theta=3.0)
     with pytest.raises(ValueError, match="n must"):
         Cells(-1.0, 1.0, 2)
+
+
+def test_study_errors_w2_of_a_translate_is_the_shift():
+    """The study W2 (quantile functions) against the exact quantile: 0 for the exact solution, |shift| for a shift."""
+    from jko_cvx.benchmarks.peer import CASES, errors
+
+    case = CASES["smooth_g2"]
+    cells = Cells(case.lo, case.hi, 3000)
+    x, w = np.polynomial.legendre.leggauss(6)
+    e = cells.edges
+    pts = (e[:-1, None] + e[1:, None]) / 2 + x[None, :] * cells.dv / 2
+
+    def averages(shift):
+        return case.exact(pts.ravel() - shift).reshape(pts.shape) @ w / 2
+
+    same = errors("smooth_g2", "cells", e, averages(0.0))
+    assert same["l1"] < 1e-12 and same["w2"] < 1e-4
+    moved = errors("smooth_g2", "cells", e, averages(0.02))
+    assert moved["w2"] == pytest.approx(0.02, rel=0.02)
+    grid_pts = np.linspace(case.lo, case.hi, 1201)
+    on_grid = errors("smooth_g2", "grid", grid_pts, case.exact(grid_pts))
+    assert on_grid["l1"] == 0.0 and on_grid["w2"] < 1e-3
+
+
+@pytest.mark.slow
+def test_work_precision_peer_quick(tmp_path):
+    from jko_cvx.benchmarks.peer import work_precision_peer
+
+    df = work_precision_peer(tmp_path, quick=True)
+    for suffix in (".csv", ".md", ".png", "_time_order.csv", "_time_order.png"):
+        assert (tmp_path / f"work_precision_peer{suffix}").exists()
+    assert {"peer", "newton", "newton:order2", "newton+refine"} <= set(df.method)
+    smooth = df[(df.case == "smooth_g1") & np.isfinite(df.l1)]
+    # the peer beats first-order Newton on smooth data at its finest point
+    assert smooth[smooth.method == "peer"].l1.min() < smooth[smooth.method == "newton"].l1.min()
