@@ -80,6 +80,11 @@ def _combine_status(results: list[CollisionResult], batched: bool) -> Any:
     return out if batched else out[0]
 
 
+def _usable(f: NDArray[np.float64]) -> bool:
+    """A substep's density that the next substep can start from (finite, non-negative)."""
+    return bool(np.all(np.isfinite(f)) and np.all(f >= 0))
+
+
 def _assemble(
     problem: CollisionProblem, f: NDArray[np.float64], results: list[CollisionResult], info: dict[str, Any]
 ) -> CollisionResult:
@@ -132,21 +137,22 @@ def collision_step_order2(
         ``f_star`` to it; ``status``: per slice the first failed substep's status;
         ``kkt_residual``: the largest of the substeps'; ``iterations`` and ``seconds``: summed;
         ``objective``: NaN.  ``info`` holds ``substeps`` (full, first half, second half),
-        ``limited_mass`` (fraction of each slice's mass added by the limiter) and ``order``
-        (2, or 1 when a substep failed: ``f`` is then the full step's density, the
-        first-order result, so a loop that carries on after a failure continues at order 1).
+        ``limited_mass`` (fraction of each slice's mass added by the limiter) and ``order``.
+        A substep that did not converge makes the status a failure but its density is used
+        all the same, as a first-order loop uses a failed step's best effort (a stalled
+        Newton solve at KKT 2e-8 is far more accurate than falling back to first order: on
+        gamma = 3 that fallback on 5 of 40 steps made the error at dt = 1/64 larger than at
+        1/32).  Only a first half step whose density is not finite and non-negative is not
+        continued from: ``f`` is then the full step's density and ``order`` is 1.
     """
     full_problem = problem_factory(np.asarray(f, dtype=float), dt)  # validates f and dt
     f_star = full_problem.f_star
     full = solve_collision(full_problem, method=method, **options)
     first = solve_collision(problem_factory(f_star, dt / 2), method=method, **options)
-    results = [full, first]
-    if not np.all(first.success):
-        return _assemble(full_problem, full.f, results, {"order": 1, "limited_mass": np.zeros(f_star.shape[:-1])})
+    if not _usable(first.f):
+        return _assemble(full_problem, full.f, [full, first], {"order": 1, "limited_mass": np.zeros(f_star.shape[:-1])})
     second = solve_collision(problem_factory(first.f, dt / 2), method=method, **options)
-    results.append(second)
-    if not np.all(second.success):
-        return _assemble(full_problem, full.f, results, {"order": 1, "limited_mass": np.zeros(f_star.shape[:-1])})
+    results = [full, first, second]
     rich = 2 * second.f - full.f
     limited = np.maximum(rich, _KAPPA * np.maximum(second.f, 0.0))
     h, v = full_problem.grid.h, full_problem.grid.points
