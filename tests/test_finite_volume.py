@@ -90,7 +90,7 @@ def test_study_errors_w2_of_a_translate_is_the_shift():
         return case.exact(pts.ravel() - shift).reshape(pts.shape) @ w / 2
 
     same = errors("smooth_g2", "cells", e, averages(0.0))
-    assert same["l1"] < 1e-12 and same["w2"] < 1e-4
+    assert same["l1"] < 1e-9 and same["w2"] < 1e-4
     moved = errors("smooth_g2", "cells", e, averages(0.02))
     assert moved["w2"] == pytest.approx(0.02, rel=0.02)
     grid_pts = np.linspace(case.lo, case.hi, 1201)
