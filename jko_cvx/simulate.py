@@ -41,6 +41,7 @@ from .run import Run, load_run
 from .rundir import RunDir
 from .runstate import RunState
 from .scene import Scene
+from .scene_limits import check_limits
 from .time_order import collision_step_order2, strang_step
 from .trackers import Snapshots, SolverFailure, StepInfo, Tracker, default_trackers
 from .transport import transport_step
@@ -240,6 +241,9 @@ def simulate(
 
     Raises
     ------
+    SceneError
+        The scene's step count or memory estimate is beyond the limits of
+        :mod:`jko_cvx.scene_limits` (nothing has been written).
     RunDirError
         ``out`` cannot be used as asked (see :mod:`jko_cvx.rundir`); nothing has been run.
     RunInterrupted
@@ -248,6 +252,9 @@ def simulate(
     """
     if out is None and (resume or overwrite):
         raise ValueError("resume and overwrite need a run directory: pass out=")
+    # a Scene built in code (dataclasses.replace) bypasses the loader: check its size here too,
+    # before anything is written
+    check_limits(scene)
     stepper = Stepper(scene)
     with RunDir.open(out, scene, resume=resume, overwrite=overwrite) if out is not None else nullcontext() as rd:
         state = rd.state if rd is not None and rd.state is not None else initial_state(scene)
