@@ -27,7 +27,7 @@ CONFIGS = {
     "tol=1e-10 (old default)": {"tol": 1e-10},  # with --package jko_cvx: accept_inaccurate=False
     "tol=1e-9": {"tol": 1e-9, "accept_inaccurate": False},
     "tol=1e-8": {"tol": 1e-8, "accept_inaccurate": False},
-    "default (tol=1e-10, accept_inaccurate)": {},
+    "default (tol=1e-10; accept_inaccurate)": {},
 }
 # Options the previous package does not know (the "before" rows run it as it was).
 _NEW_ONLY = ("accept_inaccurate",)
