@@ -385,7 +385,7 @@ def _raw_to_status(raw: str) -> Status | None:
         cp.UNBOUNDED: Status.INFEASIBLE,
         cp.INFEASIBLE_INACCURATE: Status.INFEASIBLE,
         cp.UNBOUNDED_INACCURATE: Status.INFEASIBLE,
-        cp.USER_LIMIT: Status.TIME_LIMIT,  # Clarabel MaxTime / MaxIterations, SCS time limit
+        cp.USER_LIMIT: Status.TIME_LIMIT,  # Clarabel MaxTime or MaxIterations (told apart by the clock)
     }
     return table.get(raw, Status.SOLVER_ERROR)
 
@@ -394,6 +394,7 @@ def _dc_loop(problem: CollisionProblem, filled: _Filled, opts: ConicOptions, t_s
     """Convex-concave passes: one conic solve each, until the iterate moves less than ``dc_tol``."""
     cp = _cvxpy()
     model, mu, varsigma = filled.model, filled.mu, filled.varsigma
+    t_start += model.compile_seconds if filled.compiled_now else 0.0  # compiling is not solving
     loop = _Loop(np.zeros(problem.n), Status.MAX_ITERATIONS)
     while loop.passes < opts.max_passes:
         left = opts.time_limit - (time.perf_counter() - t_start)
@@ -417,6 +418,8 @@ def _dc_loop(problem: CollisionProblem, filled: _Filled, opts: ConicOptions, t_s
         loop.ipm_iterations += int(getattr(stats, "num_iters", 0) or 0)
         loop.solver_seconds += float(getattr(stats, "solve_time", 0.0) or 0.0)
         failed = _raw_to_status(loop.raw_status)
+        if failed is Status.TIME_LIMIT and time.perf_counter() - t_start < opts.time_limit:
+            failed = Status.MAX_ITERATIONS  # the solver's own iteration limit (CVXPY USER_LIMIT)
         if failed is None and model.delta.value is None:
             failed = Status.SOLVER_ERROR
         if failed is not None:
