@@ -41,6 +41,8 @@ CASES = {
 # The outcome of each case, pinned (measured 2026-12-01, Clarabel, SQP with I_max = 5000):
 # (conic status, SQP status, SQP iterations).  MAX_ITERATIONS means all 5000 iterations and
 # the paper's exit flag e_f = 1.  A change here is a change of behaviour: update it with a reason.
+# Checked with one and two OpenBLAS threads: the statuses agree; the conic iteration counts
+# (and its KKT on "dt=10, gamma=3": 1.1e-6 or 3.3e-6) do not, so they are not pinned.
 EXPECTED = {
     "tails 1e-30, beta=10": ("CONVERGED", "NOT_CERTIFIED", 7),  # zeta test stops on vacuum tails, KKT ~ 5
     "tails 1e-30, beta=inf": ("CONVERGED", "NOT_CERTIFIED", 8),
@@ -124,7 +126,6 @@ def test_inaccurate_solver_status_is_never_hidden():
     prob = CollisionProblem(G, PowerKernel(1.0), F_GAUSS, 0.01, beta=10.0)
     res = solve_collision(prob, method="conic", solver="SCS", tol=1e-3)
     assert res.info["solver"] == "SCS"
-    if res.success:
-        assert res.kkt_residual <= 1e-6
-    else:
-        assert res.status in (Status.NOT_CERTIFIED, Status.INACCURATE, Status.MAX_ITERATIONS)
+    # pinned (SCS 3, 2026-12-01): SCS says "optimal", the KKT residual says 6e-5, and so does the status
+    assert res.info["solver_status"] == "optimal"
+    assert res.status is Status.NOT_CERTIFIED and not res.success and 1e-6 < res.kkt_residual < 1e-3

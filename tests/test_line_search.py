@@ -8,6 +8,8 @@ so its iterates are read by re-solving with ``max_iter = 1, 2, ...`` (the loop i
 deterministic, so the k-th solve returns the k-th iterate of the same sequence).
 """
 
+import functools
+
 import numpy as np
 import pytest
 
@@ -17,9 +19,9 @@ G = Grid.uniform(-2.0, 2.0, 21)
 F_STAR = np.exp(-2 * G.points**2)
 
 
-def _wiggly_problem():
+def _wiggly_problem(amplitude=3.0):
     prob = CollisionProblem(G, PowerKernel(1.0), F_STAR, 0.01, beta=1.0, fisher="log")
-    f0 = F_STAR * np.exp(3.0 * np.sin(12.0 * G.points))
+    f0 = F_STAR * np.exp(amplitude * np.sin(12.0 * G.points))
     f0 *= prob.mass / (f0 @ G.h)
     return prob, prob.flux_from_density(f0)
 
@@ -44,6 +46,77 @@ def test_the_full_newton_step_overshoots_on_this_problem():
     m1 = m0 + alpha * p
     assert g @ p < 0
     assert prob.objective(prob.density_from_flux(m1), m1) > prob.objective(f0, m0) + 0.02
+
+
+def _first_trial(amplitude):
+    """The first trial point of Newton's line search: the Newton step cut by the fraction to the boundary."""
+    prob, m0 = _wiggly_problem(amplitude)
+    f0 = prob.density_from_flux(m0)
+    p, g = _newton_step(prob, m0)
+    pf = prob.density_from_flux(m0 + p) - f0
+    neg = pf < 0
+    alpha = min(1.0, 0.995 * float(np.min(-f0[neg] / pf[neg]))) if neg.any() else 1.0
+    m1 = m0 + alpha * p
+    J0 = float(prob.objective(f0, m0))
+    return prob, m0, p, g, alpha, float(prob.objective(prob.density_from_flux(m1), m1)) - J0, J0
+
+
+def test_undamped_newton_iterates_decrease_the_objective_monotonically():
+    """A large ``tol`` stops the first (undamped) attempt at an early iterate, certified, so no
+    retry replaces it: tol = 0.999, 0.5, ... returns iterates 1, 2, 8, ... of one sequence."""
+    prob, m0 = _wiggly_problem()
+    J0 = float(prob.objective(prob.density_from_flux(m0), m0))
+    seen = {0: J0}
+    for tol in (0.999, 0.5, 0.3, 0.1, 1e-2, 1e-6, 1e-9):
+        res = solve_collision(prob, method="newton", m0=m0, tol=tol)
+        assert res.status is Status.CONVERGED and not res.info["interior_damping"]
+        seen[res.iterations] = res.objective
+    assert len(seen) >= 6 and 1 in seen
+    J = [seen[k] for k in sorted(seen)]
+    assert np.all(np.diff(J) < 0), seen
+
+
+@functools.cache
+def _borderline():
+    """Tune the wiggle's amplitude (bisection between 2, where the first trial point lowers J,
+    and 3, where it raises J by 0.04) until the trial point changes J by less than
+    5e-5 alpha |g'p|, half the Armijo margin 1e-4 alpha |g'p|."""
+    lo, hi = 2.0, 3.0
+    assert _first_trial(lo)[5] < 0 < _first_trial(hi)[5]
+    for _ in range(80):
+        mid = 0.5 * (lo + hi)
+        prob, m0, p, g, alpha, dJ, J0 = _first_trial(mid)
+        if abs(dJ) < 5e-5 * alpha * abs(g @ p):
+            return prob, m0, p, g, alpha, J0
+        lo, hi = (mid, hi) if dJ < 0 else (lo, mid)
+    pytest.fail("no amplitude with a borderline first trial point")
+
+
+@pytest.mark.parametrize("batched", [False, True])
+def test_newton_accepts_only_steps_with_sufficient_decrease(batched):
+    """Armijo: the accepted step length alpha satisfies J(m + alpha p) <= J(m) + 1e-4 alpha g'p.
+
+    At the borderline amplitude a line search with the wrong sign in its sufficient-decrease
+    term (or none) accepts the first trial point; the right one halves the step.  ``tol``
+    = 0.999 stops the undamped attempt after one iterate (certified, so never retried).
+    Both Newton paths (one problem, a batch) are checked.
+    """
+    prob, m0, p, g, alpha, J0 = _borderline()
+    if batched:
+        both = solve_collision(prob.with_f_star(np.stack([F_STAR, F_STAR])), method="newton",
+                               m0=np.stack([m0, m0]), tol=0.999)
+        assert not both.info["interior_damping"].any()
+        iterations, m, objective = both.iterations[0], both.m[0], both.objective[0]
+    else:
+        res = solve_collision(prob, method="newton", m0=m0, tol=0.999)
+        assert not res.info["interior_damping"]
+        iterations, m, objective = res.iterations, res.m, res.objective
+    assert iterations == 1
+    step = m - m0
+    taken = float(step @ p / (p @ p))
+    np.testing.assert_allclose(step, taken * p, rtol=1e-5, atol=1e-12)  # along the Newton direction
+    assert taken < alpha  # the borderline trial point was refused ...
+    assert objective <= J0 + 1e-4 * taken * (g @ p)  # ... and the accepted one decreases J enough
 
 
 def test_newton_iterates_decrease_the_objective_monotonically():

@@ -1,0 +1,335 @@
+"""Mutation study: do the tests catch realistic one-line bugs?  (Not part of CI.)
+
+Each mutation replaces one exact snippet of one module of ``jko_cvx`` by a plausible wrong
+version (a swapped name, a flipped sign or comparison, a dropped term or guard).  For each,
+the repository is copied to a temporary directory, the mutation applied there, and the
+test files that should notice it are run (``pytest -x``, default marker selection, with a
+per-mutation timeout).  A mutation is
+
+* ``caught`` when the tests fail (or time out: a mutant that loops forever is caught too),
+* ``survived`` when they pass,
+* ``stale`` when its snippet is not in the file exactly once (the code was refactored since
+  the list was written): reported, not counted.  Update the snippet and rerun.
+
+Usage::
+
+    OPENBLAS_NUM_THREADS=1 python studies/mutation.py [--only ID ...] [--timeout 300] [--out studies/results]
+
+writes ``mutation.csv`` and ``mutation.md`` (score = caught / (caught + survived)).
+``--check`` only reports stale snippets (no tests run).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+@dataclass(frozen=True)
+class Mutation:
+    id: str
+    file: str  # relative to the repository root
+    old: str  # exact snippet, must occur exactly once
+    new: str
+    tests: tuple[str, ...]
+    what: str
+
+
+def M(id, file, old, new, tests, what):
+    return Mutation(id, f"jko_cvx/{file}", old, new, tuple(f"tests/{t}" for t in tests.split()), what)
+
+
+MUTATIONS = [
+    # ---------------------------------------------------------------- grid
+    M("grid-end-cell", "grid.py", "h[0] = dv[0] / 2", "h[0] = dv[0]", "test_grid_kernels.py",
+      "first trapezoidal end cell a full spacing"),
+    M("grid-periodic-h", "grid.py", "h = (ext[2:] - ext[:-2]) / 2", "h = ext[2:] - ext[:-2]",
+      "test_transport_diagnostics.py", "periodic cell widths doubled"),
+    # ---------------------------------------------------------------- kernels
+    M("kernel-no-1/gamma", "kernels.py", "return np.abs(np.asarray(v, dtype=float)) ** self.gamma / self.gamma",
+      "return np.abs(np.asarray(v, dtype=float)) ** self.gamma", "test_grid_kernels.py test_exact_solutions.py",
+      "W = |v|^gamma without the 1/gamma"),
+    M("kernel-lowrank-sign", "kernels.py", "return (f @ self.a) * (f @ self.h) - (f @ self.b) ** 2",
+      "return (f @ self.a) * (f @ self.h) + (f @ self.b) ** 2", "test_grid_kernels.py",
+      "gamma = 2 rank-3 quadratic form, sign of the b b' term"),
+    M("kernel-gamma1-block", "kernels.py", 'cached = FluxBlock("diagonal", diag=-2 * self.grid.dv)',
+      'cached = FluxBlock("diagonal", diag=-self.grid.dv)', "test_newton.py",
+      "gamma = 1 flux block W'' = 2 delta loses its factor 2"),
+    # ---------------------------------------------------------------- collision/problem
+    M("kkt-no-positivity", "collision/problem.py",
+      "return np.maximum(np.maximum(self.stationarity, self.feasibility), self.positivity)",
+      "return np.maximum(self.stationarity, self.feasibility)", "test_kkt_residual.py test_problem.py",
+      "positivity dropped from the KKT total"),
+    M("kkt-no-momentum", "collision/problem.py", "feas = np.maximum(feas, self.momentum_change(f))", "feas = feas",
+      "test_kkt_residual.py test_momentum.py", "momentum change dropped from the feasibility"),
+    M("wasserstein-coef", "collision/problem.py", "self.wass_coef = 2.0 * grid.dv", "self.wass_coef = grid.dv",
+      "test_problem.py test_exact_solutions.py", "Wasserstein term 2 m^2/s halved"),
+    M("fisher-coef-square", "collision/problem.py",
+      'self.c_fisher = 0.0 if fisher is None else (self.dt / self.beta) ** 2',
+      'self.c_fisher = 0.0 if fisher is None else self.dt / self.beta ** 2',
+      "test_problem.py test_exact_solutions.py test_benchmarks.py", "Fisher weight dt/beta^2 instead of dt^2/beta^2"),
+    M("validate-zero", "collision/problem.py", "if np.isnan(x) or x <= 0 or (np.isinf(x) and not allow_inf):",
+      "if np.isnan(x) or x < 0 or (np.isinf(x) and not allow_inf):", "test_validation.py test_validation_bounds.py",
+      "dt = 0 (strength, beta = 0) accepted"),
+    M("project-no-clip", "collision/problem.py", "f = np.maximum(np.asarray(f, dtype=float), 0.0)",
+      "f = np.asarray(f, dtype=float)", "test_agreement.py test_extremes.py",
+      "solver outputs not clipped at 0 before the mass rescaling"),
+    # ---------------------------------------------------------------- collision/linalg
+    M("divergence-adjoint-sign", "collision/linalg.py", "return p[..., :-1] - p[..., 1:]",
+      "return p[..., 1:] - p[..., :-1]", "test_problem.py test_agreement.py",
+      "adjoint of the divergence with the wrong sign"),
+    # ---------------------------------------------------------------- collision/conic
+    M("conic-no-certify", "collision/conic.py",
+      "elif not kkt.total <= kkt_tol:\n            status = Status.NOT_CERTIFIED",
+      "elif False:\n            status = Status.NOT_CERTIFIED", "test_extremes.py test_compare.py",
+      "conic 'optimal' no longer checked by the KKT residual"),
+    M("conic-no-convexity", "collision/conic.py",
+      "elif check_convexity and not problem.is_local_minimiser(f, m):\n            status = Status.NONCONVEX",
+      "elif False:\n            status = Status.NONCONVEX", "test_extremes.py",
+      "conic KKT point not tested for second-order optimality"),
+    # ---------------------------------------------------------------- collision/sqp
+    M("sqp-zeta-floor", "collision/sqp.py", "zeta = max(zeta, 2 * tol)", "zeta = zeta",
+      "test_line_search.py test_extremes.py", "safeguard-cut steps may pass the zeta test"),
+    M("sqp-exit-flag", "collision/sqp.py", "exit_flag = int(it >= max_iter and zeta > tol)",
+      "exit_flag = int(it > max_iter and zeta > tol)", "test_extremes.py test_line_search.py",
+      "exit flag e_f never set"),
+    M("sqp-qp-rhs-sign", "collision/sqp.py", "rhs = -(gm - divergence_adjoint(gf / h))",
+      "rhs = -(gm + divergence_adjoint(gf / h))", "test_agreement.py", "QP right-hand side sign"),
+    # ---------------------------------------------------------------- collision/newton
+    M("newton-no-armijo", "collision/newton.py",
+      "if np.all(ft > 0) and phit <= phi + _ARMIJO * alpha * slope:", "if np.all(ft > 0):",
+      "test_line_search.py test_newton.py", "single path accepts any interior step (no Armijo test)"),
+    M("newton-armijo-sign", "collision/newton.py",
+      "if np.all(ft > 0) and phit <= phi + _ARMIJO * alpha * slope:",
+      "if np.all(ft > 0) and phit <= phi - _ARMIJO * alpha * slope:",
+      "test_line_search.py test_newton.py", "single path Armijo sufficient-decrease term with the wrong sign"),
+    M("newton-batched-no-armijo", "collision/newton.py",
+      "ok = ~accepted & np.all(ft > 0, axis=-1) & (phit <= phi0 + _ARMIJO * alpha * slope)",
+      "ok = ~accepted & np.all(ft > 0, axis=-1)", "test_line_search.py test_newton.py",
+      "batched path accepts any interior step"),
+    M("newton-no-second-order", "collision/newton.py",
+      "status = Status.CONVERGED if (pd or not check_convexity) else Status.NONCONVEX\n                    break",
+      "status = Status.CONVERGED\n                    break", "test_extremes_pinned.py test_newton.py",
+      "single path certifies a stationary point without the second-order test"),
+    # ---------------------------------------------------------------- collision/result + solve
+    M("status-success", "collision/result.py", "return self in (Status.CONVERGED, Status.LINEARIZED)",
+      "return self in (Status.CONVERGED, Status.LINEARIZED, Status.NOT_CERTIFIED)",
+      "test_extremes.py test_stop_rules.py", "NOT_CERTIFIED counted as success"),
+    M("solve-unknown-options", "collision/solve.py", "unknown = sorted(set(options) - set(allowed))", "unknown = []",
+      "test_validation.py", "unknown solver options silently accepted"),
+    # ---------------------------------------------------------------- transport
+    M("transport-foot-sign", "transport.py", "(x - vj * dt)", "(x + vj * dt)", "test_transport_diagnostics.py",
+      "semi-Lagrangian foot point on the wrong side"),
+    M("transport-moment-sign", "transport.py", "moment = np.sum(f.T * xi * xgrid.h, axis=-1) + v * dt * m_old",
+      "moment = np.sum(f.T * xi * xgrid.h, axis=-1) - v * dt * m_old", "test_transport_diagnostics.py",
+      "restored x-moment moves against the velocity"),
+    M("transport-no-floor", "transport.py", "out = np.maximum(out, floor)", "out = out",
+      "test_transport_diagnostics.py test_engine.py", "the paper's 1e-10 floor dropped after transport"),
+    # ---------------------------------------------------------------- refine
+    M("remap-no-floor", "refine.py", "g = np.maximum(g, floor)\n", "g = g\n", "test_refine.py",
+      "velocity remap without the 1e-10 floor"),
+    M("concentration-min", "refine.py", "return float(v[sel].max()), None", "return float(v[sel].min()), None",
+      "test_refine.py", "r = min S (the paper's literal text) instead of the half-width"),
+    M("periodic-map-centres", "refine.py", "s = -1 + (np.arange(int(n)) + 0.5) * 2 / n",
+      "s = -1 + np.arange(int(n)) * 2 / n", "test_refine.py", "periodic mapped grid not cell-centred"),
+    # ---------------------------------------------------------------- conservation
+    M("tilt-goal-sign", "conservation.py", "goal = target - vbar", "goal = target + vbar",
+      "test_momentum.py", "exponential tilt aims at the wrong mean"),
+    # ---------------------------------------------------------------- stepping
+    M("cfl-x-limit-L_v", "stepping.py", "dt = min(dt, self.factor * min_dx / L_x)",
+      "dt = min(dt, self.factor * min_dx / L_v)", "test_policies.py test_engine.py", "CFL x-limit divides by L_v"),
+    M("cfl-factor", "stepping.py", "factor: float = 0.9", "factor: float = 1.0", "test_policies.py test_engine.py",
+      "CFL factor 1 instead of the paper's 0.9"),
+    M("halving-eps_t", "stepping.py", "return dt / 2 if dt / 2 > self.eps_t else None",
+      "return dt / 2 if dt / 2 >= self.eps_t else None", "test_policies.py test_engine.py",
+      "halving accepts a step equal to eps_t"),
+    # ---------------------------------------------------------------- diagnostics
+    M("diag-momentum-abs", "diagnostics.py", '"momentum": float(np.sum(w * f * v)),',
+      '"momentum": float(np.sum(w * f * np.abs(v))),', "test_transport_diagnostics.py",
+      "momentum diagnostic with |v|"),
+    M("diag-populated", "diagnostics.py", "POPULATED = 0.1", "POPULATED = 0.0", "test_transport_diagnostics.py",
+      "velocity spread over every slice, vacuum ones included"),
+    # ---------------------------------------------------------------- scene
+    M("scene-delta-1", "scene.py", '_FRAC = (lambda x: 0 < x < 1, "in (0, 1)")',
+      '_FRAC = (lambda x: 0 < x <= 1, "in (0, 1)")', "test_validation_bounds.py test_engine.py",
+      "refine delta = 1 / delta0 = 1 accepted"),
+    M("scene-eps_x-key", "scene.py", 'eps_x = _get(s, "eps_x", "stop."', 'eps_x = _get(s, "eps_v", "stop."',
+      "test_stop_rules.py", "stop.eps_x read from the eps_v key"),
+    M("scene-halving-policy", "scene.py", "return HalvingStep(self.dt, self.eps_t)", "return FixedStep(self.dt)",
+      "test_policies.py test_engine.py", "policy 'halving' built as a fixed step"),
+    M("scene-momentum-default", "scene.py", 'bool, default=method != "sqp")', "bool, default=False)",
+      "test_engine.py test_momentum.py", "momentum constraint off by default"),
+    # ---------------------------------------------------------------- simulate
+    M("sim-B_x-eps_v", "simulate.py", 'rows[-1]["min_dx"] < scene.eps_x', 'rows[-1]["min_dx"] < scene.eps_v',
+      "test_stop_rules.py", "B_x compares min dx against eps_v"),
+    M("sim-B_v-leq", "simulate.py", 'if rows[-1]["min_dv"] < scene.eps_v:', 'if rows[-1]["min_dv"] <= scene.eps_v:',
+      "test_stop_rules.py", "B_v rule not strict"),
+    M("sim-t_end-cap", "simulate.py", "dt = min(dt, scene.t_end - t)", "dt = dt", "test_stop_rules.py",
+      "last step not shortened to land on t_end"),
+    M("sim-e_f-as-B_x", "simulate.py", "verdict.update(blowup=True, T_b=t, B_v=True, reason=f\"collision solver failed",
+      "verdict.update(blowup=True, T_b=t, B_x=True, reason=f\"collision solver failed", "test_stop_rules.py",
+      "solver failure counted as blow-up in x"),
+    M("sim-policy-lengths", "simulate.py", "scene.v_L, scene.x_L)", "scene.x_L, scene.v_L)", "test_policies.py",
+      "L_v and L_x swapped when the policy is asked for dt"),
+    # ---------------------------------------------------------------- sweep
+    M("sweep-key-no-func", "sweep.py", 'text = json.dumps({"func": name, "point": dict(point)}',
+      'text = json.dumps({"point": dict(point)}', "test_sweep_key.py test_sweep.py",
+      "cache key without the function name"),
+    M("sweep-cached-flag", "sweep.py", '"cached": k in cached}', '"cached": True}', "test_sweep_key.py test_sweep.py",
+      "every row reported as read from the cache"),
+    # ---------------------------------------------------------------- exact / evolve / cli / reproduce
+    M("exact-gamma1-factor", "exact.py", "return g / (1 - 2 * strength * g * t)",
+      "return g / (1 - strength * g * t)", "test_exact_solutions.py", "Burgers amplification without its 2"),
+    M("exact-gamma2-mass", "exact.py", "k = np.exp(strength * mass * t)", "k = np.exp(strength * t)",
+      "test_exact_solutions.py", "gamma = 2 contraction rate without the mass"),
+    M("evolve-last-step", "evolve.py", "h = min(dt, t_end - t)", "h = dt", "test_exact_solutions.py test_benchmarks.py",
+      "fixed-grid loop overshoots t_end"),
+    M("cli-ignores-scene", "cli.py", "scene = default_scene() if scene_path is None else load_scene(scene_path)",
+      "scene = default_scene()", "test_cli_run.py test_engine.py", "jko-cvx run ignores the scene file"),
+    M("cli-solve-methods", "cli.py", '[("conic", {}), ("sqp", {}), ("newton", {})]', '[("conic", {}), ("sqp", {})]',
+      "test_cli_run.py", "jko-cvx solve drops a method"),
+    M("paper-tab-bu-typo", "reproduce/paper.py", "1e-3 / 4: (0.52, 0.51, 0.5, 0.5, 0.4875),",
+      "1e-3 / 4: (0.52, 0.52, 0.5, 0.5, 0.4875),", "test_paper_numbers.py test_reproduce.py",
+      "a typo in the copy of Table tab:bu"),
+    M("compare-silently-wrong", "compare.py", '"silently_wrong": bool(res.success) and not kkt <= kkt_tol,',
+      '"silently_wrong": False,', "test_compare.py", "the comparison never reports a silently wrong row"),
+]
+
+
+def _copy_tree(dest: Path) -> None:
+    ignore = shutil.ignore_patterns(".git", "__pycache__", "*.pyc", "runs", "results", ".pytest_cache", ".ruff_cache")
+    for name in ("jko_cvx", "tests", "studies", "pyproject.toml"):
+        src = ROOT / name
+        if src.is_dir():
+            shutil.copytree(src, dest / name, ignore=ignore)
+        elif src.exists():
+            shutil.copy2(src, dest / name)
+
+
+def _run_tests(tree: Path, tests: tuple[str, ...], timeout: float) -> tuple[str, float, str]:
+    env = dict(os.environ, PYTHONPATH=str(tree), PYTHONDONTWRITEBYTECODE="1", OPENBLAS_NUM_THREADS="1",
+               MPLBACKEND="Agg")
+    cmd = [sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", *tests]
+    t0 = time.perf_counter()
+    try:
+        proc = subprocess.run(cmd, cwd=tree, env=env, capture_output=True, text=True, timeout=timeout)
+    except subprocess.TimeoutExpired:
+        return "timeout", time.perf_counter() - t0, ""
+    tail = (proc.stdout + proc.stderr).strip().splitlines()
+    last = tail[-1] if tail else ""
+    if proc.returncode == 0:
+        return "passed", time.perf_counter() - t0, last
+    if proc.returncode == 1:
+        return "failed", time.perf_counter() - t0, last
+    return f"error (rc {proc.returncode})", time.perf_counter() - t0, last
+
+
+def run(mutations, timeout: float, out: Path | None, baseline: bool = True) -> list[dict]:
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="jko_mutation_") as tmp:
+        tree = Path(tmp)
+        _copy_tree(tree)
+        # the unmutated tree must pass every test file used, or the study means nothing
+        needed = tuple(sorted({t for m in mutations for t in m.tests}))
+        if baseline:
+            base, secs, last = _run_tests(tree, needed, 4 * timeout)
+            print(f"baseline ({len(needed)} test files): {base} in {secs:.0f} s -- {last}", flush=True)
+            if base != "passed":
+                raise SystemExit("the unmutated tests do not pass: fix them before the mutation study")
+        for i, m in enumerate(mutations, 1):
+            path = tree / m.file
+            original = path.read_text() if path.exists() else ""
+            count = original.count(m.old)
+            row = {"id": m.id, "file": m.file, "what": m.what, "tests": " ".join(m.tests)}
+            if count != 1:
+                row.update(outcome="stale", seconds=0.0, detail=f"snippet found {count} times")
+            else:
+                path.write_text(original.replace(m.old, m.new))
+                try:
+                    result, secs, last = _run_tests(tree, m.tests, timeout)
+                finally:
+                    path.write_text(original)
+                outcome = "survived" if result == "passed" else "caught"
+                row.update(outcome=outcome, seconds=round(secs, 1), detail=f"{result}: {last}")
+            rows.append(row)
+            print(f"[{i}/{len(mutations)}] {m.id}: {row['outcome']} ({row['detail']})", flush=True)
+            if out is not None:
+                _write(rows, out, partial=i < len(mutations))
+    return rows
+
+
+def _write(rows: list[dict], out: Path, partial: bool = False) -> None:
+    import pandas as pd
+
+    out.mkdir(parents=True, exist_ok=True)
+    df = pd.DataFrame(rows)
+    df.to_csv(out / "mutation.csv", index=False)
+    caught = int((df.outcome == "caught").sum())
+    survived = int((df.outcome == "survived").sum())
+    stale = df[df.outcome == "stale"]
+    counted = caught + survived
+    score = caught / counted if counted else float("nan")
+    modules = df.file.nunique()
+    lines = [
+        "# Mutation study" + (" (partial: still running)" if partial else ""),
+        "",
+        f"`python studies/mutation.py` (OPENBLAS_NUM_THREADS=1), {time.strftime('%Y-%m-%d %H:%M')}: "
+        f"{len(df)} one-line mutations over {modules} modules of jko_cvx; each applied to a copy of the "
+        "repository and the listed test files run (pytest -x, default markers).",
+        "",
+        f"**Score: {caught} caught of {counted} ({100 * score:.0f} %)**; {survived} survived; "
+        f"{len(stale)} stale (snippet not found: not counted).",
+        "",
+        "| id | file | mutation | tests | outcome | s |",
+        "|:--|:--|:--|:--|:--|--:|",
+    ]
+    for r in rows:
+        lines.append(
+            f"| {r['id']} | {r['file']} | {r['what']} | {r['tests'].replace('tests/', '')} | {r['outcome']} | "
+            f"{r['seconds']} |"
+        )
+    if len(stale):
+        lines += ["", "Stale mutations (update their snippets): " + ", ".join(stale.id)]
+    (out / "mutation.md").write_text("\n".join(lines) + "\n")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--only", nargs="*", default=None, help="mutation ids to run")
+    parser.add_argument("--timeout", type=float, default=300.0, help="seconds per mutation")
+    parser.add_argument("--out", type=Path, default=ROOT / "studies" / "results")
+    parser.add_argument("--check", action="store_true", help="only report stale snippets")
+    parser.add_argument("--tests", nargs="*", default=None, help="override the test files (with --only)")
+    parser.add_argument("--no-baseline", action="store_true", help="skip the unmutated run (with --only)")
+    args = parser.parse_args(argv)
+    chosen = [m for m in MUTATIONS if args.only is None or m.id in args.only]
+    if args.tests is not None:
+        chosen = [dataclasses.replace(m, tests=tuple(args.tests)) for m in chosen]
+    ids = [m.id for m in MUTATIONS]
+    assert len(set(ids)) == len(ids), "duplicate mutation ids"
+    if args.check:
+        stale = [m.id for m in chosen if (ROOT / m.file).read_text().count(m.old) != 1]
+        print(f"{len(chosen)} mutations over {len({m.file for m in chosen})} files; stale: {stale or 'none'}")
+        return 1 if stale else 0
+    partial = args.only is not None or args.tests is not None
+    rows = run(chosen, args.timeout, None if partial else args.out, baseline=not (partial and args.no_baseline))
+    stale = [r["id"] for r in rows if r["outcome"] == "stale"]
+    if stale:
+        print("STALE (snippet not found, not counted):", ", ".join(stale))
+    survived = [r["id"] for r in rows if r["outcome"] == "survived"]
+    print("survived:", ", ".join(survived) or "none")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
