@@ -68,3 +68,26 @@ def test_newton_outcome_is_pinned(name):
         assert other.status is Status.CONVERGED
         assert np.abs(res.f - other.f).max() <= 1e-4 * res.f.max()
         assert res.objective <= other.objective + 1e-9 * abs(other.objective)
+
+
+@pytest.mark.parametrize("batched", [False, True])
+def test_a_stationary_point_that_is_not_a_minimiser_is_never_certified(batched):
+    """Warm-started at the conic reference's KKT point of the peak at dt = 0.3 (a stationary point
+    whose reduced Hessian has a negative eigenvalue, checked here by eigvalsh), Newton stops at
+    once on the residual (tol = 1e-2) and must report NONCONVEX, not CONVERGED; with
+    ``check_convexity=False`` it may call it converged."""
+    grid, gamma, f_star, dt, beta = CASES["non-convex step (peak, dt=0.3)"]
+    prob = CollisionProblem(grid, PowerKernel(gamma), f_star, dt, beta=beta)
+    kkt_point = solve_collision(prob, method="conic")
+    assert kkt_point.kkt_residual <= 1e-6
+    assert np.linalg.eigvalsh(prob.reduced_hessian(kkt_point.f, kkt_point.m))[0] < 0
+    if batched:
+        prob = prob.with_f_star(np.stack([f_star, f_star]))
+        m0 = np.stack([kkt_point.m, kkt_point.m])
+    else:
+        m0 = kkt_point.m
+    res = solve_collision(prob, method="newton", m0=m0, tol=1e-2)
+    assert np.all(np.atleast_1d(res.status) == Status.NONCONVEX) and not np.any(res.success)
+    assert np.all(np.atleast_1d(res.iterations) <= 2)
+    unchecked = solve_collision(prob, method="newton", m0=m0, tol=1e-2, check_convexity=False)
+    assert np.all(np.atleast_1d(unchecked.status) == Status.CONVERGED)
