@@ -39,7 +39,7 @@ def test_run_command_writes_the_run_of_the_given_scene(tmp_path, capsys):
     direct = simulate(load_scene(path))
     on_disk = json.loads((out / "verdict.json").read_text())
     assert on_disk["steps"] == 3 and abs(on_disk["t"] - 0.06) < 1e-12
-    assert {k: on_disk[k] for k in direct.verdict} == direct.verdict
+    assert {k: on_disk[k] for k in direct.verdict} == {k: direct.verdict[k] for k in direct.verdict}
     assert np.array_equal(np.load(out / "checkpoint.npz")["f"], direct.f)
     csv = pd.read_csv(out / "diagnostics.csv")
     np.testing.assert_allclose(csv.momentum, direct.diagnostics.momentum, rtol=1e-15)

@@ -134,7 +134,7 @@ def test_halving_scene_gives_up_when_the_half_step_reaches_eps_t():
     run = simulate(_failing(eps_t=0.01))
     v = run.verdict
     assert v["blowup"] and v["e_f"] and v["B_v"] and v["T_b"] == 0.0
-    assert v["reason"] == "collision solver failed (MAX_ITERATIONS)"
+    assert "collision solver failed" in v["reason"] and "MAX_ITERATIONS" in v["reason"]
 
 
 def test_a_fixed_step_that_fails_is_not_retried():

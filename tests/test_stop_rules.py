@@ -62,8 +62,8 @@ def test_the_tiny_grids_have_the_spacings_the_tests_assume():
     run = simulate(dataclasses.replace(_scene(), t_end=0.1))
     assert run.diagnostics.min_dv.iloc[-1] == pytest.approx(DV, rel=1e-12)
     assert run.diagnostics.min_dx.iloc[-1] == pytest.approx(DX, rel=1e-12)
-    assert run.verdict == {"blowup": False, "T_b": None, "B_x": False, "B_v": False, "e_f": False,
-                           "reason": "reached t_end"}
+    expected = {"blowup": False, "T_b": None, "B_x": False, "B_v": False, "e_f": False, "reason": "reached t_end"}
+    assert {k: run.verdict[k] for k in expected} == expected
 
 
 def test_B_x_fires_on_min_dx_against_eps_x_only():
@@ -133,7 +133,7 @@ def test_solver_failure_sets_e_f_and_counts_as_B_v_when_asked():
     v = stopped.verdict
     assert v["blowup"] and v["e_f"] and v["B_v"] and not v["B_x"]
     assert v["T_b"] == 0.0 and stopped.t == 0.0 and len(stopped.diagnostics) == 1
-    assert v["reason"] == "collision solver failed (MAX_ITERATIONS)"
+    assert "collision solver failed" in v["reason"] and "MAX_ITERATIONS" in v["reason"]
     going = simulate(_scene(collision=opts, stop={"eps_v": 0.0, "eps_x": 0.0, "on_solver_failure": False}))
     v = going.verdict
     assert v["e_f"] and not v["blowup"] and not v["B_v"] and not v["B_x"]

@@ -125,7 +125,7 @@ BASE = {
     "v": {"L": 2.0, "n": 21},
     "x": {"L": 2.0, "n": 11},
     "initial": {"kind": "gaussians", "amplitudes": [1.0], "rates": [2.0], "centres": [0.0]},
-    "time": {"policy": "halving", "dt": 0.01, "eps_t": 1e-6},
+    "time": {"policy": "halving", "dt": 0.01, "eps_t": 1e-12},
 }
 
 
@@ -150,7 +150,7 @@ def _with(section, key, value):
         ("v", "n", [3], [2, 3.5]),
         ("x", "n", [3], [2]),
         ("v", "L", [1e-3], [0.0, math.inf]),
-        ("time", "dt", [1e-9], [0.0, -0.01, math.inf]),
+        ("time", "dt", [1e-6], [0.0, -0.01, math.inf]),
         ("time", "eps_t", [1e-300], [0.0, -1e-6]),
         ("refine.v", "delta", [1e-3, 0.999], [0.0, 1.0, 1.5]),
         ("refine.v", "delta0", [1e-3, 0.999], [0.0, 1.0]),
