@@ -216,6 +216,10 @@ MUTATIONS = [
 ]
 
 
+# Why a mutation that survives is harmless or hard to catch (written after a run, shown in mutation.md).
+SURVIVOR_NOTES: dict[str, str] = {}
+
+
 def _copy_tree(dest: Path) -> None:
     ignore = shutil.ignore_patterns(".git", "__pycache__", "*.pyc", "runs", "results", ".pytest_cache", ".ruff_cache")
     for name in ("jko_cvx", "tests", "studies", "pyproject.toml"):
@@ -308,6 +312,11 @@ def _write(rows: list[dict], out: Path, partial: bool = False) -> None:
             f"| {r['id']} | {r['file']} | {r['what']} | {r['tests'].replace('tests/', '')} | {r['outcome']} | "
             f"{r['seconds']} |"
         )
+    survivors = df[df.outcome == "survived"]
+    if len(survivors):
+        lines += ["", "## Survivors", ""]
+        for r in survivors.itertuples():
+            lines.append(f"* `{r.id}` ({r.what}): {SURVIVOR_NOTES.get(r.id, 'not yet analysed')}")
     if len(stale):
         lines += ["", "Stale mutations (update their snippets): " + ", ".join(stale.id)]
     (out / "mutation.md").write_text("\n".join(lines) + "\n")
@@ -319,6 +328,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--timeout", type=float, default=300.0, help="seconds per mutation")
     parser.add_argument("--out", type=Path, default=ROOT / "studies" / "results")
     parser.add_argument("--check", action="store_true", help="only report stale snippets")
+    parser.add_argument("--report", action="store_true", help="rewrite mutation.md from mutation.csv")
     parser.add_argument("--tests", nargs="*", default=None, help="override the test files (with --only)")
     parser.add_argument("--no-baseline", action="store_true", help="skip the unmutated run (with --only)")
     args = parser.parse_args(argv)
@@ -327,6 +337,11 @@ def main(argv: list[str] | None = None) -> int:
         chosen = [dataclasses.replace(m, tests=tuple(args.tests)) for m in chosen]
     ids = [m.id for m in MUTATIONS]
     assert len(set(ids)) == len(ids), "duplicate mutation ids"
+    if args.report:
+        import pandas as pd
+
+        _write(pd.read_csv(args.out / "mutation.csv").to_dict("records"), args.out)
+        return 0
     if args.check:
         stale = [m.id for m in chosen if (ROOT / m.file).read_text().count(m.old) != 1]
         print(f"{len(chosen)} mutations over {len({m.file for m in chosen})} files; stale: {stale or 'none'}")
