@@ -43,10 +43,16 @@ class Mutation:
     new: str
     tests: tuple[str, ...]
     what: str
+    set: str = "targeted"
 
 
-def M(id, file, old, new, tests, what):
-    return Mutation(id, f"jko_cvx/{file}", old, new, tuple(f"tests/{t}" for t in tests.split()), what)
+def M(id, file, old, new, tests, what, set="targeted"):
+    return Mutation(id, f"jko_cvx/{file}", old, new, tuple(f"tests/{t}" for t in tests.split()), what, set)
+
+
+def H(id, file, old, new, tests, what):
+    """A hold-out mutation: written after the targeted list had been caught, and no test added for it."""
+    return M(id, file, old, new, tests, what, set="hold-out")
 
 
 MUTATIONS = [
@@ -213,6 +219,60 @@ MUTATIONS = [
     M("compare-silently-wrong", "compare.py", '"silently_wrong": bool(res.success) and not kkt <= kkt_tol,',
       '"silently_wrong": False,', "test_compare_liar.py test_compare.py",
       "the comparison never reports a silently wrong row"),
+    # ================================================================ hold-out set (see H)
+    H("grid-last-cell-index", "grid.py", "h[-1] = dv[-1] / 2", "h[-1] = dv[-2] / 2",
+      "test_grid_kernels.py test_problem.py", "last trapezoidal cell from the wrong spacing"),
+    H("split-one-sided-centring", "kernels.py", "Wc = Wc - Wc.mean(axis=1, keepdims=True)", "Wc = Wc",
+      "test_grid_kernels.py test_agreement.py", "DC split projected on one side only"),
+    H("perspective-gradient-sign", "collision/problem.py", "gy = c * (4 * r - 2 * r**2)",
+      "gy = c * (4 * r + 2 * r**2)", "test_problem.py test_agreement.py",
+      "perspective Fisher gradient, sign of one term"),
+    H("flux-from-density-sign", "collision/problem.py", "return -np.cumsum(dm, axis=-1)[..., :-1]",
+      "return np.cumsum(dm, axis=-1)[..., :-1]", "test_problem.py test_kkt_residual.py",
+      "flux rebuilt from a density with the wrong sign"),
+    H("conic-inaccurate-hidden", "collision/conic.py", "if raw_status == cp.OPTIMAL_INACCURATE:",
+      "if False:", "test_extremes.py test_compare.py", "CVXPY OPTIMAL_INACCURATE reported as converged"),
+    H("sqp-fraction-to-boundary", "collision/sqp.py", "_FRACTION_TO_BOUNDARY = 0.995",
+      "_FRACTION_TO_BOUNDARY = 1.0", "test_agreement.py test_extremes.py test_line_search.py",
+      "SQP safeguard lets iterates reach f = 0"),
+    H("newton-jam-count", "collision/newton.py", "_JAM = 5", "_JAM = 50", "test_newton.py test_extremes_pinned.py",
+      "jam detection 10x slower to fire"),
+    H("newton-certify-slack", "collision/newton.py", "not kkt <= 10 * tol:", "not kkt <= 1000 * tol:",
+      "test_newton.py test_extremes_pinned.py", "single path certifies residuals 1000x the tolerance"),
+    H("mu2-no-trim", "refine.py", "r1 = min(max(r1, r2 * s1 / (4 * delta + s1)), r2 * (1 - 1e-6))",
+      "r1 = min(r1, r2 * (1 - 1e-6))", "test_refine.py", "two-bump set reaching 0 not trimmed"),
+    H("quintic-coefficient", "refine.py", "b = L - a", "b = L + a", "test_refine.py",
+      "outer quintic piece misses mu(1) = L"),
+    H("transport-crossing", "transport.py", "_CROSSING = 1e-10", "_CROSSING = 1e-2",
+      "test_transport_diagnostics.py", "moment restored on lines whose mass crosses the cut"),
+    H("tilt-bracket", "conservation.py", "hi = np.where(err > 0, beta, hi)", "hi = np.where(err < 0, beta, hi)",
+      "test_momentum.py test_refine.py", "tilt's bisection bracket updated on the wrong side"),
+    H("entropy-weights", "diagnostics.py", '"entropy": float(np.sum(w * flogf)),', '"entropy": float(np.sum(flogf)),',
+      "test_transport_diagnostics.py", "entropy without the quadrature weights"),
+    H("scene-strength-default", "scene.py", '"strength", "", float, default=1.0', '"strength", "", float, default=0.5',
+      "test_engine.py test_stop_rules.py", "strength defaults to lambda/2 = 0.5"),
+    H("sim-snapshot-cadence", "simulate.py", "if step % scene.every == 0 or done", "if step % scene.every == 1 or done",
+      "test_engine.py", "snapshots one step off the cadence"),
+    H("sweep-never-reads-cache", "sweep.py", "        if path.exists():", "        if False:",
+      "test_sweep.py test_sweep_key.py", "cache written but never read"),
+    H("exact-gamma2-centre", "exact.py", "vbar = f0.moment1() / mass", "vbar = 0.0", "test_exact_solutions.py",
+      "gamma = 2 contraction about 0 instead of the mean velocity"),
+    H("evolve-step-count", "evolve.py", "n_steps = int(np.ceil(t_end / dt - 1e-9))", "n_steps = int(t_end / dt)",
+      "test_floors_and_ends.py test_exact_solutions.py", "fixed-grid loop drops the partial last step"),
+    H("result-message-name", "collision/result.py", "return [s.value for s in np.ravel(self.status)]",
+      "return [s.name for s in np.ravel(self.status)]", "test_newton.py test_extremes.py",
+      "batched messages are the status names"),
+    H("compare-certified", "compare.py", "certified = bool(res.success) and kkt <= kkt_tol",
+      "certified = bool(res.success)", "test_compare.py test_compare_liar.py",
+      "comparison certifies on the solver's word"),
+    H("cli-resume-ignored", "cli.py", "resume=resume, progress=not quiet", "resume=False, progress=not quiet",
+      "test_cli_run.py test_engine.py", "jko-cvx run --resume starts again from t = 0"),
+    H("fit-exponent-axes", "benchmarks/cost.py", "np.polyfit(np.log(n[keep]), np.log(seconds[keep]), 1)[0]",
+      "np.polyfit(np.log(seconds[keep]), np.log(n[keep]), 1)[0]", "test_benchmarks.py",
+      "cost exponent fitted with the axes swapped"),
+    H("mesh-rule-interp", "reproduce/blowup_tables.py",
+      "np.interp(np.log(eps_v), np.log(spacing[::-1]), ts[::-1])", "np.interp(eps_v, spacing[::-1], ts[::-1])",
+      "test_reproduce.py", "mesh-rule time interpolated linearly instead of in log eps"),
 ]
 
 
@@ -264,7 +324,7 @@ def run(mutations, timeout: float, out: Path | None, baseline: bool = True) -> l
             path = tree / m.file
             original = path.read_text() if path.exists() else ""
             count = original.count(m.old)
-            row = {"id": m.id, "file": m.file, "what": m.what, "tests": " ".join(m.tests)}
+            row = {"id": m.id, "set": m.set, "file": m.file, "what": m.what, "tests": " ".join(m.tests)}
             if count != 1:
                 row.update(outcome="stale", seconds=0.0, detail=f"snippet found {count} times")
             else:
@@ -280,6 +340,18 @@ def run(mutations, timeout: float, out: Path | None, baseline: bool = True) -> l
             if out is not None:
                 _write(rows, out, partial=i < len(mutations))
     return rows
+
+
+def _set_scores(df) -> list[str]:
+    """One line per set: the targeted mutations were written together with the tests (survivors
+    led to new tests); the hold-out ones afterwards, with no test added for them."""
+    if "set" not in df:
+        return []
+    out = []
+    for name, part in df.groupby("set", sort=False):
+        c, n = int((part.outcome == "caught").sum()), int(part.outcome.isin(["caught", "survived"]).sum())
+        out.append(f"* {name}: {c} of {n} caught" + (f" ({100 * c / n:.0f} %)" if n else ""))
+    return out
 
 
 def _write(rows: list[dict], out: Path, partial: bool = False) -> None:
@@ -304,13 +376,16 @@ def _write(rows: list[dict], out: Path, partial: bool = False) -> None:
         f"**Score: {caught} caught of {counted} ({100 * score:.0f} %)**; {survived} survived; "
         f"{len(stale)} stale (snippet not found: not counted).",
         "",
-        "| id | file | mutation | tests | outcome | s |",
-        "|:--|:--|:--|:--|:--|--:|",
+        *_set_scores(df),
+        "",
+        "| id | set | file | mutation | tests | outcome | s |",
+        "|:--|:--|:--|:--|:--|:--|--:|",
     ]
     for r in rows:
+        what = str(r["what"]).replace("|", "\\|")
         lines.append(
-            f"| {r['id']} | {r['file']} | {r['what']} | {r['tests'].replace('tests/', '')} | {r['outcome']} | "
-            f"{r['seconds']} |"
+            f"| {r['id']} | {r.get('set', '')} | {r['file']} | {what} | {r['tests'].replace('tests/', '')} | "
+            f"{r['outcome']} | {r['seconds']} |"
         )
     survivors = df[df.outcome == "survived"]
     if len(survivors):
