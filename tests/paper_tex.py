@@ -20,6 +20,10 @@ _CANDIDATES = [
 ]
 
 
+def paper_available() -> bool:
+    return any(p.is_file() for p in _CANDIDATES)
+
+
 def paper_source() -> str:
     for p in _CANDIDATES:
         if p.is_file():
