@@ -39,3 +39,33 @@ def test_fixed_grid_loop_stops_at_a_failed_step_unless_told_otherwise():
     assert not stopped.completed and len(stopped.results) == 1 and stopped.times.tolist() == [0.0]
     going = evolve_fixed_grid(g, PowerKernel(1.0), f0, 0.01, 0.03, beta=30.0, max_iter=1, stop_on_failure=False)
     assert going.completed and len(going.results) == 3 and going.statuses == ["MAX_ITERATIONS"] * 3
+
+
+@pytest.mark.slow  # about 15 s: Newton struggles on the degenerate grid before the crash
+@pytest.mark.xfail(
+    strict=True,
+    reason="bug: on a 10-point x-grid the two-bump x-map (jko_cvx/refine.py TwoBumpMap via "
+    "simulate._refine_x) builds a grid with 8 points within 2e-15 of 0; PeriodicGrid accepts it and "
+    "transport_step then fails inside scipy ('x must be strictly increasing') instead of a verdict "
+    "or a clear error",
+)
+def test_two_bump_x_refinement_on_a_coarse_grid_ends_with_a_verdict():
+    from jko_cvx.scene import scene_from_dict
+    from jko_cvx.simulate import simulate
+
+    scene = scene_from_dict(
+        {
+            "name": "coarse_x_map",
+            "gamma": 1.0,
+            "strength": 0.5,
+            "t_end": 0.15,
+            "v": {"L": 1.5, "n": 16},
+            "x": {"L": 4.0, "n": 10},
+            "initial": {"kind": "two_bump_phase", "a": 1.0, "b": 2.0, "c": 1.0, "d": 0.3},
+            "time": {"policy": "cfl", "dt": 0.5},
+            "refine": {"v": {"bumps": 1, "delta0": 0.5, "delta": 0.5}, "x": {"bumps": 2, "delta0": 0.5, "delta": 0.5}},
+            "collision": {"method": "newton", "beta": 30.0},
+        }
+    )
+    run = simulate(scene)
+    assert run.xgrid.dx.min() > 1e-12 or run.blowup
