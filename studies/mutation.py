@@ -231,16 +231,17 @@ MUTATIONS = [
       "return np.cumsum(dm, axis=-1)[..., :-1]", "test_problem.py test_kkt_residual.py",
       "flux rebuilt from a density with the wrong sign"),
     H("conic-inaccurate-hidden", "collision/conic.py", "if raw_status == cp.OPTIMAL_INACCURATE:",
-      "if False:", "test_extremes.py test_compare.py", "CVXPY OPTIMAL_INACCURATE reported as converged"),
+      "if False:", "test_extremes_pinned.py test_extremes.py test_compare.py",
+      "CVXPY OPTIMAL_INACCURATE reported as converged"),
     H("sqp-fraction-to-boundary", "collision/sqp.py", "_FRACTION_TO_BOUNDARY = 0.995",
-      "_FRACTION_TO_BOUNDARY = 1.0", "test_agreement.py test_extremes.py test_line_search.py",
+      "_FRACTION_TO_BOUNDARY = 1.0", "test_line_search.py test_agreement.py test_extremes.py",
       "SQP safeguard lets iterates reach f = 0"),
     H("newton-jam-count", "collision/newton.py", "_JAM = 5", "_JAM = 50", "test_newton.py test_extremes_pinned.py",
       "jam detection 10x slower to fire"),
     H("newton-certify-slack", "collision/newton.py", "not kkt <= 10 * tol:", "not kkt <= 1000 * tol:",
       "test_newton.py test_extremes_pinned.py", "single path certifies residuals 1000x the tolerance"),
     H("mu2-no-trim", "refine.py", "r1 = min(max(r1, r2 * s1 / (4 * delta + s1)), r2 * (1 - 1e-6))",
-      "r1 = min(r1, r2 * (1 - 1e-6))", "test_refine.py", "two-bump set reaching 0 not trimmed"),
+      "r1 = min(r1, r2 * (1 - 1e-6))", "test_map_limits.py test_refine.py", "two-bump set reaching 0 not trimmed"),
     H("quintic-coefficient", "refine.py", "b = L - a", "b = L + a", "test_refine.py",
       "outer quintic piece misses mu(1) = L"),
     H("transport-crossing", "transport.py", "_CROSSING = 1e-10", "_CROSSING = 1e-2",
@@ -260,7 +261,7 @@ MUTATIONS = [
     H("evolve-step-count", "evolve.py", "n_steps = int(np.ceil(t_end / dt - 1e-9))", "n_steps = int(t_end / dt)",
       "test_floors_and_ends.py test_exact_solutions.py", "fixed-grid loop drops the partial last step"),
     H("result-message-name", "collision/result.py", "return [s.value for s in np.ravel(self.status)]",
-      "return [s.name for s in np.ravel(self.status)]", "test_newton.py test_extremes.py",
+      "return [s.name for s in np.ravel(self.status)]", "test_extremes_pinned.py test_newton.py test_extremes.py",
       "batched messages are the status names"),
     H("compare-certified", "compare.py", "certified = bool(res.success) and kkt <= kkt_tol",
       "certified = bool(res.success)", "test_compare.py test_compare_liar.py",
@@ -277,7 +278,28 @@ MUTATIONS = [
 
 
 # Why a mutation that survives is harmless or hard to catch (written after a run, shown in mutation.md).
-SURVIVOR_NOTES: dict[str, str] = {}
+SURVIVOR_NOTES: dict[str, str] = {
+    "newton-certify-slack": "harmless: the final 10 x tol guard re-judges only a returned point that differs "
+    "from the certified iterate (a projected, non-positive one); a converged interior iterate is returned "
+    "as it is, with the residual it was certified by, so the slack never decides a status in practice",
+    "transport-crossing": "hard to catch: the threshold decides only for lines whose mass near the cut lies "
+    "between 1e-10 and 1e-2 of the line's mass; the tests use lines with a true vacuum (below 1e-10) or "
+    "none (far above 1e-2).  A line in between would get a moment target off by the period times the "
+    "crossing mass (up to 8e-2 here): worth a test with a tail of 1e-4 at the cut",
+    "mesh-rule-interp": "harmless at the sampling used: mesh_rule_time samples the exact solution's mesh-rule "
+    "spacing finely in t, so interpolating in eps_v instead of log eps_v moves the time by less than the "
+    "0.005 the test allows (and than the tables' resolution)",
+}
+# Mutations that survived a run and were caught after a test was added (kept visible: the first
+# run's score is the honest one for them).
+FOLLOW_UPS: dict[str, str] = {
+    "conic-inaccurate-hidden": "test_extremes_pinned::test_an_inaccurate_conic_solve_is_never_certified "
+    "(SCS stopped at 100 iterations)",
+    "sqp-fraction-to-boundary": "test_line_search: no SQP step takes more than 99.5 % of any f_j",
+    "mu2-no-trim": "test_map_limits: the two-bump trim and the refined grid's smallest spacing",
+    "result-message-name": "test_extremes_pinned: batched messages are the statuses' values",
+    "cli-resume-ignored": "test_cli_run::test_run_command_resumes_from_the_checkpoint_on_disk",
+}
 
 
 def _copy_tree(dest: Path) -> None:
@@ -392,6 +414,13 @@ def _write(rows: list[dict], out: Path, partial: bool = False) -> None:
         lines += ["", "## Survivors", ""]
         for r in survivors.itertuples():
             lines.append(f"* `{r.id}` ({r.what}): {SURVIVOR_NOTES.get(r.id, 'not yet analysed')}")
+    follow = [i for i in FOLLOW_UPS if i in set(df.id)]
+    if follow:
+        lines += ["", "## Survivors of the first full run, caught after a test was added", "",
+                  "The hold-out score of the first full run (2026-12-01 17:38) was 15 of 23; these five were then",
+                  "rerun with `--update` after the test named was added:", ""]
+        for i in follow:
+            lines.append(f"* `{i}`: {FOLLOW_UPS[i]} -- now {df.set_index('id').outcome[i]}")
     if len(stale):
         lines += ["", "Stale mutations (update their snippets): " + ", ".join(stale.id)]
     (out / "mutation.md").write_text("\n".join(lines) + "\n")
@@ -404,6 +433,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=ROOT / "studies" / "results")
     parser.add_argument("--check", action="store_true", help="only report stale snippets")
     parser.add_argument("--report", action="store_true", help="rewrite mutation.md from mutation.csv")
+    parser.add_argument("--update", action="store_true", help="rerun --only IDS and merge them into mutation.csv")
     parser.add_argument("--tests", nargs="*", default=None, help="override the test files (with --only)")
     parser.add_argument("--no-baseline", action="store_true", help="skip the unmutated run (with --only)")
     args = parser.parse_args(argv)
@@ -421,6 +451,15 @@ def main(argv: list[str] | None = None) -> int:
         stale = [m.id for m in chosen if (ROOT / m.file).read_text().count(m.old) != 1]
         print(f"{len(chosen)} mutations over {len({m.file for m in chosen})} files; stale: {stale or 'none'}")
         return 1 if stale else 0
+    if args.update:
+        import pandas as pd
+
+        old_rows = pd.read_csv(args.out / "mutation.csv").to_dict("records")
+        new_rows = {r["id"]: r for r in run(chosen, args.timeout, None, baseline=not args.no_baseline)}
+        merged = [new_rows.get(r["id"], r) for r in old_rows]
+        merged += [r for i, r in new_rows.items() if i not in {r["id"] for r in old_rows}]
+        _write(merged, args.out)
+        return 0
     partial = args.only is not None or args.tests is not None
     rows = run(chosen, args.timeout, None if partial else args.out, baseline=not (partial and args.no_baseline))
     stale = [r["id"] for r in rows if r["outcome"] == "stale"]

@@ -89,5 +89,17 @@ def test_a_stationary_point_that_is_not_a_minimiser_is_never_certified(batched):
     res = solve_collision(prob, method="newton", m0=m0, tol=1e-2)
     assert np.all(np.atleast_1d(res.status) == Status.NONCONVEX) and not np.any(res.success)
     assert np.all(np.atleast_1d(res.iterations) <= 2)
+    assert res.message == (Status.NONCONVEX.value if not batched else [Status.NONCONVEX.value] * 2)
     unchecked = solve_collision(prob, method="newton", m0=m0, tol=1e-2, check_convexity=False)
     assert np.all(np.atleast_1d(unchecked.status) == Status.CONVERGED)
+
+
+def test_an_inaccurate_conic_solve_is_never_certified():
+    """SCS stopped after 100 iterations says OPTIMAL_INACCURATE; even with a residual inside a loose
+    kkt_tol the status stays INACCURATE (CVXPY's reduced-accuracy flag is never hidden)."""
+    grid = CASES["beta=inf"][0]
+    prob = CollisionProblem(grid, PowerKernel(1.0), np.exp(-2 * grid.points**2), 0.01, beta=10.0)
+    res = solve_collision(prob, method="conic", solver="SCS", tol=1e-6, kkt_tol=1e-2, solver_options={"max_iters": 100})
+    assert res.info["solver_status"] == "optimal_inaccurate"
+    assert res.kkt_residual <= 1e-2
+    assert res.status is Status.INACCURATE and not res.success

@@ -152,8 +152,18 @@ def test_sqp_steps_cut_by_the_positivity_safeguard_never_pass_the_zeta_test():
     I_max with the exit flag instead of stopping NOT_CERTIFIED after a few short steps."""
     g = Grid.uniform(-2.0, 2.0, 61)
     prob = CollisionProblem(g, PowerKernel(1.0), np.exp(-(g.points**2) / (2 * 0.1**2)) + 1e-3, 0.3)
-    zetas = []
-    res = solve_collision(prob, method="sqp", max_iter=300, callback=lambda it, f, m, z: zetas.append(z))
+    zetas, kept, prev = [], [], [prob.f_star]
+
+    def watch(it, f, m, z):
+        zetas.append(z)
+        old = prev[0]
+        normal = old > 1e-290  # away from underflow
+        kept.append(float(np.min(f[normal] / old[normal])))
+        prev[0] = f.copy()
+
+    res = solve_collision(prob, method="sqp", max_iter=300, callback=watch)
+    # fraction to the boundary 0.995: no step takes more than 99.5 % of any f_j
+    assert min(kept) >= 0.005 * (1 - 1e-9)
     assert res.status is Status.MAX_ITERATIONS and res.iterations == 300 and res.info["exit_flag"] == 1
     assert res.info["safeguard_steps"] >= 250
     assert len(zetas) == 300 and min(zetas) >= 2e-10  # 2 x the default epsilon 1e-10
