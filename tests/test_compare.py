@@ -19,6 +19,7 @@ def test_comparison_table_certifies_every_row():
     prob = CollisionProblem(grid, PowerKernel(1.5), np.exp(-2 * grid.points**2), 0.01, beta=10.0)
     df = compare_solvers(prob, repeats=1)
     assert not df.silently_wrong.any()
+    assert (df.f_error[df.certified] <= 1e-4).all()  # certified rows agree with the tight Newton reference
     assert set(df.family) >= {"conic:CLARABEL", "sqp:banded", "sqp:osqp", "newton"}
     truncated = df[df.setting == "max_iter=5"].iloc[0]
     assert truncated.status == "MAX_ITERATIONS" and not truncated.certified

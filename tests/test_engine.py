@@ -150,7 +150,14 @@ def test_killed_run_resumes_to_the_uninterrupted_result(tmp_path):
     assert np.array_equal(resumed.vgrid.points, fresh.vgrid.points)
     assert np.array_equal(resumed.f, fresh.f)
     assert len(resumed.diagnostics) == len(fresh.diagnostics)
-    assert (out / "verdict.json").exists() and (out / "diagnostics.csv").exists()
+    # the files on disk are the run's own record, not just present
+    import json
+
+    on_disk = json.loads((out / "verdict.json").read_text())
+    assert {k: on_disk[k] for k in fresh.verdict} == {k: fresh.verdict[k] for k in fresh.verdict}
+    assert on_disk["steps"] == len(fresh.diagnostics) - 1
+    csv = pd.read_csv(out / "diagnostics.csv")
+    np.testing.assert_allclose(csv[["t", "mass", "max_f"]], fresh.diagnostics[["t", "mass", "max_f"]], rtol=1e-15)
 
 
 def test_step_policies():
