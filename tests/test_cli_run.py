@@ -53,17 +53,17 @@ def test_solve_command_prints_every_method_converged(capsys):
         assert f"method='{method}', status=CONVERGED" in out
 
 
-def test_run_command_resumes_from_the_checkpoint_on_disk(tmp_path):
-    """--resume continues the run found in --out: a checkpoint left by another datum (amplitude
-    2.5 up to t = 0.04) is continued, so the result differs from a fresh run of the scene."""
+def test_run_command_refuses_to_resume_a_checkpoint_of_another_scene(tmp_path, capsys):
+    """--resume on a checkpoint left by another datum (amplitude 2.5 up to t = 0.04) is refused, naming
+    what differs, and leaves the checkpoint untouched (issue 14: a resume never mixes two scenes)."""
     path, other = tmp_path / "cli_tiny.toml", tmp_path / "other.toml"
     path.write_text(SCENE)
     other.write_text(SCENE.replace("amplitudes = [2.0]", "amplitudes = [2.5]").replace("t_end = 0.06", "t_end = 0.04"))
     out = tmp_path / "run"
-    simulate(load_scene(other), out=out)
-    assert main(["run", str(path), "--out", str(out), "--quiet", "--resume"]) == 0
-    resumed = np.load(out / "checkpoint.npz")
-    fresh = simulate(load_scene(path))
-    assert int(resumed["step"]) == 3 and not np.allclose(resumed["f"], fresh.f)
-    continued = simulate(load_scene(path), out=tmp_path / "again")  # sanity: the scene itself is deterministic
-    assert np.array_equal(continued.f, fresh.f)
+    first = simulate(load_scene(other), out=out)
+    before = (out / "checkpoint.npz").read_bytes()
+    assert main(["run", str(path), "--out", str(out), "--quiet", "--resume"]) == 2
+    err = capsys.readouterr().err
+    assert "initial.amplitudes: [2.5] -> [2.0]" in err and "t_end: 0.04 -> 0.06" in err
+    assert (out / "checkpoint.npz").read_bytes() == before
+    assert int(np.load(out / "checkpoint.npz")["step"]) == len(first.diagnostics) - 1

@@ -13,6 +13,7 @@ import pytest
 from jko_cvx.scene import scene_from_dict
 from jko_cvx.simulate import simulate
 from jko_cvx.stepping import CFLStep, FixedStep, HalvingStep
+from jko_cvx.verdict import StopReason
 
 
 def test_cfl_policy_takes_each_limit_with_its_own_axis_length():
@@ -34,12 +35,18 @@ def test_fixed_policy_never_retries():
 
 
 def test_halving_policy_gives_up_at_eps_t():
-    """Halve while the half step stays above eps_t; a half step equal to eps_t is refused."""
-    h = HalvingStep(0.08, eps_t=0.01)
-    assert h.first(1e-9, None, 2.0, None) == 0.08
+    """halving_reset: halve while the half step stays above eps_t; a half step equal to eps_t is refused.
+    halving (alg:MR_JKO_ver2 as written): halve while the step itself is above eps_t, keep the halved
+    step, and end the run after an accepted step <= eps_t."""
+    h = HalvingStep(0.08, eps_t=0.01, reset=True)
+    assert h.first(1e-9, None, 2.0, None) == 0.08 and h.first(1e-9, None, 2.0, None, carried=0.02) == 0.08
     assert h.retry(0.08) == 0.04 and h.retry(0.04) == 0.02
     assert h.retry(0.02) is None  # 0.01 is not > eps_t
-    assert HalvingStep(0.08, eps_t=0.0099).retry(0.02) == 0.01
+    assert HalvingStep(0.08, eps_t=0.0099, reset=True).retry(0.02) == 0.01
+    p = HalvingStep(0.08, eps_t=0.01)
+    assert p.first(1e-9, None, 2.0, None) == 0.08 and p.first(1e-9, None, 2.0, None, carried=0.02) == 0.02
+    assert p.retry(0.02) == 0.01 and p.retry(0.01) is None  # 0.01 is not above eps_t: no further halving
+    assert p.exhausted(0.01) and not p.exhausted(0.0101) and not h.exhausted(0.0)
 
 
 def _inhom(time, n_x=10, refine=None, t_end=0.3):
@@ -129,12 +136,24 @@ def test_halving_scene_cures_the_step_when_eps_t_allows_it():
     np.testing.assert_allclose(run.diagnostics.dt.to_numpy(), [0.0, 0.01, 0.01], rtol=1e-14)
 
 
-def test_halving_scene_gives_up_when_the_half_step_reaches_eps_t():
-    """Same scene with eps_t = 0.01: the half step 0.01 is not above eps_t, the policy gives up (e_f)."""
+def test_halving_reset_scene_gives_up_when_the_half_step_reaches_eps_t():
+    """halving_reset with eps_t = 0.01: the half step 0.01 is not above eps_t, the policy gives up (e_f),
+    T_b the end of the failed step 0.02."""
+    run = simulate(dataclasses.replace(_failing(eps_t=0.01), policy="halving_reset"))
+    v = run.verdict
+    assert v["blowup"] and v["e_f"] and v["B_v"] and v["T_b"] == pytest.approx(0.02) and run.t == 0.0
+    assert "collision solver failed" in v["reason"] and "MAX_ITERATIONS" in v["reason"]
+
+
+def test_halving_scene_ends_on_eps_t_after_the_step_that_reaches_it():
+    """halving as written with eps_t = 0.01: 0.02 fails, 0.01 succeeds and is accepted, and the run ends
+    there (dt <= eps_t: StopReason.EPS_T, counted as e_f and B_v) with T_b = t = 0.01."""
     run = simulate(_failing(eps_t=0.01))
     v = run.verdict
-    assert v["blowup"] and v["e_f"] and v["B_v"] and v["T_b"] == 0.0
-    assert "collision solver failed" in v["reason"] and "MAX_ITERATIONS" in v["reason"]
+    assert v.stop is StopReason.EPS_T and v["blowup"] and v["e_f"] and v["B_v"] and not v["B_x"]
+    assert v["T_b"] == pytest.approx(0.01) and run.t == pytest.approx(0.01)
+    np.testing.assert_allclose(run.diagnostics.dt.to_numpy(), [0.0, 0.01], rtol=1e-14)
+    assert run.diagnostics.retries.tolist() == [0, 1]
 
 
 def test_a_fixed_step_that_fails_is_not_retried():

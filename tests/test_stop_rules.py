@@ -124,15 +124,16 @@ def test_B_v_on_a_refined_grid_stops_at_the_first_step_below_eps_v():
 def test_solver_failure_sets_e_f_and_counts_as_B_v_when_asked():
     """A collision solve that fails (Newton with one iteration) is the exit flag e_f = 1.
 
-    With ``on_solver_failure`` the run stops before the failed step (T_b = t = 0) and the
-    failure counts as blow-up in v (alg:SPMCSL-JKO); without it the run goes on to t_end
+    With ``on_solver_failure`` the run stops at the failed step, not applying it (t = 0), with
+    T_b the end of that step (alg:MR_JKO_ver2 adds dt before it tests the indicators: T_b = 0.1),
+    and the failure counts as blow-up in v (alg:SPMCSL-JKO); without it the run goes on to t_end
     with e_f recorded and no blow-up.
     """
     opts = {"method": "newton", "beta": 30.0, "fisher": "log", "options": {"max_iter": 1}}
     stopped = simulate(_scene(collision=opts))
     v = stopped.verdict
     assert v["blowup"] and v["e_f"] and v["B_v"] and not v["B_x"]
-    assert v["T_b"] == 0.0 and stopped.t == 0.0 and len(stopped.diagnostics) == 1
+    assert v["T_b"] == pytest.approx(0.1) and stopped.t == 0.0 and len(stopped.diagnostics) == 1
     assert "collision solver failed" in v["reason"] and "MAX_ITERATIONS" in v["reason"]
     going = simulate(_scene(collision=opts, stop={"eps_v": 0.0, "eps_x": 0.0, "on_solver_failure": False}))
     v = going.verdict

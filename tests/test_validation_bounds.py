@@ -32,9 +32,6 @@ def test_problem_scalars_at_their_bounds(name, good, bad):
             CollisionProblem(G, K, F, **{**base, name: val})
 
 
-@pytest.mark.xfail(strict=True, reason="bug: beta = 1e-300 lies in the documented range (0, inf] but "
-                   "CollisionProblem.__init__ (jko_cvx/collision/problem.py, c_fisher = (dt/beta)**2) "
-                   "raises OverflowError instead of a ValueError naming beta")
 def test_a_tiny_beta_is_accepted_or_refused_by_name():
     try:
         CollisionProblem(G, K, F, 0.01, beta=1e-300)
@@ -58,8 +55,6 @@ def test_f_star_shapes():
         CollisionProblem(G, K, np.stack([F, 0 * F]), 0.01)  # one empty slice in a batch
 
 
-@pytest.mark.xfail(strict=True, reason="bug: an empty batch f_star of shape (0, N) is accepted by "
-                   "CollisionProblem._validate_density (jko_cvx/collision/problem.py); B >= 1 is implied")
 def test_an_empty_batch_is_refused():
     with pytest.raises(ValueError, match="f_star"):
         CollisionProblem(G, K, np.zeros((0, 21)), 0.01)
