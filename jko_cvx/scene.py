@@ -284,7 +284,7 @@ def scene_from_dict(d: dict[str, Any]) -> Scene:
     if "x" in specs and x_n is None:
         raise SceneError("refine.x needs an [x] grid")
     c = d.get("collision", {})
-    method = _get(c, "method", "collision.", str, default="newton", allowed={"newton", "sqp", "conic"})
+    method = _get(c, "method", "collision.", str, default="newton", allowed={"newton", "sqp", "conic", "nlp"})
     beta = _get(c, "beta", "collision.", float, default=math.inf, check=(lambda b: b > 0, "> 0 (inf allowed)"))
     fisher = _get(c, "fisher", "collision.", str, default="perspective", allowed={"perspective", "log", "none"})
     # Momentum: the collision operator conserves it on each x-slice; the constrained step

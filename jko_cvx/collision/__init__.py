@@ -2,6 +2,7 @@
 
 from .conic import conic_solvers, solve_conic
 from .newton import solve_newton
+from .nlp import solve_nlp
 from .problem import CollisionProblem, KKTResidual
 from .result import CollisionResult, Status
 from .solve import METHODS, solve_collision
@@ -17,5 +18,6 @@ __all__ = [
     "solve_collision",
     "solve_conic",
     "solve_newton",
+    "solve_nlp",
     "solve_sqp",
 ]
