@@ -22,7 +22,10 @@ perspective form :math:`2 (f_{k+1} - f_k)^2 / s_k`: exactly :math:`J` of
 Wasserstein cost of the explicit step's flux: it makes the objective's gradient O(1)
 whatever ``dt`` and ``beta`` (without it IPOPT's absolute dual tolerance is loose by the
 factor :math:`1/\\varsigma \\sim 10^5`: measured f error 1.7e-6 against 5e-12 at
-N = 81, beta = 100).
+N = 81, beta = 100).  The variables are :math:`f/F` and :math:`m/F` with :math:`F = \\max f^*`:
+IPOPT's absolute constants (the start is moved ``bound_push`` = 1e-2 away from the bound
+:math:`f \\ge 0`) are then relative to the slice, which matters for near-vacuum slices
+(:math:`\\max f^* \\sim 10^{-10}`) that would otherwise be moved 1e8-fold.
 
 IPOPT starts from the explicit step (the first step of the paper's SQP, damped to keep
 :math:`f \\ge f^*/2`), the same start as Newton's.  All data enter as CVXPY Parameters, so
@@ -184,17 +187,22 @@ def _start(problem: CollisionProblem) -> tuple[NDArray[np.float64], NDArray[np.f
     return f0, m0, cost
 
 
-def _fill(model: NlpModel, problem: CollisionProblem, scale: float) -> None:
-    """Set the Parameters for this problem, every objective coefficient divided by ``scale``."""
+def _fill(model: NlpModel, problem: CollisionProblem, scale: float, unit: float) -> None:
+    """Set the Parameters for this problem in the model's units (module docstring).
+
+    The model's variables are :math:`f/F` and :math:`m/F` (``unit`` :math:`F = \\max f^*`);
+    the edge terms are 1-homogeneous and the energy 2-homogeneous in :math:`(f, m)`, so
+    only the coefficients change; every one is divided by ``scale`` :math:`\\varsigma`.
+    """
     prm = model.params
-    prm["f_star"].value = problem.f_star
+    prm["f_star"].value = problem.f_star / unit
     prm["h"].value = problem.grid.h
-    prm["wass"].value = problem.wass_coef / scale
-    prm["K"].value = (problem.energy_coef / scale) * problem.energy.dense()
+    prm["wass"].value = problem.wass_coef * (unit / scale)
+    prm["K"].value = (problem.energy_coef * unit**2 / scale) * problem.energy.dense()
     if problem.fisher == "log":
-        prm["fisher"].value = 0.5 * problem.fisher_coef / scale
+        prm["fisher"].value = 0.5 * problem.fisher_coef * (unit / scale)
     elif problem.fisher == "perspective":
-        prm["fisher"].value = 2.0 * problem.fisher_coef / scale
+        prm["fisher"].value = 2.0 * problem.fisher_coef * (unit / scale)
     if problem.conserve_momentum:
         prm["dv"].value = problem.grid.dv / problem.grid.dv.max()
 
@@ -359,20 +367,21 @@ def solve_nlp(
     if built_now:
         model.build_seconds = time_model
     f0, m0, scale = _start(problem)
-    _fill(model, problem, scale)
+    unit = float(problem.f_star.max())
+    _fill(model, problem, scale, unit)
     from cvxpy.error import SolverError
 
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # CVXPY's DNLP notices; the status reports the outcome
-            run = _run_ipopt(model, f0, m0, opts, verbose)
+            run = _run_ipopt(model, f0 / unit, m0 / unit, opts, verbose)
         status = IPOPT_STATUS.get(run["code"], Status.SOLVER_ERROR)
     except (SolverError, ValueError, ArithmeticError) as exc:  # the external solver failed: reported, not raised
-        run = {"code": None, "message": f"{type(exc).__name__}: {exc}", "f": problem.f_star, "iterations": 0}
+        run = {"code": None, "message": f"{type(exc).__name__}: {exc}", "f": problem.f_star / unit, "iterations": 0}
         run.update(canonicalize_seconds=0.0, build_seconds=0.0, solver_seconds=0.0)
         status = Status.SOLVER_ERROR
     build = (time_model if built_now else 0.0) + run["build_seconds"]  # model, then oracles (first solve)
-    f, m, status, kkt = _finalise(problem, run["f"], status, kkt_tol, check_convexity)
+    f, m, status, kkt = _finalise(problem, unit * run["f"], status, kkt_tol, check_convexity)
     return CollisionResult.from_point(
         problem,
         f,
