@@ -1,7 +1,7 @@
 """Stability at the extremes: a library of hard collision steps and the outcome matrix.
 
 :func:`extreme_cases` builds named hard problems (tiny and huge dt, vacuum tails down to
-1e-30, lambda up to 310, grid spacing ratios up to 1e4, the step right before blow-up,
+1e-30, exact vacuum (compact support), lambda up to 310, grid spacing ratios up to 1e4, the step right before blow-up,
 gamma from 1 to 3, N from 21 to 961, beta from 0.1 to infinity).  :func:`extremes_matrix`
 runs every solver on every case and classifies each outcome:
 
@@ -88,6 +88,8 @@ def extreme_cases() -> list[ExtremeCase]:
         case("dt=10, gamma=3", G, 3.0, _gauss(G), 10.0),
         case("vacuum tails 1e-30, beta=10", G4, 1.0, np.exp(-4.3 * G4.points**2), 0.01),
         case("vacuum tails 1e-30, beta=inf", G4, 1.0, np.exp(-4.3 * G4.points**2), 0.01, np.inf),
+        # exact zeros (compact support): vacuum edges, which no interior iterate of Newton/SQP can start from
+        case("vacuum edges (compact support), gamma=2", G, 2.0, np.maximum(1 - G.points**2, 0.0), 0.01),
         case("lambda=310 (strength 155), gamma=2", wide, 2.0, np.exp(-(wide.points**2)), 0.001, 10.0, 155.0),
         case("lambda=310, gamma=2, dt=0.01", wide, 2.0, np.exp(-(wide.points**2)), 0.01, 10.0, 155.0),
         case("spacing ratio 1e3, gamma=1", r3, 1.0, np.exp(-50 * r3.points**2) + 1e-3, 1e-3),
