@@ -223,8 +223,9 @@ def _exact_auxiliaries(canon: Any, own: set[int]) -> None:
 
     The DNLP canonicalisation replaces ``log(f)`` and ``x / s`` by ``log(t)``, ``x / z``
     with new variables ``t == f``, ``z == s``, started at ``max(value, 1e-3)``: an
-    absolute clip that moves every density below 1e-3 away from the start.  The
-    defining constraints come innermost first, so one pass sets them all.
+    absolute clip, inconsistent with the start wherever a density is below 1e-3 (in units
+    of max f*) and IPOPT's ``bound_push`` (default 1e-2, see :func:`_run_ipopt`) is set
+    below that.  The defining constraints come innermost first, so one pass sets them all.
     """
     import cvxpy as cp
 
