@@ -183,3 +183,22 @@ def test_whole_run_with_nlp_matches_newton():
     assert np.abs(nlp.f - newton.f).max() <= 1e-6 * newton.f.max()
     for col in ("mass", "moment2"):
         np.testing.assert_allclose(nlp.diagnostics[col], newton.diagnostics[col], rtol=1e-8)
+
+
+def test_scene_accepts_nlp_with_allow_listed_ipopt_options():
+    from jko_cvx.scene import SceneError, scene_from_dict
+
+    d = {
+        "gamma": 1.0,
+        "t_end": 0.1,
+        "v": {"L": 2.0, "n": 41},
+        "initial": {"kind": "gaussians", "amplitudes": [1.0], "rates": [2.0], "centres": [0.0]},
+        "time": {"dt": 0.01},
+        "collision": {"method": "nlp", "fisher": "log", "beta": 100.0, "options": {"tol": 1e-8}},
+    }
+    d["collision"]["options"]["solver_options"] = {"max_cpu_time": 5.0}
+    scene = scene_from_dict(d)
+    assert scene.method == "nlp" and scene.options["solver_options"] == {"max_cpu_time": 5.0}
+    d["collision"]["options"]["solver_options"] = {"output_file": "ipopt.out"}  # writes a file: never from a scene
+    with pytest.raises(SceneError, match="output_file"):
+        scene_from_dict(d)

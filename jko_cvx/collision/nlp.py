@@ -50,6 +50,9 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
+from .certify import certify
+from .checks import check_bool, check_int, check_unit
+from .explicit import explicit_step
 from .linalg import divergence
 from .problem import CollisionProblem
 from .result import CollisionResult, Status
@@ -58,7 +61,7 @@ __all__ = ["IPOPT_STATUS", "NlpModel", "nlp_available", "solve_nlp"]
 
 #: IPOPT's return codes (``ApplicationReturnStatus``) onto :class:`Status`.  A
 #: ``CONVERGED`` entry is only a candidate: the point must still pass the KKT and
-#: second-order tests (:func:`_finalise`).
+#: second-order tests (:func:`~jko_cvx.collision.certify.certify`).
 IPOPT_STATUS: dict[int, Status] = {
     0: Status.CONVERGED,  # Solve_Succeeded
     1: Status.INACCURATE,  # Solved_To_Acceptable_Level (the acceptable_* options)
@@ -70,8 +73,8 @@ IPOPT_STATUS: dict[int, Status] = {
     -1: Status.MAX_ITERATIONS,  # Maximum_Iterations_Exceeded
     -2: Status.NUMERICAL_ERROR,  # Restoration_Failed
     -3: Status.NUMERICAL_ERROR,  # Error_In_Step_Computation
-    -4: Status.MAX_ITERATIONS,  # Maximum_CpuTime_Exceeded (option max_cpu_time)
-    -5: Status.MAX_ITERATIONS,  # Maximum_WallTime_Exceeded (option max_wall_time)
+    -4: Status.TIME_LIMIT,  # Maximum_CpuTime_Exceeded (option max_cpu_time)
+    -5: Status.TIME_LIMIT,  # Maximum_WallTime_Exceeded (option max_wall_time)
     -10: Status.SOLVER_ERROR,  # Not_Enough_Degrees_Of_Freedom
     -11: Status.SOLVER_ERROR,  # Invalid_Problem_Definition
     -12: Status.SOLVER_ERROR,  # Invalid_Option
@@ -162,19 +165,14 @@ def _start(problem: CollisionProblem) -> tuple[NDArray[np.float64], NDArray[np.f
     """The explicit step ``(f0, m0)`` (damped to keep f >= f*/2) and its Wasserstein cost.
 
     The explicit step is the paper's SQP's first step from ``(f*, 0)``, one tridiagonal
-    solve (``sqp._qp_step_banded``, to become public on branch a16).  Where it is not
-    finite (vacuum edges) the start is ``(f*, 0)``.  The cost :math:`\\varsigma` scales
-    the objective (module docstring).
+    solve (:func:`~jko_cvx.collision.explicit.explicit_step`).  Where it is not finite
+    (vacuum edges) the start is ``(f*, 0)``.  The cost :math:`\\varsigma` scales the
+    objective (module docstring).
     """
-    from .sqp import _qp_step_banded  # the explicit first step; public after issue 16
-
     f_star = problem.f_star
-    f0, zero = problem.initial_point()
-    with np.errstate(all="ignore"):
-        gf, gm = problem.gradient(f0, zero)
-        pf, pm = _qp_step_banded(problem, f0, zero, gf, gm)
+    pf, pm = explicit_step(problem)
     if not (np.all(np.isfinite(pm)) and np.all(np.isfinite(pf))):
-        pm, pf = np.zeros_like(zero), np.zeros_like(f0)
+        pm, pf = np.zeros(problem.n - 1), np.zeros(problem.n)
     neg = pf < 0
     alpha = min(1.0, _FRACTION_TO_BOUNDARY * float(np.min(-f_star[neg] / pf[neg]))) if np.any(neg) else 1.0
     m0 = alpha * pm
@@ -291,28 +289,17 @@ def _run_ipopt(model: NlpModel, f0: NDArray, m0: NDArray, options: dict[str, Any
     }
 
 
-def _finalise(
-    problem: CollisionProblem, f_raw: NDArray, status: Status, kkt_tol: float, check_convexity: bool
-) -> tuple[NDArray, NDArray, Status, Any]:
-    """Judge IPOPT's point as every method's is judged (to be replaced by the shared ``certify``).
+def _final_point(problem: CollisionProblem, f_raw: NDArray, claimed: Status) -> tuple[NDArray, NDArray, Status]:
+    """IPOPT's point projected onto the constraint (IPOPT meets linear constraints only to its tolerance).
 
-    The point is projected onto the constraint (:meth:`CollisionProblem.project_feasible`:
-    IPOPT satisfies the linear constraints only to its tolerance); a ``CONVERGED`` candidate
-    is ``NOT_CERTIFIED`` when the KKT residual exceeds ``kkt_tol`` and ``NONCONVEX`` when
-    the reduced Hessian is not positive definite.
+    A non-finite point is replaced by ``f*`` and reported ``NUMERICAL_ERROR``.
     """
     if not np.all(np.isfinite(f_raw)):
         f_raw = problem.f_star
-        if status in (Status.CONVERGED, Status.INACCURATE):
-            status = Status.NUMERICAL_ERROR
+        if claimed in (Status.CONVERGED, Status.INACCURATE):
+            claimed = Status.NUMERICAL_ERROR
     f, m = problem.project_feasible(f_raw)
-    kkt = problem.kkt_residual(f, m)
-    if status is Status.CONVERGED:
-        if not kkt.total <= kkt_tol:
-            status = Status.NOT_CERTIFIED
-        elif check_convexity and not problem.is_local_minimiser(f, m):
-            status = Status.NONCONVEX
-    return f, m, status, kkt
+    return f, m, claimed
 
 
 def solve_nlp(
@@ -382,15 +369,16 @@ def solve_nlp(
         run.update(canonicalize_seconds=0.0, build_seconds=0.0, solver_seconds=0.0)
         status = Status.SOLVER_ERROR
     build = (time_model if built_now else 0.0) + run["build_seconds"]  # model, then oracles (first solve)
-    f, m, status, kkt = _finalise(problem, unit * run["f"], status, kkt_tol, check_convexity)
-    return CollisionResult.from_point(
+    f, m, claimed = _final_point(problem, unit * run["f"], status)
+    kkt = problem.kkt_residual(f, m)
+    cert = certify(problem, f, m, kkt_tol=kkt_tol, check_convexity=check_convexity, claimed=claimed, kkt=kkt)
+    return CollisionResult.from_certificate(
         problem,
         f,
         m,
-        status,
+        cert,
         "nlp",
         run["iterations"],
-        kkt.total,
         time.perf_counter() - t_start - build,
         {
             "ipopt_status": run["code"],
@@ -422,15 +410,11 @@ def _check_nlp_args(
         raise TypeError(f"problem must be a CollisionProblem, got {type(problem).__name__}")
     if problem.batched:
         raise ValueError("method='nlp' solves one problem at a time; pass problem.slice(i) or use solve_collision")
-    for name, val in (("tol", tol), ("kkt_tol", kkt_tol)):
-        if isinstance(val, bool) or not (isinstance(val, (int, float)) and np.isfinite(val) and 0 < val < 1):
-            raise ValueError(f"{name} must lie in (0, 1), got {val!r}")
-    if isinstance(max_iter, bool) or not (isinstance(max_iter, (int, np.integer)) and max_iter >= 1):
-        raise ValueError(f"max_iter must be an integer >= 1, got {max_iter!r}")
-    for name, val in (("check_convexity", check_convexity), ("verbose", verbose)):
-        if not isinstance(val, (bool, np.bool_)):
-            raise TypeError(f"{name} must be True or False, got {val!r}")
-    opts: dict[str, Any] = {"tol": float(tol), "max_iter": int(max_iter), "print_level": 5 if verbose else 0}
+    tol, kkt_tol = check_unit("tol", tol), check_unit("kkt_tol", kkt_tol)
+    max_iter = check_int("max_iter", max_iter)
+    check_bool("check_convexity", check_convexity)
+    verbose = check_bool("verbose", verbose)
+    opts: dict[str, Any] = {"tol": tol, "max_iter": max_iter, "print_level": 5 if verbose else 0}
     opts["sb"] = "yes"  # no IPOPT banner
     if solver_options is None:
         return opts
