@@ -238,24 +238,24 @@ def _exact_auxiliaries(canon: Any, own: set[int]) -> None:
 def _run_ipopt(model: NlpModel, f0: NDArray, m0: NDArray, options: dict[str, Any], verbose: bool) -> dict[str, Any]:
     """One IPOPT solve of the filled model from ``(f0, m0)``.
 
-    CVXPY's ``solve(nlp=True)`` path, unrolled (``nlp_solving_chain.solve_nlp``, cvxpy 1.9)
-    to keep IPOPT's own return code (CVXPY folds several codes into one status), to
-    start the auxiliary variables exactly and to time canonicalisation, oracle build
-    and the IPOPT solve apart.
+    CVXPY's ``solve(nlp=True)`` path, unrolled (``nlp_solving_chain.solve_nlp``, cvxpy 1.9:
+    the same reductions for a minimisation, then IPOPT) to keep IPOPT's own return code
+    (CVXPY folds several codes into one status), to start the auxiliary variables exactly
+    and to time canonicalisation, oracle build and the IPOPT solve apart.
     """
+    from cvxpy.reductions.cvx_attr2constr import CvxAttr2Constr
+    from cvxpy.reductions.dnlp2smooth.dnlp2smooth import Dnlp2Smooth
+    from cvxpy.reductions.solvers.defines import SOLVER_MAP_NLP
     from cvxpy.reductions.solvers.nlp_solvers.nlp_solver import Oracles
-    from cvxpy.reductions.solvers.nlp_solving_chain import _build_nlp_chain
 
     model.f.value, model.m.value = f0, m0
     t0 = time.perf_counter()
-    chain, opts = _build_nlp_chain(model.problem, "IPOPT", dict(options))
-    canon, inverse = model.problem, []
-    for reduction in chain.reductions[:-1]:
-        canon, inv = reduction.apply(canon)
-        inverse.append(inv)
+    solver = SOLVER_MAP_NLP["IPOPT"]
+    canon = model.problem
+    for reduction in (CvxAttr2Constr(reduce_bounds=not solver.BOUNDED_VARIABLES), Dnlp2Smooth()):
+        canon, _ = reduction.apply(canon)
     _exact_auxiliaries(canon, {model.f.id, model.m.id})
-    data, inv = chain.solver.apply(canon)
-    inverse.append(inv)
+    data, inv = solver.apply(canon)
     # IPOPT moves a start closer than bound_push to a lower bound (here every bound is
     # x >= 0) to bound_push; CVXPY evaluates the first derivatives at the unmoved start,
     # which is 0/0 at vacuum edges.  Move it here, so both see the same point.
@@ -272,10 +272,10 @@ def _run_ipopt(model: NlpModel, f0: NDArray, m0: NDArray, options: dict[str, Any
         model.build_seconds += build
     model.iterations = 0
     t2 = time.perf_counter()
-    sol = chain.solver.solve_via_data(data, False, verbose, solver_opts=opts, solver_cache=model.cache)
+    sol = solver.solve_via_data(data, False, verbose, solver_opts=dict(options), solver_cache=model.cache)
     t3 = time.perf_counter()
-    offsets = inverse[-1].var_offsets
-    x = np.asarray(sol.get("x", np.full(inverse[-1].x_length, np.nan)), dtype=float)
+    offsets = inv.var_offsets  # f and m keep their ids through the reductions
+    x = np.asarray(sol.get("x", np.full(inv.x_length, np.nan)), dtype=float)
     n = model.f.size
     return {
         "code": int(sol["status"]),
