@@ -36,6 +36,7 @@ import numpy as np
 import pandas as pd
 
 from ..collision import CollisionProblem, conic_solvers
+from ..collision.nlp import nlp_available
 from ..compare import Configuration, compare_solvers
 from ..evolve import evolve_fixed_grid
 from ..exact import GaussianMixture, exact_gamma1, exact_gamma2
@@ -54,6 +55,7 @@ _STEP_TOLS: dict[str, tuple[str, str, tuple[float, ...]]] = {
     "sqp:osqp": ("sqp", "osqp_eps", (1e-4, 1e-6, 1e-8, 1e-10)),
     "conic:CLARABEL": ("conic", "tol", (1e-4, 1e-6, 1e-8, 1e-10)),
     "conic:SCS": ("conic", "tol", (1e-3, 1e-4, 1e-5, 1e-6, 1e-7)),
+    "nlp:IPOPT": ("nlp", "tol", (1e-4, 1e-6, 1e-8, 1e-10)),
 }
 
 
@@ -72,6 +74,8 @@ def _step_configurations(quick: bool) -> list[Configuration]:
     out = []
     for family, (method, key, tols) in _STEP_TOLS.items():
         if method == "conic" and family.split(":")[1] not in installed:
+            continue
+        if method == "nlp" and not nlp_available():
             continue
         for tol in tols[::2] if quick else tols:
             opts: dict[str, Any] = {key: tol}
