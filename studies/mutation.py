@@ -457,9 +457,19 @@ SURVIVOR_NOTES: dict[str, str] = {
 }
 # First full run of each set written after the tests (before any test was added for its survivors).
 FIRST_RUNS: dict[str, str] = {
+    "targeted, after the refactors": "54 of 56 caught (17:51-18:09: newton-no-armijo, and sqp-qp-rhs-sign, "
+    "then pointed at the OSQP subproblem; that bug is now sqp-osqp-q-sign and sqp-qp-rhs-sign is back on the "
+    "banded QP, moved verbatim to explicit.py)",
     "hold-out": "15 of 23 caught (2026-12-01 17:38)",
-    "round 2": "35 of 48 caught (2026-12-01 18:07; its rows are in mutation_round2_first_run.csv)",
+    "round 2": "35 of 48 caught (2026-12-01 17:56-18:09; its rows are in mutation_round2_first_run.csv)",
 }
+# How the rows of the shipped mutation.csv were produced (shown in mutation.md).
+RUN_LOG = (
+    "2026-12-01 17:51-18:09: full run of the 79 mutations of the first list with their snippets updated "
+    "after the refactors; 17:56-18:09: round 2's 48, first run (concurrently, separate output); 18:12: --update rerun "
+    "of 39 after merging main (mutations of every module main changed, the two snippets it made stale) "
+    "and after the tests for the round-2 survivors were added"
+)
 UNMUTATED_WHY = "re-exports only: a broken import there fails every test at collection"
 # Mutations that survived a run and were caught after a test was added (kept visible: the first
 # run's score is the honest one for them).
@@ -585,6 +595,8 @@ def _write(rows: list[dict], out: Path, partial: bool = False) -> None:
         f"{len(stale)} stale (snippet not found: not counted).",
         "",
         *_set_scores(df),
+        "",
+        "Runs: " + RUN_LOG + ".",
         "",
         "| id | set | file | mutation | tests | outcome | s |",
         "|:--|:--|:--|:--|:--|:--|--:|",
