@@ -46,6 +46,7 @@ from ..kernels import FluxBlock
 from .linalg import divergence, divergence_adjoint
 from .problem import CollisionProblem, TermParts, add_pentadiagonal
 from .result import CollisionResult, Status
+from .structured import dense_kernel_direction  # h15
 
 __all__ = ["solve_newton"]
 
@@ -251,8 +252,9 @@ def _direction(problem: CollisionProblem, bands, g: NDArray) -> tuple[NDArray, N
     if fb.kind in ("diagonal", "rank1"):
         x, pd = _structured_direction(fb, scale, bands, rhs)
     else:
-        H = add_pentadiagonal(scale * fb.dense, *bands)
-        x, pd = _newton_direction(H, rhs)
+        # h15: dense kernels go through jko_cvx.collision.structured (exact O(N) solve for
+        # gamma = 3, certified CG otherwise, the per-slice Cholesky as fallback; threaded).
+        x, pd = dense_kernel_direction(problem.energy, scale, bands, rhs, _PD_TOL)
     valid = pd.copy()
     bad = np.flatnonzero(~pd)
     if bad.size:

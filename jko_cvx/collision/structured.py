@@ -1,0 +1,354 @@
+"""Newton directions for dense interaction kernels: structured solves instead of one dense Cholesky per slice.
+
+In the flux variables the reduced Hessian of the collision step is (see
+:mod:`jko_cvx.collision.newton`)
+
+.. math::  H = B(m) + \\sigma E, \\qquad
+           E_{kl} = -\\int_{v_k}^{v_{k+1}}\\!\\int_{v_l}^{v_{l+1}} W''(s - t)\\,dt\\,ds,
+
+with :math:`B` pentadiagonal, :math:`\\sigma = 2\\Delta t\\,\\text{strength}` and :math:`E` the
+energy block :meth:`~jko_cvx.kernels.EnergyOperator.flux_block` (the mixed second
+difference of :math:`W(v_i - v_j)`, which is this integral exactly).  Newton factorises
+the Jacobi-shifted :math:`H_s = H + \\tau\\operatorname{diag}(H)`, :math:`\\tau` = ``pd_tol``,
+and reads its positive definiteness off the factorisation.  This module gives the same
+solve and the same positive-definiteness verdict without the O(N^3) dense Cholesky:
+
+* **gamma = 3** (:class:`Semiseparable3`, exact, O(N)).  :math:`W'' = 2|v|`, so with the
+  cell centres :math:`c_k`, :math:`E = -2\\operatorname{diag}(\\Delta v)\\,(M + D)\\,
+  \\operatorname{diag}(\\Delta v)`, :math:`M_{kl} = |c_k - c_l|`, :math:`D = \\operatorname{diag}(\\Delta v^2/3)`.
+  The distance matrix of points on a line has the tridiagonal-plus-rank-one inverse
+  :math:`M^{-1} = -\\tfrac12 L + \\tfrac{1}{2(c_{n}-c_1)} u u^\\top` (:math:`L` the path Laplacian
+  with weights :math:`1/(c_{k+1}-c_k)`, :math:`u = e_1 + e_n`: :math:`|c_k - c_l|` is the
+  Green's function of :math:`\\tfrac12 d^2/dc^2` plus the boundary term).  With
+  :math:`z = 2\\sigma M \\Delta v\\, x`, :math:`H_s x = r` is the symmetric sparse system
+
+  .. math::  \\begin{pmatrix} G & -\\operatorname{diag}(\\Delta v) \\\\
+             -\\operatorname{diag}(\\Delta v) & M^{-1}/(2\\sigma) \\end{pmatrix}
+             \\begin{pmatrix} x \\\\ z \\end{pmatrix} = \\begin{pmatrix} r \\\\ 0 \\end{pmatrix},
+
+  :math:`G` the pentadiagonal part of :math:`H_s` (the bands and the diagonal of
+  :math:`\\sigma E`).  Ordered by folding (cells :math:`1, n, 2, n-1, \\dots`, so that the
+  corner :math:`u u^\\top` is near the diagonal) and :math:`x, z` interleaved, it is banded with
+  half-bandwidth 8: one LAPACK banded LU (``dgbsv``, partial pivoting; a
+  Sherman-Morrison treatment of :math:`u u^\\top` instead loses up to 4 digits on
+  near-vacuum slices) after a symmetric diagonal scaling.  Positive definiteness:
+  :math:`-(M + D)` is positive definite on :math:`\\{\\Delta v^\\top x = 0\\}` (the energy
+  :math:`-\\iint |s-t|\\varphi\\varphi = 2\\int \\Phi^2` of a zero-mean flux density), so when
+  :math:`G` is positive definite (a banded Cholesky) :math:`H_s` is positive definite on
+  that hyperplane, and then on the whole space iff :math:`\\Delta v^\\top H_s^{-1}\\Delta v > 0`
+  (the inertia of the bordered matrix).  Where :math:`G` is not positive definite the slice
+  goes to the dense Cholesky.
+* **other gamma** (:class:`Certified`).  Gershgorin: the off-diagonal part of :math:`\\sigma E`
+  is :math:`\\succeq -\\sigma\\operatorname{diag}(R)`, :math:`R_k = \\sum_{l\\ne k}|E_{kl}|`, so
+  :math:`H_s \\succeq C`, the pentadiagonal matrix :math:`G - \\sigma\\operatorname{diag}(R)`.  A
+  banded Cholesky of :math:`C` that succeeds certifies :math:`H_s` positive definite, and
+  :math:`C` is then a preconditioner with :math:`\\lambda(C^{-1}H_s) \\ge 1` for conjugate
+  gradients, whose products with :math:`E` are one matrix product per chunk of slices
+  (O(N^2)).  Slices that the certificate does not cover, or where CG does not reach its
+  tolerance, go to the dense Cholesky, which then decides positive definiteness exactly as
+  before.
+* the **dense** path (:func:`dense_direction`): the per-slice Cholesky of
+  ``newton._newton_direction``, bitwise the same, run in threads across slices.
+
+Every path runs under :func:`jko_cvx.threads.blas_limits`, in
+:func:`jko_cvx.threads.map_chunks` threads.  ``JKO_CVX_NEWTON_LINALG`` selects the path:
+``auto`` (default: gamma = 3 exact, other gamma certified CG, dense fallback) or
+``dense`` (dense Cholesky for every slice; for comparisons).
+"""
+
+from __future__ import annotations
+
+import os
+import weakref
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.linalg import lapack
+
+from ..kernels import EnergyOperator
+from ..threads import map_chunks
+
+__all__ = ["LINALG_ENV", "Certified", "Semiseparable3", "dense_direction", "dense_kernel_direction", "linalg_mode"]
+
+LINALG_ENV = "JKO_CVX_NEWTON_LINALG"
+_MODES = ("auto", "dense")
+# CG on C^-1 H_s: stop when the C^-1-norm of the residual falls below _CG_RTOL times that
+# of the right-hand side (measured: 2-6 iterations on the gamma = 3/2 slices of
+# studies/bench_scale.py); after _CG_MAXIT the slice goes to the dense Cholesky.
+_CG_RTOL = 1e-13
+_CG_MAXIT = 60
+_CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def linalg_mode() -> str:
+    """The path selected by ``JKO_CVX_NEWTON_LINALG``: ``"auto"`` (default) or ``"dense"``."""
+    mode = os.environ.get(LINALG_ENV, "").strip().lower() or "auto"
+    if mode not in _MODES:
+        raise ValueError(f"environment variable {LINALG_ENV} must be one of {_MODES}, got {mode!r}")
+    return mode
+
+
+def _pentadiagonal_cholesky(diag: NDArray, off1: NDArray, off2: NDArray) -> NDArray | None:
+    """Lower banded Cholesky factor (LAPACK ``dpbtrf``) of a symmetric pentadiagonal matrix, or None."""
+    n = diag.size
+    ab = np.zeros((3, n))
+    ab[0] = diag
+    ab[1, :-1] = off1
+    ab[2, :-2] = off2
+    c, info = lapack.dpbtrf(ab, lower=1)
+    return c if info == 0 and np.isfinite(c[0, -1]) else None
+
+
+def _shifted_diagonal(diag: NDArray, e_diag: NDArray, scale: float, pd_tol: float) -> tuple[NDArray, NDArray]:
+    """``d = diag(H)`` and the diagonal of ``H_s = H + pd_tol diag(d)``, as ``newton._newton_direction`` forms them."""
+    d = diag + scale * e_diag
+    return d, d + pd_tol * d
+
+
+def dense_direction(
+    e_dense: NDArray, scale: float, bands: tuple, rhs: NDArray, pd_tol: float, rows: NDArray | None = None
+) -> tuple[NDArray, NDArray[np.bool_]]:
+    """``H_s^-1 rhs`` and the positive definiteness of ``H_s``: one dense Cholesky per slice, in threads.
+
+    The arithmetic of ``newton._newton_direction`` on ``add_pentadiagonal(scale * E, *bands)``
+    (same operations in the same order, so bitwise the same result), but the matrix of a
+    slice is formed in its worker, not for the whole batch at once.  ``rows`` restricts the
+    solve to those slices (the others are left zero and not positive definite).
+    """
+    diag, off1, off2 = bands
+    B, n1 = diag.shape
+    SE = scale * e_dense
+    x = np.zeros(rhs.shape)
+    pd = np.zeros(B, dtype=bool)
+    todo = np.arange(B) if rows is None else np.flatnonzero(rows)
+
+    def work(a: int, b: int) -> None:
+        for i in todo[a:b]:
+            Hi = SE.copy()
+            flat = Hi.reshape(-1)
+            flat[:: n1 + 1] += diag[i]
+            flat[1 :: n1 + 1] += off1[i]
+            flat[n1 :: n1 + 1] += off1[i]
+            flat[2 : n1 * (n1 - 2) : n1 + 1] += off2[i]
+            flat[2 * n1 :: n1 + 1] += off2[i]
+            d = flat[:: n1 + 1].copy()
+            if not (np.all(d > 0) and np.all(np.isfinite(d))):
+                continue
+            flat[:: n1 + 1] += pd_tol * d
+            c, info = lapack.dpotrf(Hi, lower=1, clean=0, overwrite_a=1)
+            if info != 0 or not np.isfinite(c[-1, -1]):
+                continue
+            pd[i] = True
+            x[i], _ = lapack.dpotrs(c, rhs[i], lower=1)
+
+    map_chunks(work, todo.size)
+    return x, pd
+
+
+class Semiseparable3:
+    """Exact O(N) solve of ``H_s x = r`` for gamma = 3 (see the module docstring), on one grid.
+
+    Parameters
+    ----------
+    grid : Grid
+        The velocity grid (non-uniform allowed).
+    """
+
+    KL = 4  # half-bandwidth of the interleaved (x_k, z_k) system
+    CHUNK = 16  # slices whose band storage is assembled at once
+
+    def __init__(self, grid) -> None:
+        v = grid.points
+        dv = np.asarray(grid.dv, dtype=float)
+        n = dv.size
+        c = 0.5 * (v[:-1] + v[1:])
+        self.n, self.dv = n, dv
+        self.e_diag = -2.0 * dv**3 / 3.0  # E_kk = -2 dv_k^3 / 3 exactly
+        width = float(v[-1] - v[0])
+        s = c - v[0]
+        # Dirichlet Laplacian on the nodes v_1, c_1, ..., c_n, v_N: the inverse of -2 G_D
+        # (G_D[k, l] = -s_min (W - s_max) / W), and M = 2 G_D + U Q U', U = [1, s].
+        inv_h = 1.0 / np.diff(np.concatenate([[v[0]], c, [v[-1]]]))
+        self.lap_diag, self.lap_off = inv_h[:-1] + inv_h[1:], -inv_h[1:-1]
+        self.U = np.stack([dv, dv * s], axis=1)  # diag(dv) U
+        self.q_inv = np.array([[2.0 / width, 1.0], [1.0, 0.0]])  # Q^-1, Q = [[0, 1], [1, -2/W]]
+        X = 2 * np.arange(n)
+        Z = X + 1
+        self.X, self.Z = X, Z
+        # structural entries (i, j), in the order of the values assembled in solve
+        self.rows = np.concatenate([X, X[:-1], X[:-2], X, Z, Z[:-1]])
+        self.cols = np.concatenate([X, X[1:], X[2:], Z, Z, Z[1:]])
+        self.mirror = self.rows != self.cols
+
+    def _band_storage(self, vals: NDArray) -> NDArray:
+        """dgbsv band storage (transposed: one C-ordered ``(2n, 3 KL + 1)`` block per slice) of the entries."""
+        kl = self.KL
+        ab = np.zeros((vals.shape[0], 2 * self.n, 3 * kl + 1))
+        r, c, m = self.rows, self.cols, self.mirror
+        ab[:, c, 2 * kl + r - c] = vals
+        ab[:, r[m], 2 * kl + c[m] - r[m]] = vals[:, m]
+        return ab
+
+    def solve(self, scale: float, bands: tuple, rhs: NDArray, pd_tol: float, out: tuple, lo: int, hi: int) -> None:
+        """Solve slices ``lo:hi`` into ``out = (x, pd, decided)`` (arrays of the whole batch).
+
+        ``decided[i]`` is False where G is not positive definite (the dense path decides).
+        """
+        for a in range(lo, hi, self.CHUNK):
+            self._solve_chunk(scale, bands, rhs, pd_tol, out, a, min(hi, a + self.CHUNK))
+
+    def _solve_chunk(self, scale: float, bands: tuple, rhs: NDArray, pd_tol: float, out, lo: int, hi: int) -> None:
+        diag, off1, off2 = (band[lo:hi] for band in bands)
+        x, pd, decided = out
+        b, n, k = hi - lo, self.n, rhs.shape[-1]
+        d, g_diag = _shifted_diagonal(diag, self.e_diag, scale, pd_tol)
+        z_diag = -self.lap_diag / (4.0 * scale)
+        const = np.concatenate([self.dv, z_diag, -self.lap_off / (4.0 * scale)])
+        vals = np.concatenate([g_diag, off1, off2, np.broadcast_to(const, (b, const.size))], axis=1)
+        # symmetric scaling by |diagonal|^-1/2
+        sc = np.empty((b, 2 * n))
+        with np.errstate(divide="ignore"):
+            sc[:, self.X] = np.abs(g_diag) ** -0.5
+        sc[:, self.Z] = np.abs(z_diag) ** -0.5
+        ab = self._band_storage(vals * sc[:, self.rows] * sc[:, self.cols])
+        q_inv = -self.q_inv / (2.0 * scale)  # (-2 sigma Q)^-1
+        for j in range(b):
+            i = lo + j
+            decided[i] = True
+            if not (np.all(d[j] > 0) and np.all(np.isfinite(d[j])) and np.all(np.isfinite(vals[j]))):
+                continue  # not positive definite, as the dense test has it
+            if _pentadiagonal_cholesky(g_diag[j], off1[j], off2[j]) is None:
+                decided[i] = False
+                continue
+            R = np.zeros((2 * n, k + 2), order="F")
+            sx = sc[j, self.X, None]
+            R[self.X, :k] = rhs[i] * sx
+            R[self.X, k:] = self.U * sx
+            _, _, sol, info = lapack.dgbsv(self.KL, self.KL, ab[j].T, R, overwrite_ab=1, overwrite_b=1)
+            y = sol[self.X] * sx
+            small = q_inv + self.U.T @ y[:, k:]  # Woodbury's capacitance matrix
+            if info != 0 or not (np.all(np.isfinite(y)) and np.all(np.isfinite(small))):
+                decided[i] = False
+                continue
+            # inertia: H_core is positive definite, so H_s is iff the capacitance has one negative eigenvalue
+            pd[i] = bool(np.linalg.det(small) < 0)
+            if pd[i]:
+                x[i] = y[:, :k] - y[:, k:] @ np.linalg.solve(small, self.U.T @ y[:, :k])
+
+
+class Certified:
+    """Gershgorin-certified positive definiteness and preconditioned CG for a general dense E.
+
+    Parameters
+    ----------
+    e_dense : ndarray, shape (n, n)
+        The energy block E (read-only; shared).
+    """
+
+    def __init__(self, e_dense: NDArray) -> None:
+        n = e_dense.shape[0]
+        self.E = e_dense
+        self.e_diag = np.diag(e_dense).copy()
+        # off-diagonal absolute row sums, rounded up by the summation's error bound
+        self.radius = (np.abs(e_dense).sum(axis=1) - np.abs(self.e_diag)) * (1 + 4 * n * np.finfo(float).eps)
+
+    def solve(self, scale: float, bands: tuple, rhs: NDArray, pd_tol: float, out: tuple, lo: int, hi: int) -> None:
+        """Solve slices ``lo:hi`` into ``out = (x, pd, decided)``; undecided slices go to the dense path."""
+        diag, off1, off2 = (band[lo:hi] for band in bands)
+        x, pd, decided = out
+        d, h_diag = _shifted_diagonal(diag, self.e_diag, scale, pd_tol)
+        factors = {}
+        for j in range(hi - lo):
+            if not (np.all(d[j] > 0) and np.all(np.isfinite(d[j]))):
+                decided[lo + j] = True  # not positive definite, as the dense test has it
+                continue
+            c = _pentadiagonal_cholesky(h_diag[j] - scale * self.radius, off1[j], off2[j])
+            if c is not None:
+                factors[j] = c
+        if not factors:
+            return
+        js = np.fromiter(factors, dtype=int)
+        sol, ok = self._pcg(scale, (h_diag[js], off1[js], off2[js]), rhs[lo + js], [factors[j] for j in js])
+        x[lo + js[ok]] = sol[ok]
+        pd[lo + js[ok]] = True
+        decided[lo + js[ok]] = True
+
+    def _pcg(self, scale: float, bands: tuple, rhs: NDArray, factors: list) -> tuple[NDArray, NDArray[np.bool_]]:
+        """Preconditioned CG on ``H_s X = rhs`` for a chunk (``rhs`` of shape ``(b, n, k)``), all columns at once."""
+        h_diag, off1, off2 = bands
+        b, n, k = rhs.shape
+        E, e_diag = self.E, self.e_diag
+
+        def apply(X: NDArray) -> NDArray:  # H_s X: bands plus the off-diagonal energy (one GEMM)
+            Y = h_diag[..., None] * X
+            Y[:, :-1] += off1[..., None] * X[:, 1:]
+            Y[:, 1:] += off1[..., None] * X[:, :-1]
+            Y[:, :-2] += off2[..., None] * X[:, 2:]
+            Y[:, 2:] += off2[..., None] * X[:, :-2]
+            EX = (E @ X.transpose(1, 0, 2).reshape(n, b * k)).reshape(n, b, k).transpose(1, 0, 2)
+            return Y + scale * (EX - e_diag[:, None] * X)
+
+        def precondition(Rm: NDArray) -> NDArray:
+            return np.stack([lapack.dpbtrs(factors[j], Rm[j], lower=1)[0] for j in range(b)])
+
+        X = np.zeros_like(rhs)
+        R = rhs.copy()
+        Zr = precondition(R)
+        rz = np.einsum("bnk,bnk->bk", R, Zr)
+        stop = _CG_RTOL**2 * rz
+        P = Zr.copy()
+        done = rz <= stop
+        for _ in range(_CG_MAXIT):
+            if done.all():
+                break
+            AP = apply(P)
+            pap = np.einsum("bnk,bnk->bk", P, AP)
+            alpha = np.divide(rz, pap, out=np.zeros_like(rz), where=~done & (pap > 0))
+            X += alpha[:, None, :] * P
+            R -= alpha[:, None, :] * AP
+            Zr = precondition(R)
+            rz_new = np.einsum("bnk,bnk->bk", R, Zr)
+            done |= rz_new <= stop
+            beta = np.divide(rz_new, rz, out=np.zeros_like(rz), where=rz > 0)
+            P = Zr + beta[:, None, :] * P
+            rz = rz_new
+        ok = done.all(axis=1) & np.all(np.isfinite(X), axis=(1, 2))
+        return X, ok
+
+
+def _solver(energy: EnergyOperator, e_dense: NDArray) -> Semiseparable3 | Certified:
+    """The structured solver for this energy operator (cached with it: its grid is fixed)."""
+    solver = _CACHE.get(energy)
+    if solver is None:
+        if getattr(energy, "gamma", None) == 3.0 and energy.grid.n >= 6:
+            solver = Semiseparable3(energy.grid)
+        else:
+            solver = Certified(e_dense)
+        _CACHE[energy] = solver
+    return solver
+
+
+def dense_kernel_direction(
+    energy: EnergyOperator, scale: float, bands: tuple, rhs: NDArray, pd_tol: float
+) -> tuple[NDArray, NDArray[np.bool_]]:
+    """``H_s^-1 rhs`` and per-slice positive definiteness of ``H_s`` for a dense energy block.
+
+    ``H = add_pentadiagonal(scale * energy.flux_block(), *bands)``, ``H_s = H + pd_tol
+    diag(H)``; ``rhs`` has shape ``(B, N-1, k)``.  Same contract as
+    ``newton._newton_direction(H, rhs)``: where ``pd`` is False the returned rows are not a
+    solution.  ``pd`` is decided exactly (a certificate or a factorisation; see the
+    module docstring), whatever the path.
+    """
+    e_dense = energy.flux_block()
+    if linalg_mode() == "dense" or scale <= 0:
+        return dense_direction(e_dense, scale, bands, rhs, pd_tol)
+    solver = _solver(energy, e_dense)
+    B = rhs.shape[0]
+    x = np.zeros(rhs.shape)
+    pd = np.zeros(B, dtype=bool)
+    decided = np.zeros(B, dtype=bool)
+    map_chunks(lambda a, b: solver.solve(scale, bands, rhs, pd_tol, (x, pd, decided), a, b), B)
+    if not decided.all():
+        xd, pdd = dense_direction(e_dense, scale, bands, rhs, pd_tol, rows=~decided)
+        x[~decided], pd[~decided] = xd[~decided], pdd[~decided]
+    return x, pd
