@@ -31,6 +31,7 @@ LAPACK calls whatever thread runs it.
 
 from __future__ import annotations
 
+import functools
 import itertools
 import multiprocessing
 import os
@@ -38,16 +39,23 @@ import threading
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
+from typing import ParamSpec, TypeVar
+
+import numpy as np
 
 __all__ = [
     "BLAS_THREADS_ENV",
     "THREADS_ENV",
+    "blas_limited",
     "blas_limits",
     "blas_threads",
     "map_chunks",
     "slice_workers",
     "usable_cores",
 ]
+
+P = ParamSpec("P")
+R = TypeVar("R")
 
 BLAS_THREADS_ENV = "JKO_CVX_BLAS_THREADS"
 THREADS_ENV = "JKO_CVX_THREADS"
@@ -118,6 +126,22 @@ def blas_limits() -> Iterator[None]:
         _state.depth = 0
 
 
+def blas_limited(func: Callable[P, R]) -> Callable[P, R]:
+    """Decorator: run ``func`` inside :func:`blas_limits`."""
+
+    @functools.wraps(func)
+    def wrapper(*args: P.args, **kwargs: P.kwargs) -> R:
+        with blas_limits():
+            return func(*args, **kwargs)
+
+    return wrapper
+
+
+def _with_errstate(err: dict, func: Callable[[int, int], None], a: int, b: int) -> None:
+    with np.errstate(**err):
+        func(a, b)
+
+
 def _mark_worker() -> None:
     _state.worker = True
 
@@ -141,7 +165,8 @@ def map_chunks(func: Callable[[int, int], None], n: int, min_chunk: int = 1) -> 
     Runs inline when one worker suffices (one worker, fewer than ``2 * min_chunk`` items,
     or a call from inside a worker: no nested pools).  The BLAS limit of
     :func:`blas_limits` holds in the workers (threadpoolctl's limit is process-wide).
-    Exceptions raised by ``func`` propagate.
+    Exceptions raised by ``func`` propagate; the workers run under the caller's NumPy error
+    state.
     """
     size = slice_workers()
     workers = 1 if getattr(_state, "worker", False) else min(size, n // max(min_chunk, 1))
@@ -152,6 +177,7 @@ def map_chunks(func: Callable[[int, int], None], n: int, min_chunk: int = 1) -> 
             return
         bounds = [n * i // workers for i in range(workers + 1)]
         pool = _executor(size)
-        futures = [pool.submit(func, a, b) for a, b in itertools.pairwise(bounds)]
+        err = np.geterr()  # NumPy's error state is per thread: the workers take the caller's
+        futures = [pool.submit(_with_errstate, err, func, a, b) for a, b in itertools.pairwise(bounds)]
         for fut in futures:
             fut.result()

@@ -43,6 +43,7 @@ from numpy.typing import NDArray
 from scipy.linalg import lapack
 
 from ..kernels import FluxBlock
+from ..threads import blas_limited  # h15
 from .linalg import divergence, divergence_adjoint
 from .problem import CollisionProblem, TermParts, add_pentadiagonal
 from .result import CollisionResult, Status
@@ -384,6 +385,7 @@ def _newton_direction(H: NDArray, rhs: NDArray | None) -> tuple[NDArray | None, 
     return x, pd
 
 
+@blas_limited  # h15: BLAS threads per jko_cvx.threads
 def solve_newton(
     problem: CollisionProblem,
     *,

@@ -16,29 +16,36 @@ solve and the same positive-definiteness verdict without the O(N^3) dense Choles
 * **gamma = 3** (:class:`Semiseparable3`, exact, O(N)).  :math:`W'' = 2|v|`, so with the
   cell centres :math:`c_k`, :math:`E = -2\\operatorname{diag}(\\Delta v)\\,(M + D)\\,
   \\operatorname{diag}(\\Delta v)`, :math:`M_{kl} = |c_k - c_l|`, :math:`D = \\operatorname{diag}(\\Delta v^2/3)`.
-  The distance matrix of points on a line has the tridiagonal-plus-rank-one inverse
-  :math:`M^{-1} = -\\tfrac12 L + \\tfrac{1}{2(c_{n}-c_1)} u u^\\top` (:math:`L` the path Laplacian
-  with weights :math:`1/(c_{k+1}-c_k)`, :math:`u = e_1 + e_n`: :math:`|c_k - c_l|` is the
-  Green's function of :math:`\\tfrac12 d^2/dc^2` plus the boundary term).  With
-  :math:`z = 2\\sigma M \\Delta v\\, x`, :math:`H_s x = r` is the symmetric sparse system
+  :math:`|s - t|` is twice the Green's function of :math:`d^2/ds^2` with Dirichlet ends at
+  :math:`a = v_1`, :math:`b = v_N` plus a rank-2 part: with :math:`s' = s - a`,
+  :math:`W = b - a`, :math:`|s - t| = 2g(s, t) + s' + t' - 2s't'/W`,
+  :math:`g(s, t) = -\\min(s', t')(W - \\max(s', t'))/W`.  So :math:`M = 2G_D + UQU^\\top`,
+  :math:`U = [1, s']`, :math:`Q = \\begin{pmatrix} 0 & 1 \\\\ 1 & -2/W\\end{pmatrix}`, and
+  :math:`-G_D^{-1} = L_D`, the Dirichlet Laplacian on the nodes :math:`a, c_1, \\dots, c_n, b`
+  (tridiagonal, positive definite).  The reduced Hessian is then
+  :math:`H_s = H_c - 2\\sigma V Q V^\\top`, :math:`V = \\operatorname{diag}(\\Delta v) U`, with the
+  core :math:`H_c = G + 4\\sigma \\operatorname{diag}(\\Delta v) L_D^{-1} \\operatorname{diag}(\\Delta v)`
+  (:math:`G` the pentadiagonal part of :math:`H_s`: the bands and the diagonal of
+  :math:`\\sigma E`).  With :math:`z = 4\\sigma L_D^{-1}\\operatorname{diag}(\\Delta v) x`,
+  :math:`H_c x = r` is the quasi-definite sparse system
 
-  .. math::  \\begin{pmatrix} G & -\\operatorname{diag}(\\Delta v) \\\\
-             -\\operatorname{diag}(\\Delta v) & M^{-1}/(2\\sigma) \\end{pmatrix}
+  .. math::  \\begin{pmatrix} G & \\operatorname{diag}(\\Delta v) \\\\
+             \\operatorname{diag}(\\Delta v) & -L_D/(4\\sigma) \\end{pmatrix}
              \\begin{pmatrix} x \\\\ z \\end{pmatrix} = \\begin{pmatrix} r \\\\ 0 \\end{pmatrix},
 
-  :math:`G` the pentadiagonal part of :math:`H_s` (the bands and the diagonal of
-  :math:`\\sigma E`).  Ordered by folding (cells :math:`1, n, 2, n-1, \\dots`, so that the
-  corner :math:`u u^\\top` is near the diagonal) and :math:`x, z` interleaved, it is banded with
-  half-bandwidth 8: one LAPACK banded LU (``dgbsv``, partial pivoting; a
-  Sherman-Morrison treatment of :math:`u u^\\top` instead loses up to 4 digits on
-  near-vacuum slices) after a symmetric diagonal scaling.  Positive definiteness:
-  :math:`-(M + D)` is positive definite on :math:`\\{\\Delta v^\\top x = 0\\}` (the energy
-  :math:`-\\iint |s-t|\\varphi\\varphi = 2\\int \\Phi^2` of a zero-mean flux density), so when
-  :math:`G` is positive definite (a banded Cholesky) :math:`H_s` is positive definite on
-  that hyperplane, and then on the whole space iff :math:`\\Delta v^\\top H_s^{-1}\\Delta v > 0`
-  (the inertia of the bordered matrix).  Where :math:`G` is not positive definite the slice
-  goes to the dense Cholesky.
-* **other gamma** (:class:`Certified`).  Gershgorin: the off-diagonal part of :math:`\\sigma E`
+  banded with half-bandwidth 4 once :math:`x_k, z_k` are interleaved: one LAPACK banded
+  LU (``dgbsv``) after a symmetric diagonal scaling, for the right-hand sides and the two
+  columns of :math:`V`; Woodbury's 2 x 2 capacitance
+  :math:`S = (-2\\sigma Q)^{-1} + V^\\top H_c^{-1} V` then gives :math:`H_s^{-1} r`.  (The
+  first version inverted :math:`M` itself, :math:`M^{-1} = -\\tfrac12 L + u u^\\top/(2(c_n - c_1))`;
+  its banded core is nearly singular on near-vacuum slices and Sherman-Morrison lost 4
+  digits there.)  Positive definiteness, exactly: :math:`H_c \\succeq G`, so where the
+  banded Cholesky of :math:`G` succeeds :math:`H_c` is positive definite, and by Haynsworth's
+  inertia formula on the bordered matrix :math:`H_s` is positive definite iff :math:`S` has
+  exactly one negative eigenvalue (as :math:`Q` has), i.e. iff :math:`\\det S < 0`.  Where
+  :math:`G` is not positive definite the slice goes to the dense Cholesky.
+* **other gamma** (:class:`Certified`, from N - 1 = 300 fluxes; below that the dense
+  Cholesky is faster).  Gershgorin: the off-diagonal part of :math:`\\sigma E`
   is :math:`\\succeq -\\sigma\\operatorname{diag}(R)`, :math:`R_k = \\sum_{l\\ne k}|E_{kl}|`, so
   :math:`H_s \\succeq C`, the pentadiagonal matrix :math:`G - \\sigma\\operatorname{diag}(R)`.  A
   banded Cholesky of :math:`C` that succeeds certifies :math:`H_s` positive definite, and
@@ -77,6 +84,10 @@ _MODES = ("auto", "dense")
 # studies/bench_scale.py); after _CG_MAXIT the slice goes to the dense Cholesky.
 _CG_RTOL = 1e-13
 _CG_MAXIT = 60
+# Below this many fluxes the dense Cholesky beats certified CG (gamma = 3/2, 32 slices of
+# the inhom datum, CPU seconds per batched solve, dense / CG: N_v = 241 0.031 / 0.047,
+# 361 0.094 / 0.076, 481 0.19 / 0.11, 1025 1.9 / 0.38; measured 2026-12-01 under load 12).
+_CG_MIN_N = 300
 _CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
@@ -320,7 +331,7 @@ def _solver(energy: EnergyOperator, e_dense: NDArray) -> Semiseparable3 | Certif
     """The structured solver for this energy operator (cached with it: its grid is fixed)."""
     solver = _CACHE.get(energy)
     if solver is None:
-        if getattr(energy, "gamma", None) == 3.0 and energy.grid.n >= 6:
+        if getattr(energy, "gamma", None) == 3.0:
             solver = Semiseparable3(energy.grid)
         else:
             solver = Certified(e_dense)
@@ -340,7 +351,8 @@ def dense_kernel_direction(
     module docstring), whatever the path.
     """
     e_dense = energy.flux_block()
-    if linalg_mode() == "dense" or scale <= 0:
+    exact = getattr(energy, "gamma", None) == 3.0 and e_dense.shape[0] >= 3
+    if linalg_mode() == "dense" or scale <= 0 or not (exact or e_dense.shape[0] >= _CG_MIN_N):
         return dense_direction(e_dense, scale, bands, rhs, pd_tol)
     solver = _solver(energy, e_dense)
     B = rhs.shape[0]
