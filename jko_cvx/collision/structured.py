@@ -268,8 +268,14 @@ class Certified:
         # off-diagonal absolute row sums, rounded up by the summation's error bound
         self.radius = (np.abs(e_dense).sum(axis=1) - np.abs(self.e_diag)) * (1 + 4 * n * np.finfo(float).eps)
 
+    CHUNK = 32  # slices per matrix product (fixed blocks: the rounding does not depend on the threads)
+
     def solve(self, scale: float, bands: tuple, rhs: NDArray, pd_tol: float, out: tuple, lo: int, hi: int) -> None:
         """Solve slices ``lo:hi`` into ``out = (x, pd, decided)``; undecided slices go to the dense path."""
+        for a in range(lo, hi, self.CHUNK):
+            self._solve_chunk(scale, bands, rhs, pd_tol, out, a, min(hi, a + self.CHUNK))
+
+    def _solve_chunk(self, scale: float, bands: tuple, rhs: NDArray, pd_tol: float, out, lo: int, hi: int) -> None:
         diag, off1, off2 = (band[lo:hi] for band in bands)
         x, pd, decided = out
         d, h_diag = _shifted_diagonal(diag, self.e_diag, scale, pd_tol)
@@ -364,7 +370,11 @@ def dense_kernel_direction(
     x = np.zeros(rhs.shape)
     pd = np.zeros(B, dtype=bool)
     decided = np.zeros(B, dtype=bool)
-    map_chunks(lambda a, b: solver.solve(scale, bands, rhs, pd_tol, (x, pd, decided), a, b), B)
+
+    def work(a: int, b: int) -> None:
+        solver.solve(scale, bands, rhs, pd_tol, (x, pd, decided), a, b)
+
+    map_chunks(work, B, align=solver.CHUNK)
     if not decided.all():
         xd, pdd = dense_direction(e_dense, scale, bands, rhs, pd_tol, rows=~decided)
         x[~decided], pd[~decided] = xd[~decided], pdd[~decided]
