@@ -28,8 +28,8 @@ Settings (environment variables, read at every call, so a process may change the
 Results do not depend on ``JKO_CVX_THREADS``: each slice is solved by the same sequence of
 operations whatever thread runs it (tested bitwise).  The BLAS thread count can change the
 rounding of matrix products (a product split between threads is summed in other blocks;
-measured: 8e-15 in f), as it always could; with the default of one thread the results are
-the same on every machine.
+measured: 8e-15 in f), as it always could; with the default of one BLAS thread they do not
+depend on the number of cores.
 """
 
 from __future__ import annotations
