@@ -1,16 +1,21 @@
 """The ``jko-cvx`` command.
 
-``jko-cvx run [SCENE.toml] [--out DIR] [--resume]`` runs a scene (default: the built-in
-homogeneous gamma = 1, g1 = exp(-2 v^2) scene of Table ``tab:bu``, with mesh refinement,
+``jko-cvx run [SCENE.toml] [--out DIR] [--resume | --overwrite]`` runs a scene (default: the
+built-in homogeneous gamma = 1, g1 = exp(-2 v^2) scene of Table ``tab:bu``, with mesh refinement,
 run until the blow-up criterion min dv < eps_v fires; exact T = 0.5), writes the run
-directory and prints the verdict.  ``jko-cvx solve`` solves one collision step with
-every method; ``jko-cvx solvers`` lists the installed conic solvers; ``jko-cvx reproduce NAME [--quick]``
-regenerates one of the paper's tables or figures (:mod:`jko_cvx.reproduce`).
+directory (refusing one that holds a run, unless ``--overwrite``) and prints the verdict;
+Ctrl-C (SIGINT) or SIGTERM writes a checkpoint, prints the command that resumes it and exits
+with status 130.  ``jko-cvx export RUN_DIR --netcdf FILE`` writes a run as netCDF.
+``jko-cvx solve`` solves one collision step with every method; ``jko-cvx solvers`` lists the installed
+conic solvers; ``jko-cvx reproduce NAME [--quick]`` regenerates one of the paper's tables or figures
+(:mod:`jko_cvx.reproduce`).
 """
 
 from __future__ import annotations
 
 import argparse
+import shlex
+import signal
 import sys
 import time
 from pathlib import Path
@@ -22,29 +27,47 @@ from .collision import CollisionProblem, conic_solvers, solve_collision
 from .grid import Grid
 from .kernels import PowerKernel
 
+# Bad input the user can fix: one line on stderr, exit code 2, no traceback.  SceneError is
+# a ValueError; OSError covers unreadable or unwritable paths; ImportError a missing extra.
+EXPECTED_ERRORS = (ValueError, TypeError, OSError, ImportError)
 
-def _run_scene(scene_path: Path | None, out: Path | None, resume: bool, quiet: bool) -> int:
+
+def _run_scene(scene_path: Path | None, out: Path | None, resume: bool, overwrite: bool, quiet: bool) -> int:
+    from .interrupts import RunInterrupted
+    from .plot import save_figures
     from .scene import default_scene, load_scene
     from .simulate import simulate
 
     scene = default_scene() if scene_path is None else load_scene(scene_path)
     out = out if out is not None else Path("runs") / scene.name
     t0 = time.perf_counter()
-    run = simulate(scene, out=out, resume=resume, progress=not quiet)
+    try:
+        run = simulate(scene, out=out, resume=resume, overwrite=overwrite, progress=not quiet)
+    except RunInterrupted as exc:
+        cmd = ["jko-cvx", "run", *([] if scene_path is None else [str(scene_path)]), "--out", str(out), "--resume"]
+        print(
+            f"\njko-cvx: interrupted ({signal.Signals(exc.signum).name}) at step {exc.step}, t = {exc.t:.6g}; "
+            f"checkpoint written to {out / 'checkpoint.npz'}.\nResume with:\n  {shlex.join(cmd)}",
+            file=sys.stderr,
+        )
+        return 130
+    except KeyboardInterrupt:  # before the run had a state to checkpoint
+        print(
+            f"\njko-cvx: interrupted before the run started (nothing was checkpointed); start it again with "
+            f"--overwrite (--out {out})",
+            file=sys.stderr,
+        )
+        return 130
     wall = time.perf_counter() - t0
-    _plot_run(run, out)
-    d = run.diagnostics
+    save_figures(run, out)
     print(f"jko-cvx {__version__}: {scene.name} -- {scene.description}")
     print(f"  {run.summary()}")
     print(
         f"  wall {wall:.2f} s (collision {run.seconds['collision']:.2f} s, transport {run.seconds['transport']:.2f} s, "
-        f"refinement {run.seconds['refine']:.2f} s); steps with a failed collision solve: {int((d.failed > 0).sum())}"
+        f"refinement {run.seconds['refine']:.2f} s); steps with a failed collision solve: {run.failed_steps}"
     )
-    print(
-        f"  mass drift {abs(d.mass.iloc[-1] - d.mass.iloc[0]) / d.mass.iloc[0]:.1e} (relative), "
-        f"momentum drift {abs(d.momentum.iloc[-1] - d.momentum.iloc[0]):.1e}, max f {d.max_f.max():.4g}, "
-        f"min dv {d.min_dv.min():.3g}" + ("" if scene.homogeneous else f", min dx {d.min_dx.min():.3g}")
-    )
+    print(f"  {run.records_line()}")
+    d = run.diagnostics
     if scene.gamma == 1.0 and scene.homogeneous and run.blowup:
         print(
             f"  exact blow-up time 1/(2 max f0) = {1 / (2 * d.max_f.iloc[0] * scene.strength):.4f} (max f0 on the grid)"
@@ -53,41 +76,16 @@ def _run_scene(scene_path: Path | None, out: Path | None, resume: bool, quiet: b
     return 0
 
 
-def _plot_run(run, out: Path) -> None:
-    import matplotlib
+def _export(args) -> int:
+    from .run import export_netcdf, load_run
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    d = run.diagnostics
-    fig, ax = plt.subplots(1, 2 if run.xgrid is None else 1, figsize=(10 if run.xgrid is None else 6, 4))
-    if run.xgrid is None:
-        a, b = ax
-        a.plot(run.vgrid.points, run.f, ".-", ms=2)
-        a.set_xlabel("v"), a.set_ylabel("f"), a.set_title(f"f at t = {run.t:.4g}")
-        k = int(np.argmax(run.f))
-        w = max(20 * run.vgrid.dv.min(), 1e-3)
-        sel = np.abs(run.vgrid.points - run.vgrid.points[k]) <= w
-        b.plot(run.vgrid.points[sel], run.f[sel], ".-", ms=3)
-        b.set_xlabel("v"), b.set_title("zoom at the maximum")
-    else:
-        X, V = np.meshgrid(run.xgrid.points, run.vgrid.points, indexing="ij")
-        pc = ax.pcolormesh(X, V, run.f, shading="auto")
-        fig.colorbar(pc, ax=ax)
-        ax.set_xlabel("x"), ax.set_ylabel("v"), ax.set_title(f"f(t = {run.t:.4g}, x, v)")
-    fig.tight_layout()
-    fig.savefig(out / "solution.png", dpi=110)
-    plt.close(fig)
-    fig, a = plt.subplots(figsize=(6, 4))
-    a.semilogy(d.t, d.min_dv, label="min dv")
-    if run.xgrid is not None:
-        a.semilogy(d.t, d.min_dx, label="min dx")
-    a.semilogy(d.t, d.max_f, label="max f")
-    a.set_xlabel("t"), a.legend()
-    a.set_title(f"{run.scene.name}: " + (f"blow-up at T_b = {run.verdict['T_b']:.4g}" if run.blowup else "no blow-up"))
-    fig.tight_layout()
-    fig.savefig(out / "records.png", dpi=110)
-    plt.close(fig)
+    try:
+        path = export_netcdf(load_run(args.run_dir), args.netcdf)
+    except ImportError as exc:  # the optional extra is missing
+        print(f"jko-cvx: error: {exc}", file=sys.stderr)
+        return 2
+    print(f"jko-cvx export: wrote {path} (xarray Dataset of {args.run_dir}: diagnostics over t, snapshots over t_snap)")
+    return 0
 
 
 def _solve_one(args) -> int:
@@ -136,7 +134,7 @@ def _study(args) -> int:
 def _reproduce(args) -> int:
     from .reproduce import REPRODUCTIONS
 
-    return _run_named("reproduce", REPRODUCTIONS[args.name], args, progress_kw={"progress": True})
+    return _run_named("reproduce", REPRODUCTIONS[args.name], args, progress_kw={"progress": True, "fresh": args.fresh})
 
 
 def _run_named(command: str, func, args, progress_kw: dict) -> int:
@@ -159,6 +157,38 @@ def _run_named(command: str, func, args, progress_kw: dict) -> int:
     return 0
 
 
+def _at_least(low: int):
+    """An argparse type: an integer >= low (argparse names the option in its error)."""
+
+    def parse(text: str) -> int:
+        try:
+            val = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"must be an integer >= {low}, got {text!r}") from None
+        if val < low:
+            raise argparse.ArgumentTypeError(f"must be an integer >= {low}, got {text!r}")
+        return val
+
+    return parse
+
+
+def _positive(text: str, allow_inf: bool = False) -> float:
+    """An argparse type: a finite number > 0 (or inf with ``allow_inf``)."""
+    what = "a number > 0 (inf allowed)" if allow_inf else "a finite number > 0"
+    try:
+        val = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be {what}, got {text!r}") from None
+    if not (val > 0 and (np.isfinite(val) or (allow_inf and val == np.inf))):
+        raise argparse.ArgumentTypeError(f"must be {what}, got {text!r}")
+    return val
+
+
+def _weight(text: str) -> float:
+    """An argparse type for the Fisher weight beta: > 0, inf for no Fisher term."""
+    return _positive(text, allow_inf=True)
+
+
 def _sweep_arguments(parser: argparse.ArgumentParser, out: str, executor: str, quick_help: str) -> None:
     """The options shared by ``reproduce`` and ``study``: quick form, output, where sweep points run."""
     parser.add_argument("--quick", action="store_true", help=quick_help)
@@ -167,7 +197,7 @@ def _sweep_arguments(parser: argparse.ArgumentParser, out: str, executor: str, q
         "--executor", choices=("process", "serial", "dask"), default=executor, help="where sweep points run"
     )
     parser.add_argument("--scheduler", default=None, help="Dask scheduler address (tcp://host:port)")
-    parser.add_argument("--workers", type=int, default=None, help="local workers (default: CPU count)")
+    parser.add_argument("--workers", type=_at_least(1), default=None, help="local workers (default: CPU count)")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -175,22 +205,30 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--version", action="version", version=f"jko-cvx {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
     p_run = sub.add_parser("run", help="run a scene (default: the built-in homogeneous gamma = 1, g1 scene)")
-    p_run.add_argument("scene", nargs="?", type=Path, help="scene TOML file (studies/scenes/*.toml)")
+    p_run.add_argument(
+        "scene", nargs="?", type=Path, help="scene TOML file, or the name of a shipped scene (jko_cvx/scenes/*.toml)"
+    )
     p_run.add_argument("--out", type=Path, default=None, help="run directory (default runs/<scene name>)")
-    p_run.add_argument("--resume", action="store_true", help="continue a killed run from its checkpoint")
+    again = p_run.add_mutually_exclusive_group()
+    again.add_argument("--resume", action="store_true", help="continue an interrupted run from its checkpoint")
+    again.add_argument("--overwrite", action="store_true", help="replace the run already in the run directory")
     p_run.add_argument("--quiet", action="store_true", help="no progress bar")
+    p_exp = sub.add_parser("export", help="write a run directory as a netCDF file (extra jko_cvx[netcdf])")
+    p_exp.add_argument("run_dir", type=Path, help="run directory (jko-cvx run --out)")
+    p_exp.add_argument("--netcdf", type=Path, required=True, help="the netCDF file to write")
     p_solve = sub.add_parser("solve", help="one collision step with every method, side by side")
-    p_solve.add_argument("--gamma", type=float, default=1.0)
-    p_solve.add_argument("--n", type=int, default=121)
-    p_solve.add_argument("--L", type=float, default=2.0)
-    p_solve.add_argument("--dt", type=float, default=0.01)
-    p_solve.add_argument("--beta", type=float, default=10.0)
+    p_solve.add_argument("--gamma", type=_positive, default=1.0)
+    p_solve.add_argument("--n", type=_at_least(3), default=121)
+    p_solve.add_argument("--L", type=_positive, default=2.0)
+    p_solve.add_argument("--dt", type=_positive, default=0.01)
+    p_solve.add_argument("--beta", type=_weight, default=10.0)
     sub.add_parser("solvers", help="list the installed conic solvers")
     from .reproduce import REPRODUCTIONS
 
     p_rep = sub.add_parser("reproduce", help="regenerate one of the paper's tables or figures beside its numbers")
     p_rep.add_argument("name", choices=sorted(REPRODUCTIONS), help="which table or figure")
     _sweep_arguments(p_rep, "results/reproduce", "process", "a reduced version (under 2 minutes)")
+    p_rep.add_argument("--fresh", action="store_true", help="ignore the sweep cache: recompute every point")
     from .benchmarks import STUDIES
 
     p_std = sub.add_parser("study", help="a solver study: work-precision diagrams, cost growth, the extremes matrix")
@@ -200,17 +238,19 @@ def main(argv: list[str] | None = None) -> int:
     p_cmp = sub.add_parser("compare", help="every solver and tolerance on one collision step: one table")
     p_cmp.add_argument("scene", nargs="?", type=Path, help="scene TOML (default: a built-in problem, see --gamma ...)")
     p_cmp.add_argument("--t", type=float, default=0.0, help="take the step from the scene's state at this time")
-    p_cmp.add_argument("--gamma", type=float, default=1.0)
-    p_cmp.add_argument("--n", type=int, default=121)
-    p_cmp.add_argument("--L", type=float, default=2.0)
-    p_cmp.add_argument("--dt", type=float, default=0.01)
-    p_cmp.add_argument("--beta", type=float, default=10.0)
-    p_cmp.add_argument("--repeats", type=int, default=5)
+    p_cmp.add_argument("--gamma", type=_positive, default=1.0)
+    p_cmp.add_argument("--n", type=_at_least(3), default=121)
+    p_cmp.add_argument("--L", type=_positive, default=2.0)
+    p_cmp.add_argument("--dt", type=_positive, default=0.01)
+    p_cmp.add_argument("--beta", type=_weight, default=10.0)
+    p_cmp.add_argument("--repeats", type=_at_least(1), default=5)
     p_cmp.add_argument("--out", type=Path, default=Path("results/compare"), help="output directory")
     args = parser.parse_args(argv)
     try:
         if args.command == "run":
-            return _run_scene(args.scene, args.out, args.resume, args.quiet)
+            return _run_scene(args.scene, args.out, args.resume, args.overwrite, args.quiet)
+        if args.command == "export":
+            return _export(args)
         if args.command == "solve":
             return _solve_one(args)
         if args.command == "reproduce":
@@ -221,9 +261,16 @@ def main(argv: list[str] | None = None) -> int:
             return _study(args)
         print("\n".join(conic_solvers()))
         return 0
-    except (ValueError, TypeError, FileNotFoundError) as exc:
-        print(f"jko-cvx: error: {exc}", file=sys.stderr)
+    except EXPECTED_ERRORS as exc:
+        print(f"jko-cvx: error: {_one_line(exc)}", file=sys.stderr)
         return 2
+
+
+def _one_line(exc: BaseException) -> str:
+    """The exception's message on one line (OSError: the strerror and the path it names)."""
+    if isinstance(exc, OSError) and exc.strerror and exc.filename is not None:
+        return f"{exc.strerror}: {exc.filename}"
+    return " ".join(str(exc).split()) or type(exc).__name__
 
 
 if __name__ == "__main__":  # pragma: no cover

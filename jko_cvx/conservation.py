@@ -26,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["restore_moments"]
+__all__ = ["restore_moments", "restore_three_moments"]
 
 _MAX_NEWTON = 60
 _MAX_EXPONENT = 600.0  # bound on |beta (v - vbar)|: keeps the bracket finite
@@ -110,3 +110,97 @@ def _tilted_mean_var(f, h, dv, beta):
     c = dv - mean[..., None]
     var = np.divide((w * c * c).sum(axis=-1), w0, out=np.zeros_like(w0), where=w0 > 0)
     return mean, var
+
+
+def restore_three_moments(
+    f: NDArray[np.float64],
+    h: NDArray[np.float64],
+    v: NDArray[np.float64],
+    mass: NDArray[np.float64] | float,
+    momentum: NDArray[np.float64] | float,
+    moment2: NDArray[np.float64] | float,
+    max_iter: int = 30,
+) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+    """Restore mass, first and second moment of each row by a quadratic exponential tilt.
+
+    .. math::
+
+        \\tilde f_j = \\alpha f_j \\exp\\big(b_1 d_j + b_2 d_j^2\\big), \\qquad d_j = v_j - \\bar v,
+
+    the I-projection of f onto the rows with the given :math:`\\sum h f`, :math:`\\sum v h f`
+    and :math:`\\sum v^2 h f`: positive, and to first order the correction
+    :math:`1 + b_1 d + b_2 d^2`.  :math:`(b_1, b_2)` by Newton on the tilted moments (the
+    Jacobian is the tilted covariance of :math:`(d, d^2)`), with backtracking on the
+    residual.  Rows where it does not converge to :math:`10^{-12}` relative (target out of
+    reach, or a row without mass) fall back to :func:`restore_moments` (mass and momentum)
+    and are reported False.
+
+    Parameters
+    ----------
+    f, h, v, mass, momentum
+        As in :func:`restore_moments` (``v`` the grid points, shape (N,)).
+    moment2 : float or ndarray, shape (...)
+        Target :math:`\\sum_j v_j^2 h_j f_j` per row.
+
+    Returns
+    -------
+    f : ndarray, shape (..., N)
+    restored : ndarray of bool, shape (...)
+    """
+    f = np.asarray(f, dtype=float)
+    v = np.asarray(v, dtype=float)
+    lead = f.shape[:-1]
+    F = f.reshape(-1, f.shape[-1])
+    M = np.broadcast_to(np.asarray(mass, dtype=float), lead).reshape(-1)
+    P = np.broadcast_to(np.asarray(momentum, dtype=float), lead).reshape(-1)
+    E = np.broadcast_to(np.asarray(moment2, dtype=float), lead).reshape(-1)
+    fallback, _ = restore_moments(F, h, v, M, P)
+    out = fallback.copy()
+    ok = np.zeros(F.shape[0], dtype=bool)
+    for i in range(F.shape[0]):
+        g = _tilt2(F[i], h, v, M[i], P[i], E[i], max_iter)
+        if g is not None:
+            out[i], ok[i] = g, True
+    return out.reshape(f.shape), ok.reshape(lead)
+
+
+def _tilt2(f, h, v, mass, momentum, moment2, max_iter):
+    """One row of :func:`restore_three_moments`; None when it does not converge."""
+    m0 = f @ h
+    if not (m0 > 0 and mass > 0):
+        return None
+    vbar = (f @ (v * h)) / m0
+    d = v - vbar
+    goal = np.array([momentum / mass - vbar, moment2 / mass - 2 * vbar * momentum / mass + vbar**2])
+    scale = np.array([np.abs(d).max(), np.abs(d).max() ** 2])
+    feats = np.stack([d, d * d])
+    b = np.zeros(2)
+
+    def residual(b):
+        expo = b @ feats
+        w = h * f * np.exp(expo - expo.max())
+        w /= w.sum()
+        mean = feats @ w
+        return mean - goal, w, mean
+
+    r, w, mean = residual(b)
+    for _ in range(max_iter):
+        if np.all(np.abs(r) <= 1e-12 * scale):
+            g = f * np.exp(b @ feats - (b @ feats).max())
+            return g * (mass / (g @ h))
+        c = feats - mean[:, None]
+        jac = (c * w) @ c.T
+        try:
+            step = np.linalg.solve(jac, -r)
+        except np.linalg.LinAlgError:
+            return None
+        lam = 1.0
+        while lam > 1e-6:
+            r_new, w_new, mean_new = residual(b + lam * step)
+            if np.all(np.isfinite(r_new)) and np.linalg.norm(r_new / scale) < np.linalg.norm(r / scale):
+                break
+            lam /= 2
+        else:
+            return None
+        b, r, w, mean = b + lam * step, r_new, w_new, mean_new
+    return None

@@ -24,14 +24,15 @@ Decisions where the paper is ambiguous (DESIGN.md):
   linear piece in value and slope** (C^1); it needs :math:`k s_1 < 5 r_1` (k the slope of the
   linear piece) to be increasing, else the map cannot be built.
 * The outer piece follows the paper's rule (quintic if :math:`r/\\delta \\le L`, else
-  logistic); where the logistic cannot join the points, a concave-down quintic is used
-  while it is increasing; between the two ranges no map of the family exists (the
-  constructor raises).  ``from_density`` caps r at the uniform share :math:`L\\delta` (a
-  wider set gains nothing from refinement: the map is the identity there) and keeps
-  :math:`r_2` clear of L.  A two-bump set resolved by a single grid point is widened to
-  that point's cell, and one reaching so close to 0 that the inner piece would be flat at
-  0 (spacings of 1e-8 there) is trimmed at :math:`r_1 = r_2 s_1/(4\\delta + s_1)`, where the
-  slope at 0 is a quarter of the inner piece's mean slope.
+  logistic; for ``mu2`` quintic iff :math:`(r_2 - r_1)/\\delta < L`); where the logistic
+  cannot join the points, a concave-down quintic is used while it is increasing; between
+  the two ranges no map of the family exists (the constructor raises).  ``from_density``
+  caps r at the uniform share :math:`L\\delta` (a wider set gains nothing from refinement:
+  the map is the identity there) and keeps :math:`r_2` clear of L.  A two-bump set
+  resolved by a single grid point is widened to that point's cell, and one reaching so
+  close to 0 that the inner piece would be flat at 0 (spacings of 1e-8 there) is trimmed
+  at :math:`r_1 = r_2 s_1/(4\\delta + s_1)`, where the slope at 0 is a quarter of the inner
+  piece's mean slope.
 * Remapping interpolates with PCHIP, floors at 1e-10 (the paper's floor) and rescales to
   the old mass with the grid's trapezoidal quadrature (``eqn:mass_conserv_v`` with one
   consistent quadrature).
@@ -52,10 +53,12 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.interpolate import PchipInterpolator
 from scipy.optimize import brentq, minimize_scalar
 
-from .conservation import restore_moments
+from .conservation import restore_moments, restore_three_moments
 from .grid import Grid
 
-__all__ = ["OneBumpMap", "TwoBumpMap", "concentration_set", "remap"]
+__all__ = ["OneBumpMap", "TwoBumpMap", "concentration_set", "quadrant_set", "remap"]
+
+_OUTER_RULES = ("paper", "slopes")
 
 
 def _check_fraction(name: str, x: float) -> float:
@@ -198,12 +201,21 @@ class TwoBumpMap(_OddMap):
     """The two-bump map ``mu2`` (concentrations at +-c, symmetric about 0).
 
     ``mu(1/2 - delta/2) = r1``, ``mu(1/2 + delta/2) = r2``, ``mu(1) = L``, odd extension.
+
+    ``outer_rule`` chooses the piece on ``[1/2 + delta/2, 1]``: ``"paper"`` (default,
+    ``eqn mu2``) takes :math:`a_3 s^5 + b_3 s` if :math:`(r_2 - r_1)/\\delta < L` and the
+    logistic otherwise; ``"slopes"`` (the rule before 2026-12-01) takes the quintic iff the
+    outer chord slope :math:`(L - r_2)/(1 - s_2)` is at least the linear piece's.  Where the
+    chosen logistic cannot join :math:`(s_2, r_2)` to :math:`(1, L)` the quintic is used
+    while it is increasing (as for ``mu1``).  At L = 4, r1 = 2, r2 = 3.5, delta = 0.5 the
+    paper's quintic exists while the slope rule asked for a logistic that does not.
     """
 
     L: float
     r1: float
     r2: float
     delta: float
+    outer_rule: str = "paper"
 
     def __post_init__(self) -> None:
         self._check_domain()
@@ -218,8 +230,19 @@ class TwoBumpMap(_OddMap):
             )
         a_in = (k * s1 - self.r1) / (4 * s1**5)
         inner = _Piece("quintic", a_in, k - 5 * a_in * s1**4)
-        outer_slope = (self.L - self.r2) / (1 - s2)
-        outer = _outer_piece(s2, self.r2, self.L, concave_up=outer_slope >= k)
+        if self.outer_rule not in _OUTER_RULES:
+            raise ValueError(f"outer_rule must be one of {_OUTER_RULES}, got {self.outer_rule!r}")
+        if self.outer_rule == "paper":
+            quintic = k < self.L  # eqn mu2: a3 s^5 + b3 s iff (r2 - r1)/delta < L
+        else:  # "slopes": the outer piece's chord slope against the linear piece's
+            quintic = (self.L - self.r2) / (1 - s2) >= k
+        try:
+            outer = _outer_piece(s2, self.r2, self.L, concave_up=quintic)
+        except ValueError:
+            if quintic:
+                raise
+            # the logistic cannot join (s2, r2) to (1, L): the quintic while it is increasing
+            outer = _outer_piece(s2, self.r2, self.L, concave_up=True)
         object.__setattr__(self, "_pieces", (s1, s2, inner, _Piece("linear", k, 0.0, s1, self.r1), outer))
 
     def __call__(self, s: ArrayLike) -> NDArray[np.float64]:
@@ -228,6 +251,11 @@ class TwoBumpMap(_OddMap):
         s1, s2, inner, mid, outer = self._pieces  # type: ignore[attr-defined]
         out = np.where(a < s1, inner(a), np.where(a <= s2, mid(a), outer(a)))
         return np.sign(s) * out
+
+    @property
+    def outer_kind(self) -> str:
+        """The piece on ``[1/2 + delta/2, 1]``: ``"quintic"`` or ``"logistic"``."""
+        return self._pieces[4].kind  # type: ignore[attr-defined]
 
     @classmethod
     def from_density(cls, grid: Grid, f: ArrayLike, delta0: float, delta: float) -> TwoBumpMap:
@@ -274,8 +302,37 @@ def concentration_set(grid: Grid, f: ArrayLike, delta0: float, both_ends: bool =
     return float(v[sel].max()), None
 
 
+def quadrant_set(x: ArrayLike, v: ArrayLike, f_star: ArrayLike, delta0: float):
+    """The concentration set of ``alg:SPMCSL-JKO`` step 4, as written: one set on the quadrant.
+
+    :math:`S = \\{(x_i, v_j) : f^*(x_i, v_j) > \\delta_0 \\max_{i,j} f^*, x_i > 0, v_j > 0\\}`
+    from the post-transport, pre-collision density :math:`f^*` (shape (Nx, Nv)).  Returns
+    ``((min x, max x), (min v, max v))`` over S, or ``None`` when S is empty -- which it is
+    for ``eqn:f0`` at t = 0 (its bumps sit in the quadrants x < 0 < v and v < 0 < x), where
+    the paper does not say what to do.  The time loop (``simulate``) builds its maps from
+    the post-collision f and separate projections instead (max over x for the v-set, max
+    over v for the x-set, each on its positive half-axis); this helper is the paper's rule
+    for a loop that wants it.
+    """
+    _check_fraction("delta0", delta0)
+    x, v, f = np.asarray(x, dtype=float), np.asarray(v, dtype=float), np.asarray(f_star, dtype=float)
+    if f.shape != (x.size, v.size):
+        raise ValueError(f"f_star must have shape (Nx, Nv) = ({x.size}, {v.size}), got {f.shape}")
+    sel = (f > delta0 * f.max()) & (x[:, None] > 0) & (v[None, :] > 0)
+    if not sel.any():
+        return None
+    xi, vj = np.nonzero(sel)
+    return (float(x[xi].min()), float(x[xi].max())), (float(v[vj].min()), float(v[vj].max()))
+
+
 def remap(
-    old: Grid, f: ArrayLike, new: Grid, floor: float = 1e-10, axis: int = -1, conserve_momentum: bool = False
+    old: Grid,
+    f: ArrayLike,
+    new: Grid,
+    floor: float = 1e-10,
+    axis: int = -1,
+    conserve_momentum: bool = False,
+    conserve_energy: bool = False,
 ) -> NDArray[np.float64]:
     """PCHIP-interpolate ``f`` from ``old`` to ``new`` along ``axis``, floor, restore each line's mass.
 
@@ -284,6 +341,11 @@ def remap(
     With ``conserve_momentum`` (a velocity axis) the first moment
     :math:`\\sum_j v_j h_j f_j` of each line is restored too, by the smallest relative
     correction :math:`\\alpha + \\beta (v - \\bar v)` (:func:`jko_cvx.conservation.restore_moments`).
+    With ``conserve_energy`` (implies the momentum) the second moment :math:`\\sum_j v_j^2 h_j f_j`
+    is restored as well, by the quadratic tilt of
+    :func:`jko_cvx.conservation.restore_three_moments` (not in the paper): PCHIP on the
+    coarse side of a map adds energy, which ``prop:properties`` forbids once the collision
+    dissipates less than the interpolation adds (``jko-cvx reproduce property_budget``).
     """
     f = np.moveaxis(np.asarray(f, dtype=float), axis, -1)
     if f.shape[-1] != old.n:
@@ -294,6 +356,10 @@ def remap(
         interp = PchipInterpolator(old.points, f, axis=-1, extrapolate=True)
     g = interp(np.clip(new.points, old.points[0], old.points[-1]))
     g = np.maximum(g, floor)
+    if conserve_energy:
+        moments = [f @ (old.points**p * old.h) for p in (0, 1, 2)]
+        g, _ = restore_three_moments(g, new.h, new.points, *moments)
+        return np.moveaxis(g, -1, axis)
     momentum = f @ (old.points * old.h) if conserve_momentum else None
     g, _ = restore_moments(g, new.h, new.points, f @ old.h, momentum)
     return np.moveaxis(g, -1, axis)

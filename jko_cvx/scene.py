@@ -1,6 +1,7 @@
 """Scenes: everything a run needs, as a dataclass loaded from TOML (data, never code).
 
-A scene file (see ``studies/scenes/*.toml``)::
+A scene file (the shipped ones are package data, ``jko_cvx/scenes/*.toml``; see
+:func:`shipped_scene`)::
 
     name = "tab_bu_g1"
     gamma = 1.0
@@ -24,22 +25,23 @@ A scene file (see ``studies/scenes/*.toml``)::
     centres = [0.0]
 
     [time]
-    policy = "fixed"         # "fixed" | "halving" | "cfl"
+    policy = "fixed"         # "fixed" | "halving" (alg:MR_JKO_ver2 as written) | "halving_reset" | "cfl"
     dt = 0.01
-    eps_t = 1e-6             # halving only
+    eps_t = 1e-6             # halving only: the run ends after an accepted step <= eps_t
 
     [refine.v]               # and [refine.x]; omit for a fixed grid
     bumps = 1                # 1 (mu1) or 2 (mu2)
     delta0 = 0.5
     delta = 0.5
     tol = 0.0                # 0: remesh every step (paper); > 0: when the set moved by tol x width
+    conserve_energy = false  # refine.v only: the v-remap also restores each slice's second moment
 
     [collision]
     method = "newton"
     beta = inf               # Fisher weight (TOML inf)
     fisher = "perspective"
     conserve_momentum = true # per-slice momentum constraint (default: true, false for sqp)
-    options = {}
+    options = {}             # solver options: an allow-list per method (jko_cvx.scene_options)
 
     [stop]
     eps_v = 2.5e-4           # blow-up threshold on min dv
@@ -51,13 +53,22 @@ A scene file (see ``studies/scenes/*.toml``)::
     every = 10               # snapshot every K steps
     times = []               # and at the first step reaching each of these times
     checkpoint_every = 10
+
+Every table is parsed strictly (:mod:`jko_cvx.scene_schema`): an unknown key anywhere, a
+section given as a scalar, a value of the wrong type or outside its range raises
+:class:`SceneError` naming the dotted key.  A scene whose step count or memory estimate is
+beyond the limits (:mod:`jko_cvx.scene_limits`; environment variables ``JKO_CVX_MAX_STEPS``,
+``JKO_CVX_MAX_GIB``) is refused before anything is allocated or written.
 """
 
 from __future__ import annotations
 
+import copy
 import math
 import tomllib
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
+from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -65,34 +76,36 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .grid import Grid, PeriodicGrid
+from .scene_limits import Limits, check_limits
+from .scene_options import parse_options
+from .scene_schema import (
+    INITIAL_KINDS,
+    CollisionTable,
+    OutputTable,
+    RefineTable,
+    Rule,
+    SceneError,
+    SceneTable,
+    StopTable,
+    TimeTable,
+    VTable,
+    XTable,
+    check_known,
+    parse_table,
+    require_table,
+)
 from .stepping import CFLStep, FixedStep, HalvingStep
 
-__all__ = ["Scene", "default_scene", "load_scene", "scene_from_dict"]
-
-_INITIAL_KINDS = {
-    "gaussians": {"amplitudes", "rates", "centres"},
-    "two_bump_phase": {"a", "b", "c", "d"},
-    "gamma2": {"a", "b", "x1"},
-}
-_TOP_KEYS = {
-    "name",
-    "description",
-    "gamma",
-    "strength",
-    "t_end",
-    "v",
-    "x",
-    "initial",
-    "time",
-    "refine",
-    "collision",
-    "stop",
-    "output",
-}
-
-
-class SceneError(ValueError):
-    """A scene that does not validate; the message names the key and the allowed values."""
+__all__ = [
+    "Scene",
+    "SceneError",
+    "default_scene",
+    "load_scene",
+    "scene_from_dict",
+    "shipped_scene",
+    "shipped_scene_names",
+    "with_overrides",
+]
 
 
 @dataclass(frozen=True)
@@ -110,6 +123,7 @@ class RefineSpec:
     delta0: float = 0.5
     delta: float = 0.5
     tol: float = 0.0
+    conserve_energy: bool = False
 
 
 @dataclass(frozen=True)
@@ -159,8 +173,8 @@ class Scene:
     def step_policy(self):
         if self.policy == "fixed":
             return FixedStep(self.dt)
-        if self.policy == "halving":
-            return HalvingStep(self.dt, self.eps_t)
+        if self.policy in ("halving", "halving_reset"):
+            return HalvingStep(self.dt, self.eps_t, reset=self.policy == "halving_reset")
         return CFLStep(self.dt)
 
     def initial_density(self, xgrid: PeriodicGrid | None, vgrid: Grid) -> NDArray[np.float64]:
@@ -184,176 +198,203 @@ class Scene:
         return base * cut
 
     def to_dict(self) -> dict[str, Any]:
-        d = asdict(self)
-        return d
+        """The scene's fields as plain JSON data, canonical: keys sorted at every level, every
+        default filled in, tuples as lists.  Equal scenes give equal dicts (and equal JSON)."""
+        return _canonical(asdict(self))
 
 
-def _get(d: dict, key: str, where: str, kind, default=None, required=False, check=None, allowed=None):
-    if key not in d:
-        if required:
-            raise SceneError(f"{where}{key} is required")
-        return default
-    val = d[key]
-    try:
-        if kind is bool:
-            if not isinstance(val, bool):
-                raise TypeError
-        elif kind is int:
-            if isinstance(val, bool) or int(val) != val:
-                raise TypeError
-            val = int(val)
-        elif kind is float:
-            if isinstance(val, bool):
-                raise TypeError
-            val = float(val)
-        elif kind is str:
-            if not isinstance(val, str):
-                raise TypeError
-    except (TypeError, ValueError):
-        raise SceneError(f"{where}{key} must be of type {kind.__name__}, got {val!r}") from None
-    if allowed is not None and val not in allowed:
-        raise SceneError(f"{where}{key} must be one of {sorted(allowed)}, got {val!r}")
-    if check is not None and not check[0](val):
-        raise SceneError(f"{where}{key} must be {check[1]}, got {val!r}")
-    return val
+def _canonical(obj: Any) -> Any:
+    if isinstance(obj, Mapping):
+        return {str(k): _canonical(obj[k]) for k in sorted(obj, key=str)}
+    if isinstance(obj, list | tuple):
+        return [_canonical(v) for v in obj]
+    return obj
 
 
-_POS = (lambda x: math.isfinite(x) and x > 0, "a finite number > 0")
-_FRAC = (lambda x: 0 < x < 1, "in (0, 1)")
-_NPTS = (lambda n: n >= 3, "an integer >= 3")
+def scene_from_dict(d: Mapping[str, Any], limits: Limits | None = None) -> Scene:
+    """Validate a scene given as nested dicts (as parsed from TOML) and build it.
 
+    Parameters
+    ----------
+    d : mapping
+        The TOML document: top-level keys and the tables ``v``, ``x``, ``initial``,
+        ``time``, ``refine``, ``collision``, ``stop``, ``output``.
+    limits : Limits, optional
+        Step and memory limits (default: :meth:`Limits.from_env`).
 
-def scene_from_dict(d: dict[str, Any]) -> Scene:
-    """Validate a scene given as nested dicts (as parsed from TOML)."""
-    unknown = set(d) - _TOP_KEYS
-    if unknown:
-        raise SceneError(f"unknown top-level key(s) {sorted(unknown)}; allowed: {sorted(_TOP_KEYS)}")
-    name = _get(d, "name", "", str, default="scene")
-    gamma = _get(d, "gamma", "", float, required=True, check=_POS)
-    t_end = _get(d, "t_end", "", float, required=True, check=_POS)
-    strength = _get(d, "strength", "", float, default=1.0, check=_POS)
-    v = d.get("v")
-    if not isinstance(v, dict):
-        raise SceneError("[v] is required: a table with L (> 0) and n (>= 3)")
-    v_L = _get(v, "L", "v.", float, required=True, check=_POS)
-    v_n = _get(v, "n", "v.", int, required=True, check=_NPTS)
-    x_L = x_n = None
-    if "x" in d:
-        x = d["x"]
-        x_L = _get(x, "L", "x.", float, required=True, check=_POS)
-        x_n = _get(x, "n", "x.", int, required=True, check=_NPTS)
-    conserve_x_moment = _get(d.get("x", {}), "conserve_moment", "x.", bool, default=True)
-    init = d.get("initial")
-    if not isinstance(init, dict):
-        raise SceneError(f"[initial] is required, with kind one of {sorted(_INITIAL_KINDS)}")
-    kind = _get(init, "kind", "initial.", str, required=True, allowed=set(_INITIAL_KINDS))
-    need = _INITIAL_KINDS[kind]
-    missing, extra = need - set(init), set(init) - need - {"kind"}
-    if missing or extra:
-        raise SceneError(
-            f"initial (kind={kind!r}) needs exactly the keys {sorted(need)}; missing {sorted(missing)}, "
-            f"unknown {sorted(extra)}"
-        )
-    if kind == "gaussians":
-        lens = {len(init[k]) for k in need if isinstance(init[k], list)}
-        if len(lens) != 1 or not all(isinstance(init[k], list) for k in need):
-            raise SceneError("initial.amplitudes, rates and centres must be lists of the same length")
-        if any(r <= 0 for r in init["rates"]) or any(a < 0 for a in init["amplitudes"]):
-            raise SceneError("initial.rates must be > 0 and initial.amplitudes >= 0")
-    else:
-        for k in need:
-            _get(init, k, "initial.", float, required=True)
-        if kind != "gaussians" and x_n is None:
-            raise SceneError(f"initial.kind = {kind!r} is a phase-space datum and needs an [x] grid")
-    initial = {k: (list(map(float, val)) if isinstance(val, list) else val) for k, val in init.items()}
-    t = d.get("time", {})
-    policy = _get(t, "policy", "time.", str, default="fixed", allowed={"fixed", "halving", "cfl"})
-    dt = _get(t, "dt", "time.", float, required=True, check=_POS)
-    eps_t = _get(t, "eps_t", "time.", float, default=1e-6, check=_POS)
-    refine = d.get("refine", {})
-    specs = {}
-    for axis in ("v", "x"):
-        if axis in refine:
-            r = refine[axis]
-            specs[axis] = RefineSpec(
-                bumps=_get(r, "bumps", f"refine.{axis}.", int, default=1, allowed={1, 2}),
-                delta0=_get(r, "delta0", f"refine.{axis}.", float, default=0.5, check=_FRAC),
-                delta=_get(r, "delta", f"refine.{axis}.", float, default=0.5, check=_FRAC),
-                tol=_get(r, "tol", f"refine.{axis}.", float, default=0.0, check=(lambda x: 0 <= x < 1, "in [0, 1)")),
-            )
-    if "x" in specs and x_n is None:
-        raise SceneError("refine.x needs an [x] grid")
-    c = d.get("collision", {})
-    method = _get(c, "method", "collision.", str, default="newton", allowed={"newton", "sqp", "conic"})
-    beta = _get(c, "beta", "collision.", float, default=math.inf, check=(lambda b: b > 0, "> 0 (inf allowed)"))
-    fisher = _get(c, "fisher", "collision.", str, default="perspective", allowed={"perspective", "log", "none"})
-    # Momentum: the collision operator conserves it on each x-slice; the constrained step
-    # does so exactly (CollisionProblem.conserve_momentum).  The paper's SQP has no such
-    # constraint, so it defaults to false there.
-    conserve_momentum = _get(c, "conserve_momentum", "collision.", bool, default=method != "sqp")
-    if conserve_momentum and method == "sqp":
-        raise SceneError(
-            "collision.conserve_momentum = true needs method 'newton' or 'conic' (sqp has no such constraint)"
-        )
-    options = c.get("options", {})
-    if not isinstance(options, dict):
-        raise SceneError(f"collision.options must be a table, got {options!r}")
-    s = d.get("stop", {})
-    eps_v = _get(s, "eps_v", "stop.", float, default=0.0, check=(lambda e: e >= 0, ">= 0"))
-    eps_x = _get(s, "eps_x", "stop.", float, default=0.0, check=(lambda e: e >= 0, ">= 0"))
-    spread_v = _get(s, "spread_v", "stop.", float, default=0.0, check=(lambda e: math.isfinite(e) and e >= 0, ">= 0"))
-    on_fail = _get(s, "on_solver_failure", "stop.", bool, default=True)
-    o = d.get("output", {})
-    every = _get(o, "every", "output.", int, default=10, check=(lambda k: k >= 1, ">= 1"))
-    ck = _get(o, "checkpoint_every", "output.", int, default=10, check=(lambda k: k >= 1, ">= 1"))
-    times = o.get("times", [])
-    if not isinstance(times, list | tuple) or not all(
-        isinstance(tk, int | float) and not isinstance(tk, bool) and 0 <= tk <= t_end for tk in times
-    ):
-        raise SceneError(f"output.times must be a list of numbers in [0, t_end = {t_end:g}], got {times!r}")
-    return Scene(
-        name=name,
-        gamma=gamma,
-        t_end=t_end,
-        v_L=v_L,
-        v_n=v_n,
+    Raises
+    ------
+    SceneError
+        Naming the dotted key, for an unknown key anywhere, a section that is not a table,
+        a value of the wrong type or range, an inconsistent combination, or a scene
+        beyond the limits.
+    """
+    top = parse_table(SceneTable, require_table(d, "scene"), "")
+    v = parse_table(VTable, top.v, "v")
+    x = None if top.x is None else parse_table(XTable, top.x, "x")
+    initial = _parse_initial(top.initial, x is not None)
+    t = parse_table(TimeTable, top.time, "time")
+    refine = _parse_refine(top.refine, x is not None)
+    c = parse_table(CollisionTable, {} if top.collision is None else top.collision, "collision")
+    options = {} if c.options is None else parse_options(c.method, c.options)
+    s = parse_table(StopTable, {} if top.stop is None else top.stop, "stop")
+    o = parse_table(OutputTable, {} if top.output is None else top.output, "output")
+    _check_combinations(top, v, x, t, c, s, o)
+    scene = Scene(
+        name=top.name,
+        gamma=top.gamma,
+        t_end=top.t_end,
+        v_L=v.L,
+        v_n=v.n,
         initial=initial,
-        dt=dt,
-        policy=policy,
-        eps_t=eps_t,
-        strength=strength,
-        x_L=x_L,
-        x_n=x_n,
-        conserve_x_moment=conserve_x_moment,
-        refine_v=specs.get("v"),
-        refine_x=specs.get("x"),
-        method=method,
-        beta=beta,
-        fisher=None if fisher == "none" else fisher,
-        conserve_momentum=conserve_momentum,
-        options=dict(options),
-        eps_v=eps_v,
-        eps_x=eps_x,
-        spread_v=spread_v,
-        stop_on_solver_failure=on_fail,
-        every=every,
-        snapshot_times=tuple(sorted(float(tk) for tk in times)),
-        checkpoint_every=ck,
-        description=_get(d, "description", "", str, default=""),
+        dt=t.dt,
+        policy=t.policy,
+        eps_t=t.eps_t,
+        strength=top.strength,
+        x_L=None if x is None else x.L,
+        x_n=None if x is None else x.n,
+        conserve_x_moment=True if x is None else x.conserve_moment,
+        refine_v=refine.get("v"),
+        refine_x=refine.get("x"),
+        method=c.method,
+        beta=c.beta,
+        fisher=None if c.fisher == "none" else c.fisher,
+        # Momentum: the collision operator conserves it on each x-slice; the constrained step
+        # does so exactly (CollisionProblem.conserve_momentum).  The paper's SQP has no such
+        # constraint, so it defaults to false there.
+        conserve_momentum=c.method != "sqp" if c.conserve_momentum is None else c.conserve_momentum,
+        options=options,
+        eps_v=s.eps_v,
+        eps_x=s.eps_x,
+        spread_v=s.spread_v,
+        stop_on_solver_failure=s.on_solver_failure,
+        every=o.every,
+        snapshot_times=tuple(sorted(o.times)),
+        checkpoint_every=o.checkpoint_every,
+        description=top.description,
     )
+    check_limits(scene, limits)  # before anything of the run's size is allocated
+    f0 = scene.initial_density(scene.xgrid(), scene.vgrid())
+    if not (np.all(np.isfinite(f0)) and f0.max() > 0):
+        raise SceneError("initial: f0 is zero or not finite on the grid (check its parameters against v.L and x.L)")
+    return scene
 
 
-def load_scene(path: str | Path) -> Scene:
-    """Read and validate a TOML scene file (parsed as data with ``tomllib``)."""
-    p = Path(path)
+def _parse_initial(data: Any, has_x: bool) -> dict[str, Any]:
+    data = require_table(data, "initial")
+    if "kind" not in data:
+        raise SceneError(f"initial.kind is required, one of {sorted(INITIAL_KINDS)}")
+    kind = Rule("str", choices=tuple(INITIAL_KINDS)).parse(data["kind"], "initial.kind")
+    table = parse_table(INITIAL_KINDS[kind], {k: val for k, val in data.items() if k != "kind"}, "initial")
+    if kind != "gaussians" and not has_x:
+        raise SceneError(f"initial.kind = {kind!r} is a phase-space datum and needs an [x] grid")
+    return {"kind": kind, **{k: (list(val) if isinstance(val, tuple) else val) for k, val in asdict(table).items()}}
+
+
+def _parse_refine(data: Any, has_x: bool) -> dict[str, RefineSpec]:
+    if data is None:
+        return {}
+    data = require_table(data, "refine")
+    check_known(data, ("v", "x"), "refine")
+    if "x" in data and not has_x:
+        raise SceneError("refine.x needs an [x] grid")
+    specs = {axis: RefineSpec(**asdict(parse_table(RefineTable, data[axis], f"refine.{axis}"))) for axis in data}
+    if "x" in specs and specs["x"].conserve_energy:
+        raise SceneError("refine.x.conserve_energy must be false: the kinetic energy is a moment in v (refine.v only)")
+    return specs
+
+
+def _check_combinations(top, v, x, t, c, s, o) -> None:
+    """Cross-table checks: values fine alone that are wrong together."""
+    # W(v) = |v|^gamma / gamma on |v| <= 2 L_v (differences of grid points) must be finite:
+    # at most max((2 L_v)^gamma, 1) / gamma
+    if max(top.gamma * math.log(2 * v.L), 0.0) - math.log(top.gamma) > math.log(1e300):
+        raise SceneError(
+            f"gamma = {top.gamma:g} makes the kernel |v|^gamma/gamma overflow on the velocity grid "
+            f"(|v| up to 2 v.L = {2 * v.L:g})"
+        )
+    if math.isfinite(c.beta) and t.dt / c.beta > 1e150:
+        raise SceneError(
+            f"collision.beta = {c.beta:g} with time.dt = {t.dt:g}: the Fisher weight (dt/beta)^2 overflows; "
+            "beta must be a number > 0 well above dt * 1e-150 (inf allowed)"
+        )
+    if t.policy in ("halving", "halving_reset") and not t.eps_t < t.dt:
+        raise SceneError(f"time.eps_t must be < time.dt = {t.dt:g} (the halving floor), got {t.eps_t:g}")
+    if x is None and s.eps_x > 0:
+        raise SceneError("stop.eps_x needs an [x] grid (a homogeneous scene has no x-cells)")
+    if any(tk > top.t_end for tk in o.times):
+        raise SceneError(f"output.times must be a list of numbers in [0, t_end = {top.t_end:g}], got {list(o.times)!r}")
+
+
+def with_overrides(data: Mapping[str, Any], overrides: Mapping[str, Any] | None) -> dict[str, Any]:
+    """A deep copy of the scene document ``data`` with dotted keys set (``{"time.dt": 0.005}``).
+
+    A value ``None`` removes the key (``{"x": None}`` drops the x-grid).  The result is not
+    validated here; :func:`scene_from_dict` does that, so a misspelt override is refused
+    like a misspelt key in a file.
+    """
+    out = copy.deepcopy(dict(data))
+    for dotted, val in (overrides or {}).items():
+        *parents, leaf = str(dotted).split(".")
+        node = out
+        for i, part in enumerate(parents):
+            nxt = node.setdefault(part, {})
+            if not isinstance(nxt, dict):
+                raise SceneError(f"override {dotted!r}: {'.'.join(parents[: i + 1])} is not a table")
+            node = nxt
+        if val is None:
+            node.pop(leaf, None)
+        else:
+            node[leaf] = copy.deepcopy(val)
+    return out
+
+
+def _read_toml(path: Path) -> dict[str, Any]:
+    if path.is_dir():
+        raise SceneError(f"scene path {str(path)!r} is a directory, not a TOML file")
     try:
-        with p.open("rb") as fh:
-            data = tomllib.load(fh)
+        with path.open("rb") as fh:
+            return tomllib.load(fh)
     except FileNotFoundError:
-        raise SceneError(f"scene file not found: {p}") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise SceneError(f"{p} is not valid TOML: {exc}") from None
-    return scene_from_dict(data)
+        hint = f" (shipped scenes: {', '.join(shipped_scene_names())})" if path.suffix != ".toml" else ""
+        raise SceneError(f"scene file not found: {str(path)!r}{hint}") from None
+    except OSError as exc:
+        raise SceneError(f"cannot read scene file {str(path)!r}: {exc.strerror or exc}") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise SceneError(f"scene file {str(path)!r} is not valid TOML: {exc}") from None
+
+
+def load_scene(path: str | Path, overrides: Mapping[str, Any] | None = None, limits: Limits | None = None) -> Scene:
+    """Read and validate a TOML scene file (parsed as data with ``tomllib``).
+
+    ``path`` may also be the name of a shipped scene (``"tab_bu_g1"``) when no such file
+    exists.  ``overrides`` sets dotted keys before validation (:func:`with_overrides`).
+    """
+    p = Path(path)
+    if not p.exists() and str(path) in shipped_scene_names():
+        return shipped_scene(str(path), overrides, limits)
+    return scene_from_dict(with_overrides(_read_toml(p), overrides), limits)
+
+
+_SHIPPED = resources.files("jko_cvx") / "scenes"
+
+
+def shipped_scene_names() -> list[str]:
+    """Names of the scenes shipped as package data (``jko_cvx/scenes/*.toml``)."""
+    return sorted(p.name[: -len(".toml")] for p in _SHIPPED.iterdir() if p.name.endswith(".toml"))
+
+
+def shipped_scene(name: str, overrides: Mapping[str, Any] | None = None, limits: Limits | None = None) -> Scene:
+    """A shipped scene (package data) by name, with dotted-key ``overrides`` applied before validation.
+
+    >>> shipped_scene("tab_bu_g1", {"time.dt": 0.005}).dt
+    0.005
+    """
+    names = shipped_scene_names()
+    if name not in names:
+        raise SceneError(f"no shipped scene {name!r}; shipped: {names}")
+    data = tomllib.loads((_SHIPPED / f"{name}.toml").read_text(encoding="utf-8"))
+    return scene_from_dict(with_overrides(data, overrides), limits)
 
 
 def default_scene() -> Scene:

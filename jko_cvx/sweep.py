@@ -16,14 +16,27 @@ killed sweep resumes by computing only the points without a file.  Points run on
 Dask is optional (``pip install "jko_cvx[dask]"``).  Results do not depend on where a point
 ran: the point functions are deterministic, and the test suite checks that serial, process
 pool and Dask runs give identical tables.
+
+The cache cannot serve stale results.  A point's key (:func:`point_key`) covers the point,
+the function's qualified name, the source of the module that defines it, the package
+version and a hash of every ``.py`` file of the package: after any change of code, old
+entries are simply not found (and the point runs again).  Each entry records its key and
+a SHA-256 digest of its content; an entry that does not parse, records another key or
+point, or fails its digest (truncated, tampered with) is recomputed with a
+:class:`StaleCacheWarning` naming the file.  ``fresh=True`` (``jko-cvx reproduce --fresh``)
+ignores the cache and recomputes every point.
 """
 
 from __future__ import annotations
 
+import functools
 import hashlib
+import inspect
 import json
 import os
+import sys
 import tempfile
+import warnings
 from collections.abc import Callable, Iterable, Mapping
 from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_completed
 from contextlib import ExitStack
@@ -32,14 +45,86 @@ from typing import Any
 
 import pandas as pd
 
-__all__ = ["point_key", "run_sweep"]
+__all__ = ["StaleCacheWarning", "code_identity", "point_key", "run_sweep"]
+
+
+class StaleCacheWarning(UserWarning):
+    """A cache entry that could not be trusted (unreadable, another key, a bad digest): recomputed."""
+
+
+def _sha(text: str) -> str:
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+@functools.cache
+def _package_hash() -> str:
+    """SHA-256 over the relative paths and contents of every ``.py`` file of the package."""
+    root = Path(__file__).resolve().parent
+    h = hashlib.sha256()
+    for path in sorted(root.rglob("*.py")):
+        h.update(str(path.relative_to(root)).encode() + b"\0" + path.read_bytes() + b"\0")
+    return h.hexdigest()
+
+
+def _module_source(func: Callable[..., Any]) -> str:
+    """The source of the module defining ``func`` (its helpers change the results too); the function's own
+    source where the module has none."""
+    module = sys.modules.get(getattr(func, "__module__", ""), None)
+    for obj in (module, func):
+        try:
+            return inspect.getsource(obj)
+        except (OSError, TypeError):
+            continue
+    raise TypeError(f"cannot read the source of {func!r}: sweeps cache only functions defined in source files")
+
+
+def code_identity(func: Callable[..., Any]) -> dict[str, str]:
+    """What the results of ``func`` depend on besides the point: name, module source, package version and code."""
+    from . import __version__
+
+    return {
+        "func": f"{func.__module__}.{func.__qualname__}",
+        "module_sha256": _sha(_module_source(func)),
+        "package_version": __version__,
+        "package_sha256": _package_hash(),
+    }
+
+
+def _canonical(obj: Any) -> str:
+    return json.dumps(obj, sort_keys=True, default=float)
 
 
 def point_key(func: Callable[..., Any], point: Mapping[str, Any]) -> str:
-    """Stable cache key of ``func`` at ``point``: SHA-256 of its qualified name and the canonical JSON."""
-    name = f"{func.__module__}.{func.__qualname__}"
-    text = json.dumps({"func": name, "point": dict(point)}, sort_keys=True, default=float)
-    return hashlib.sha256(text.encode()).hexdigest()[:24]
+    """Cache key of ``func`` at ``point``: SHA-256 of :func:`code_identity` and the point's canonical JSON."""
+    return _sha(_canonical({"code": code_identity(func), "point": dict(point)}))[:32]
+
+
+def _entry(key: str, point: Mapping[str, Any], result: Mapping[str, Any]) -> str:
+    """The JSON text of a cache entry; ``digest`` covers key, point and result."""
+    body = {"key": key, "point": dict(point), "result": dict(result)}
+    return json.dumps({**body, "digest": _sha(_canonical(body))}, default=float)
+
+
+def _read_entry(path: Path, key: str, point: Mapping[str, Any]) -> dict | None:
+    """The cached result at ``path``, or None (with a warning naming the file) if it cannot be trusted."""
+    try:
+        entry = json.loads(path.read_text())
+        body = {k: entry[k] for k in ("key", "point", "result")}
+        problem = (
+            "records another key"
+            if body["key"] != key
+            else "records another point"
+            if _canonical(body["point"]) != _canonical(dict(point))
+            else "fails its digest (edited or corrupted)"
+            if entry.get("digest") != _sha(_canonical(body))
+            else None
+        )
+    except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError) as exc:
+        problem = f"does not parse ({type(exc).__name__}: {exc})"
+    if problem is None:
+        return entry["result"]
+    warnings.warn(f"sweep cache entry {path} {problem}; recomputing the point", StaleCacheWarning, stacklevel=4)
+    return None
 
 
 def _write_atomic(path: Path, text: str) -> None:
@@ -51,6 +136,18 @@ def _write_atomic(path: Path, text: str) -> None:
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)
+
+
+def _read_cache(cache: Path, points: Mapping[str, Mapping[str, Any]]) -> dict[str, dict]:
+    """The trusted cached results of ``points`` (by key); damaged entries are left out with a warning."""
+    results = {}
+    for key, point in points.items():
+        path = cache / f"{key}.json"
+        if path.exists():
+            result = _read_entry(path, key, point)
+            if result is not None:
+                results[key] = result
+    return results
 
 
 def _call(func: Callable[..., dict], point: dict) -> dict:
@@ -66,6 +163,7 @@ def run_sweep(
     workers: int | None = None,
     progress: bool = True,
     desc: str = "sweep",
+    fresh: bool = False,
 ) -> pd.DataFrame:
     """Evaluate ``func(**point)`` at every point, reusing cached results; one row per point.
 
@@ -85,6 +183,10 @@ def run_sweep(
         Worker count for the local pool or cluster (default: the CPU count).
     progress : bool, default True
         Show a tqdm progress bar of points done (cached points count as done).
+    desc : str, default "sweep"
+        Label of the progress bar.
+    fresh : bool, default False
+        Ignore the cache: compute every point and overwrite its entry.
 
     Returns
     -------
@@ -97,16 +199,14 @@ def run_sweep(
         raise TypeError(f"func must be callable, got {type(func).__name__}")
     if isinstance(executor, str) and executor not in ("process", "serial", "dask"):
         raise ValueError(f"executor must be 'process', 'serial', 'dask' or an Executor, got {executor!r}")
-    if workers is not None and (not isinstance(workers, int) or workers < 1):
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
         raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
+    if not isinstance(fresh, bool):
+        raise TypeError(f"fresh must be a bool, got {fresh!r}")
     cache = Path(cache_dir)
     cache.mkdir(parents=True, exist_ok=True)
     keys = [point_key(func, p) for p in points]
-    results: dict[str, dict] = {}
-    for key in set(keys):
-        path = cache / f"{key}.json"
-        if path.exists():
-            results[key] = json.loads(path.read_text())["result"]
+    results = {} if fresh else _read_cache(cache, dict(zip(keys, points, strict=True)))
     cached = set(results)
     todo = {k: p for k, p in zip(keys, points, strict=True) if k not in results}
 
@@ -119,7 +219,7 @@ def run_sweep(
     def store(key: str, result: dict) -> None:
         if not isinstance(result, dict):
             raise TypeError(f"{func.__qualname__} must return a dict, got {type(result).__name__}")
-        _write_atomic(cache / f"{key}.json", json.dumps({"point": todo[key], "result": result}, default=float))
+        _write_atomic(cache / f"{key}.json", _entry(key, todo[key], result))
         results[key] = result
         if bar is not None:
             bar.update(1)

@@ -11,7 +11,7 @@ from jko_cvx.cli import main
 from jko_cvx.compare import compare_solvers, problem_from_scene
 from jko_cvx.scene import default_scene, load_scene
 
-SCENES = Path(__file__).parent.parent / "studies" / "scenes"
+SCENES = Path(__file__).parent.parent / "jko_cvx" / "scenes"
 
 
 def test_comparison_table_certifies_every_row():

@@ -6,6 +6,7 @@ import signal
 import subprocess
 import sys
 import time
+import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -13,10 +14,11 @@ import pandas as pd
 import pytest
 
 from jko_cvx.reproduce.ibu import bump_positions
-from jko_cvx.scene import SceneError, default_scene, load_scene, scene_from_dict
+from jko_cvx.scene import SceneError, default_scene, load_scene, scene_from_dict, with_overrides
 from jko_cvx.simulate import simulate
+from jko_cvx.verdict import StopReason
 
-SCENES = Path(__file__).parent.parent / "studies" / "scenes"
+SCENES = Path(__file__).parent.parent / "jko_cvx" / "scenes"
 
 BASE = {
     "gamma": 1.0,
@@ -44,9 +46,12 @@ def _with(**changes):
         ({"gamma": -1.0}, "gamma must be a finite number > 0"),
         ({"colour": "red"}, r"unknown top-level key\(s\) \['colour'\]"),
         ({"v": {"L": 2.0, "n": 2}}, "v.n must be an integer >= 3"),
-        ({"time": {"dt": 0.01, "policy": "rk4"}}, r"time.policy must be one of \['cfl', 'fixed', 'halving'\]"),
+        (
+            {"time": {"dt": 0.01, "policy": "rk4"}},
+            r"time.policy must be one of \['cfl', 'fixed', 'halving', 'halving_reset'\]",
+        ),
         ({"initial": {"kind": "spline"}}, "initial.kind must be one of"),
-        ({"initial": {"kind": "gaussians", "amplitudes": [1.0], "rates": [2.0]}}, r"missing \['centres'\]"),
+        ({"initial": {"kind": "gaussians", "amplitudes": [1.0], "rates": [2.0]}}, "initial.centres is required"),
         ({"initial": {"kind": "two_bump_phase", "a": 6, "b": 6, "c": 1.5, "d": 2}}, "needs an \\[x\\] grid"),
         ({"refine": {"x": {"bumps": 1}}}, "refine.x needs an \\[x\\] grid"),
         ({"refine": {"v": {"delta0": 1.5}}}, r"refine.v.delta0 must be in \(0, 1\)"),
@@ -55,7 +60,7 @@ def _with(**changes):
         ({"output": {"times": [0.05, 0.2]}}, r"output.times must be a list of numbers in \[0, t_end = 0.1\]"),
         ({"output": {"times": 0.05}}, "output.times must be a list"),
         ({"x": {"L": 4.0, "n": 11, "conserve_moment": 1}}, "x.conserve_moment must be of type bool"),
-        ({"stop": {"spread_v": -0.1}}, "stop.spread_v must be >= 0"),
+        ({"stop": {"spread_v": -0.1}}, "stop.spread_v must be a finite number >= 0"),
     ],
 )
 def test_scene_validation_names_the_key(changes, match):
@@ -152,18 +157,24 @@ def test_step_policies():
     from jko_cvx.stepping import CFLStep, FixedStep, HalvingStep
 
     assert FixedStep(0.01).first(1e-3, None, 2.0, None) == 0.01 and FixedStep(0.01).retry(0.01) is None
-    h = HalvingStep(0.01, eps_t=0.002)
+    h = HalvingStep(0.01, eps_t=0.002, reset=True)
     assert h.retry(0.01) == 0.005 and h.retry(0.005) == 0.0025 and h.retry(0.0025) is None
+    assert h.first(1e-3, None, 2.0, None, carried=0.0025) == 0.01 and not h.exhausted(1e-9)
+    paper = HalvingStep(0.01, eps_t=0.002)  # alg:MR_JKO_ver2 as written: the halved step is kept
+    assert paper.first(1e-3, None, 2.0, None) == 0.01 and paper.first(1e-3, None, 2.0, None, carried=0.0025) == 0.0025
+    assert paper.retry(0.0025) == 0.00125 and paper.retry(0.002) is None  # no halving below eps_t
+    assert paper.exhausted(0.002) and not paper.exhausted(0.0025)
     c = CFLStep(0.05)
     assert c.first(min_dv=0.01, min_dx=0.02, L_v=4.0, L_x=4.0) == pytest.approx(0.9 * 0.01 / 4.0)
     assert c.first(min_dv=1.0, min_dx=1.0, L_v=4.0, L_x=4.0) == 0.05
 
 
-def test_halving_policy_cures_a_failing_step():
-    """alg:MR_JKO_ver2: a step too large for the solver is retried with dt/2 until it succeeds."""
+def test_halving_reset_policy_cures_a_failing_step():
+    """The "halving_reset" variant: a step too large for the solver is retried with dt/2, and the
+    next step starts again at dt0."""
     s = dataclasses.replace(
         default_scene(),
-        policy="halving",
+        policy="halving_reset",
         dt=0.05,
         eps_t=1e-4,
         t_end=0.3,
@@ -176,6 +187,37 @@ def test_halving_policy_cures_a_failing_step():
     assert not run.blowup and run.t == pytest.approx(0.3)
     fixed = simulate(dataclasses.replace(s, policy="fixed"))  # the same scene without halving fails
     assert fixed.blowup and fixed.verdict["e_f"] and "collision solver failed" in fixed.verdict["reason"]
+    assert fixed.verdict.stop is StopReason.SOLVER_FAILURE and not run.verdict.e_f
+    # T_b of a solver-failure stop is the end of the failing step (alg:MR_JKO_ver2 adds dt first)
+    d = fixed.diagnostics
+    assert fixed.verdict["T_b"] == pytest.approx(d.t.iloc[-1] + 0.05) and fixed.t == pytest.approx(d.t.iloc[-1])
+    # the retries column counts the failed attempts before each accepted step
+    r = run.diagnostics
+    assert np.array_equal(r.retries.to_numpy()[1:-1], np.round(np.log2(0.05 / r.dt.to_numpy()[1:-1])).astype(int))
+
+
+def test_halving_as_written_carries_the_halved_step_and_ends_on_eps_t():
+    """alg:MR_JKO_ver2 as written: dt = dt0 once, halved while the solve fails, never grown again;
+    the loop ends after the first accepted step <= eps_t (StopReason.EPS_T, counted as e_f)."""
+    s = dataclasses.replace(
+        default_scene(),
+        policy="halving",
+        dt=0.05,
+        eps_t=0.05 / 2**3 * 1.01,  # the third halving reaches it
+        t_end=2.0,
+        stop_on_solver_failure=True,
+        options={"max_iter": 5},  # a small budget: some full steps fail, more as f concentrates
+    )
+    run = simulate(s)
+    d = run.diagnostics
+    dt = d.dt.to_numpy()[1:]
+    assert np.all(np.diff(dt) <= 0), "the step never grows again"
+    assert set(np.round(np.log2(0.05 / dt)).astype(int)) <= {0, 1, 2, 3}
+    assert np.allclose(dt, 0.05 / 2.0 ** d.retries.cumsum().to_numpy()[1:]), "each retry halves the carried step"
+    assert run.verdict.stop is StopReason.EPS_T and run.verdict["e_f"] and run.verdict["B_v"]
+    assert dt[-1] <= s.eps_t < dt[-2] and run.verdict["T_b"] == pytest.approx(run.t)
+    reset = simulate(dataclasses.replace(s, policy="halving_reset"))  # the variant never stops on eps_t
+    assert reset.verdict.stop is not StopReason.EPS_T
 
 
 @pytest.mark.slow
@@ -225,6 +267,29 @@ def test_the_density_stopping_rule_stops_at_the_first_step_below_its_threshold()
     first = int(np.argmax(spread < threshold))
     assert 0 < first < spread.size - 1
     stopped = simulate(dataclasses.replace(base, spread_v=threshold))
-    assert stopped.blowup and stopped.verdict["B_v"] and "spread_v" in stopped.verdict["reason"]
+    assert stopped.blowup and stopped.verdict["B_v"] and stopped.verdict.stop is StopReason.SPREAD_V
     assert stopped.verdict["T_b"] == free.diagnostics["t"].iloc[first]
     pd.testing.assert_frame_equal(stopped.diagnostics, free.diagnostics.iloc[: first + 1], check_exact=True)
+
+
+def test_refine_v_conserve_energy_reaches_the_remap(monkeypatch):
+    """refine.v.conserve_energy is passed to the v-remap (restore_three_moments); refine.x refuses it."""
+    import jko_cvx.simulate as sim
+
+    seen = []
+    real = sim.remap
+
+    def spy(*args, **kwargs):
+        seen.append(kwargs.get("conserve_energy"))
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(sim, "remap", spy)
+    s = default_scene()
+    for flag in (True, False):
+        seen.clear()
+        simulate(dataclasses.replace(s, t_end=0.03, refine_v=dataclasses.replace(s.refine_v, conserve_energy=flag)))
+        assert seen and set(seen) == {flag}
+    doc = tomllib.loads((SCENES / "inhom_gamma3_lambda4.toml").read_text())
+    assert scene_from_dict(with_overrides(doc, {"refine.v.conserve_energy": True})).refine_v.conserve_energy
+    with pytest.raises(SceneError, match=r"refine\.x\.conserve_energy"):
+        scene_from_dict(with_overrides(doc, {"refine.x.conserve_energy": True}))

@@ -18,7 +18,7 @@ from jko_cvx.testing import random_problem
 
 from .test_engine import BASE
 
-SCENES = Path(__file__).parent.parent / "studies" / "scenes"
+SCENES = Path(__file__).parent.parent / "jko_cvx" / "scenes"
 
 
 def _constrained(prob: CollisionProblem) -> CollisionProblem:

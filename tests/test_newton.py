@@ -197,8 +197,8 @@ def test_vacuum_tail_jam_is_resolved_by_interior_damping():
     results = [
         solve_newton(P),
         solve_newton(batch),
-        _solve_single(P, 1e-10, 100, None, "explicit", True, t0, damping=True, jam_exit=False),
-        _solve_batched(batch, 1e-10, 100, None, "explicit", True, t0, damping=True, jam_exit=False),
+        _solve_single(P, 1e-10, 1e-10, 100, None, "explicit", True, t0, damping=True, jam_exit=False),
+        _solve_batched(batch, 1e-10, 1e-10, 100, None, "explicit", True, t0, damping=True, jam_exit=False),
     ]
     for res in results:
         assert np.all(res.status == Status.CONVERGED), res.status

@@ -116,3 +116,74 @@ def test_periodic_remap_can_keep_each_lines_first_moment():
     assert np.abs(moment(new, plain) / moment(old, f) - 1)[:2].max() > 1e-5  # PCHIP alone does not
     assert np.all(kept > 0)
     assert np.abs(kept - plain).max() < 0.05
+
+
+@pytest.mark.parametrize(
+    "r1, r2, delta, kind",
+    [
+        (2.0, 3.5, 0.5, "quintic"),  # (r2 - r1)/delta = 3 < L: the paper's a3 s^5 + b3 s (concave down here)
+        (1.8, 2.2, 0.5, "quintic"),  # 0.8 < L
+        (0.3, 2.4, 0.5, "quintic"),  # 4.2 >= L: the paper's logistic cannot join (2.4 -> 4): fallback
+    ],
+)
+def test_two_bump_outer_piece_follows_the_papers_test(r1, r2, delta, kind):
+    """``mu2``: the outer piece is a3 s^5 + b3 s iff (r2 - r1)/delta < L (``eqn mu2``), not by slopes."""
+    L = 4.0
+    mu = TwoBumpMap(L, r1, r2, delta)
+    assert mu.outer_kind == kind
+    _check_map(mu, L, delta, inside=lambda v: (np.abs(v) >= r1 - 1e-12) & (np.abs(v) <= r2 + 1e-12))
+    s2 = 0.5 + delta / 2
+    assert mu(s2) == pytest.approx(r2) and mu(s2 + 1e-10) == pytest.approx(r2, abs=1e-8)
+
+
+def test_two_bump_outer_logistic_where_the_paper_asks_for_it():
+    # (r2 - r1)/delta = 4.2 >= L = 4 and L/r2 = 1.05 within the logistic's range (1.083 at s2 = 0.75)
+    mu = TwoBumpMap(4.0, 1.7, 3.8, 0.5)
+    assert mu.outer_kind == "logistic"
+    assert np.all(np.diff(mu(S)) > 0)
+
+
+def test_energy_restoring_remap_keeps_mass_momentum_second_moment_and_positivity():
+    old = OneBumpMap(4.0, 0.05, 0.5).grid(61)  # coarse outer piece: PCHIP changes the energy there
+    v = old.points
+    f = np.stack([np.exp(-40 * (v - 0.3) ** 2) + 1e-10, np.exp(-3 * (v + 1) ** 2) + 0.2 * np.exp(-30 * (v - 2) ** 2)])
+    new = Grid.uniform(-4, 4, 61)
+
+    def moments(grid, g):
+        return np.stack([g @ (grid.points**p * grid.h) for p in (0, 1, 2)], axis=-1)
+
+    plain = remap(old, f, new, conserve_momentum=True)
+    assert np.abs(moments(new, plain)[:, 2] / moments(old, f)[:, 2] - 1).max() > 1e-6  # the defect
+    g = remap(old, f, new, conserve_energy=True)
+    assert np.all(g > 0)
+    np.testing.assert_allclose(moments(new, g), moments(old, f), rtol=1e-12, atol=1e-14)
+    assert np.abs(g - plain).max() < 0.05 * f.max()  # a small correction of the interpolant
+
+
+def test_three_moment_tilt_reports_an_unreachable_target():
+    from jko_cvx.conservation import restore_three_moments
+
+    g = Grid.uniform(-1, 1, 21)
+    f = np.exp(-g.points**2)
+    # a second moment above L^2 M cannot be reached on [-1, 1]
+    out, ok = restore_three_moments(f[None], g.h, g.points, f @ g.h, 0.0, 2 * f @ g.h)
+    assert not ok[0]
+    assert out[0] @ g.h == pytest.approx(f @ g.h)
+
+
+def test_quadrant_set_is_the_papers_and_empty_for_the_two_bump_phase_datum():
+    from jko_cvx.refine import quadrant_set
+
+    x = np.linspace(-4, 4, 81)
+    v = np.linspace(-4, 4, 81)
+    X, V = np.meshgrid(x, v, indexing="ij")
+    # eqn:f0-like: bumps at (x, v) = (-1.5, 2) and (1.5, -2): nothing in x > 0, v > 0
+    f = np.exp(-6 * (X + 1.5) ** 2 - 6 * (V - 2) ** 2) + np.exp(-6 * (X - 1.5) ** 2 - 6 * (V + 2) ** 2)
+    assert quadrant_set(x, v, f, 0.5) is None
+    g = np.exp(-6 * (X - 1) ** 2 - 6 * (V - 2) ** 2)
+    (x1, x2), (v1, v2) = quadrant_set(x, v, g, 0.5)
+    half = np.sqrt(np.log(2) / 6)
+    assert x1 == pytest.approx(1 - half, abs=0.1) and x2 == pytest.approx(1 + half, abs=0.1)
+    assert v1 == pytest.approx(2 - half, abs=0.1) and v2 == pytest.approx(2 + half, abs=0.1)
+    with pytest.raises(ValueError, match="f_star must have shape"):
+        quadrant_set(x, v, g[:, :-1], 0.5)

@@ -20,7 +20,7 @@ from jko_cvx.reproduce.blowup_tables import TAB_BU_BETA, TAB_BU_TB2_BETA, blowup
 from jko_cvx.reproduce.ibu import ibu_scene
 from jko_cvx.scene import load_scene
 
-SCENES = Path(__file__).parent.parent / "studies" / "scenes"
+SCENES = Path(__file__).parent.parent / "jko_cvx" / "scenes"
 
 
 @pytest.mark.parametrize("data, eps_v", [("g1", 2.5e-4), ("g2", 2.5e-4), ("g3", 2.5e-4), ("g4", 1.25e-4)])

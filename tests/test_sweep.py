@@ -66,3 +66,91 @@ def test_sweep_validates_its_arguments(tmp_path):
         run_sweep(blowup_time, POINTS, tmp_path, executor="threads")
     with pytest.raises(ValueError, match="workers must be an integer >= 1"):
         run_sweep(blowup_time, POINTS, tmp_path, workers=0)
+
+
+# --- the cache cannot serve stale results -------------------------------------------------
+
+_MODULE = '''
+def double(a):
+    return {{"y": a * {factor}}}
+
+
+def triple(a):
+    return {{"y": a * 3}}
+'''
+
+
+def _point_module(path, name, factor):
+    """Write and import a module of point functions (a fresh module object each time)."""
+    import importlib.util
+
+    file = path / f"{name}.py"
+    file.write_text(_MODULE.format(factor=factor))
+    spec = importlib.util.spec_from_file_location(name, file)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[name] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_changed_point_function_is_recomputed(tmp_path):
+    points = [{"a": 1.0}, {"a": 2.0}]
+    original = _point_module(tmp_path, "pts_changed", "2")
+    first = run_sweep(original.double, points, tmp_path / "c", "serial", progress=False)
+    assert list(first.y) == [2.0, 4.0]
+    edited = _point_module(tmp_path, "pts_changed", "2 + 100")  # same name and point, new code
+    again = run_sweep(edited.double, points, tmp_path / "c", "serial", progress=False)
+    assert not again.cached.any() and list(again.y) == [102.0, 104.0]
+    assert run_sweep(edited.double, points, tmp_path / "c", "serial", progress=False).cached.all()
+
+
+def test_two_functions_at_one_point_have_distinct_keys(tmp_path):
+    mod = _point_module(tmp_path, "pts_two", "2")
+    assert point_key(mod.double, {"a": 1.0}) != point_key(mod.triple, {"a": 1.0})
+    both = [run_sweep(f, [{"a": 1.0}], tmp_path / "c", "serial", progress=False) for f in (mod.double, mod.triple)]
+    assert [b.y.iloc[0] for b in both] == [2.0, 3.0] and not both[1].cached.any()
+
+
+def test_key_covers_package_code_and_version(tmp_path, monkeypatch):
+    import jko_cvx
+    import jko_cvx.sweep as sweep
+
+    mod = _point_module(tmp_path, "pts_pkg", "2")
+    key = point_key(mod.double, {"a": 1.0})
+    monkeypatch.setattr(sweep, "_package_hash", lambda: "another package source")
+    assert point_key(mod.double, {"a": 1.0}) != key
+    monkeypatch.undo()
+    monkeypatch.setattr(jko_cvx, "__version__", "9.9.9")
+    assert point_key(mod.double, {"a": 1.0}) != key
+
+
+@pytest.mark.parametrize(
+    "damage, reason",
+    [
+        (lambda text: text.replace('"y": 2.0', '"y": 5.0'), "fails its digest"),
+        (lambda text: text[: len(text) // 2], "does not parse"),
+        (lambda text: "", "does not parse"),
+        (lambda text: json.dumps({**json.loads(text), "key": "0" * 32}), "records another key"),
+        (lambda text: json.dumps({**json.loads(text), "point": {"a": 7.0}}), "records another point"),
+    ],
+)
+def test_damaged_entry_is_recomputed_with_a_warning_naming_the_file(tmp_path, damage, reason):
+    from jko_cvx.sweep import StaleCacheWarning
+
+    mod = _point_module(tmp_path, "pts_damaged", "2")
+    run_sweep(mod.double, [{"a": 1.0}], tmp_path / "c", "serial", progress=False)
+    entry = tmp_path / "c" / f"{point_key(mod.double, {'a': 1.0})}.json"
+    entry.write_text(damage(entry.read_text()))
+    with pytest.warns(StaleCacheWarning, match=rf"{entry.name}.*{reason}"):
+        again = run_sweep(mod.double, [{"a": 1.0}], tmp_path / "c", "serial", progress=False)
+    assert not again.cached.any() and again.y.iloc[0] == 2.0
+    assert run_sweep(mod.double, [{"a": 1.0}], tmp_path / "c", "serial", progress=False).cached.all()  # repaired
+
+
+def test_fresh_recomputes_every_point(tmp_path):
+    mod = _point_module(tmp_path, "pts_fresh", "2")
+    run_sweep(mod.double, [{"a": 1.0}, {"a": 2.0}], tmp_path / "c", "serial", progress=False)
+    again = run_sweep(mod.double, [{"a": 1.0}, {"a": 2.0}], tmp_path / "c", "serial", progress=False, fresh=True)
+    assert not again.cached.any() and list(again.y) == [2.0, 4.0]
+    with pytest.raises(TypeError, match="fresh must be a bool"):
+        run_sweep(mod.double, [{"a": 1.0}], tmp_path / "c", "serial", progress=False, fresh="yes")

@@ -28,8 +28,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from ..collision import CollisionProblem, solve_collision
-from ..collision.conic import _MODEL_CACHE
+from ..collision import CollisionProblem, Status, solve_collision
+from ..collision.conic import clear_model_cache
 from ..grid import Grid
 from ..kernels import PowerKernel
 
@@ -68,7 +68,7 @@ def _step_rows(quick: bool, repeats: int) -> list[dict[str, Any]]:
                     continue
                 compile_s = np.nan
                 if method == "conic":
-                    _MODEL_CACHE.clear()
+                    clear_model_cache()
                     first = solve_collision(prob, method)
                     compile_s = float(first.info.get("compile_seconds", np.nan))
                 secs, res = _median_time(lambda m=method, p=prob: solve_collision(p, m), repeats)
@@ -116,7 +116,7 @@ def _batch_rows(quick: bool, repeats: int) -> list[dict[str, Any]]:
                 "batched_s": t_batch,
                 "one_at_a_time_s": t_loop,
                 "speedup": t_loop / t_batch,
-                "converged": int(sum(st.name == "CONVERGED" for st in res.status)),
+                "converged": int(sum(st is Status.CONVERGED for st in res.status)),
                 "max_kkt": float(np.max(res.kkt_residual)),  # NOT_CERTIFIED slices stall just above 1e-8
             }
         )

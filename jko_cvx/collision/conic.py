@@ -30,30 +30,57 @@ The energy enters through the difference-of-convex split of :mod:`jko_cvx.kernel
 current iterate inside :math:`\\ell` (convex-concave procedure).  Every fixed point is a
 KKT point of the full problem.  All data enter as CVXPY Parameters (the model is DPP), so the model is compiled
 once per (N, Fisher on/off, rank of :math:`P_+`, solver) and re-solved thereafter.
+
+Every solve starts cold (``warm_start=False``: CVXPY would otherwise hand the solver the
+previous solve's iterate or workspace, so the answer would depend on what was solved
+before), and the whole solve is bounded in time (``time_limit``).  The solve is split
+into phases: options checked once (:class:`ConicOptions`), the model built or fetched
+(:func:`_build_model`), its parameters filled (:func:`_fill`), the convex-concave loop
+(:func:`_dc_loop`, raw solver statuses mapped by one table), and the certificate
+(:func:`~jko_cvx.collision.certify.certify`).  CVXPY is imported on first use.
 """
 
 from __future__ import annotations
 
 import time
 import warnings
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from numbers import Real
 from typing import Any
 
-import cvxpy as cp
 import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
+from .certify import certify
+from .checks import check_bool, check_choice, check_int, check_options_dict, check_unit
+from .explicit import explicit_step
 from .problem import CollisionProblem
 from .result import CollisionResult, Status
 
-__all__ = ["ConicModel", "conic_solvers", "solve_conic"]
+__all__ = ["ConicModel", "ConicOptions", "clear_model_cache", "conic_solvers", "model_cache_size", "solve_conic"]
 
 _ENERGY_MODES = ("dc", "linearized")
+_FISHER_CONES = ("auto", "centred", "raw")
+_DC_SPLITS = ("eigen", "diagonal")
+# "auto" centres the Fisher cone when the step is this small against the data.
+_CENTRE_BELOW = 1e-4
+# Default bound on one conic solve, all convex-concave passes together (seconds).  SCS
+# inside the loop had no bound at all: one call ran for more than 15 minutes.
+_TIME_LIMIT = 120.0
+
+
+def _cvxpy():
+    """CVXPY, imported on first use (``import jko_cvx`` must not pay for it)."""
+    import cvxpy
+
+    return cvxpy
 
 
 def conic_solvers() -> list[str]:
     """Installed CVXPY solvers that accept second-order cones (Clarabel first)."""
+    cp = _cvxpy()
     from cvxpy.reductions.solvers.defines import INSTALLED_CONIC_SOLVERS, SOLVER_MAP_CONIC
 
     out = []
@@ -64,8 +91,8 @@ def conic_solvers() -> list[str]:
     return sorted(out, key=lambda s: (s != "CLARABEL", s))
 
 
-def _tolerance_options(solver: str, tol: float) -> dict[str, Any]:
-    """Map one relative tolerance onto the named solver's settings.
+def _solver_settings(solver: str, tol: float, seconds: float) -> dict[str, Any]:
+    """Map one relative tolerance and a time budget onto the named solver's settings.
 
     Clarabel's primal residual stalls near 1e-10 on these models (O(1) densities sit in
     the cone offsets next to O(dt) unknowns), which turns tight feasibility tolerances
@@ -74,31 +101,104 @@ def _tolerance_options(solver: str, tol: float) -> dict[str, Any]:
     """
     if solver == "CLARABEL":
         feas = max(tol, 1e-8)
-        return {"tol_gap_abs": tol, "tol_gap_rel": tol, "tol_feas": feas, "tol_ktratio": min(1e-6, feas)}
+        return {
+            "tol_gap_abs": tol,
+            "tol_gap_rel": tol,
+            "tol_feas": feas,
+            "tol_ktratio": min(1e-6, feas),
+            "time_limit": seconds,
+        }
     if solver == "SCS":
-        return {"eps_abs": tol, "eps_rel": tol}
+        return {"eps_abs": tol, "eps_rel": tol, "time_limit_secs": seconds}
     if solver == "ECOS":
         return {"abstol": tol, "reltol": tol, "feastol": tol}
     if solver == "MOSEK":
-        return {"mosek_params": {"MSK_DPAR_INTPNT_CO_TOL_REL_GAP": tol, "MSK_DPAR_INTPNT_CO_TOL_PFEAS": tol}}
+        return {
+            "mosek_params": {
+                "MSK_DPAR_INTPNT_CO_TOL_REL_GAP": tol,
+                "MSK_DPAR_INTPNT_CO_TOL_PFEAS": tol,
+                "MSK_DPAR_OPTIMIZER_MAX_TIME": seconds,
+            }
+        }
     return {}
+
+
+@dataclass(frozen=True)
+class ConicOptions:
+    """The options of :func:`solve_conic`, checked once (see its docstring for each)."""
+
+    solver: str = "CLARABEL"
+    tol: float = 1e-10
+    energy: str = "dc"
+    dc_split: str = "eigen"
+    fisher_cone: str = "auto"
+    max_passes: int = 50
+    dc_tol: float = 1e-4
+    kkt_tol: float = 1e-6
+    solver_options: dict[str, Any] | None = None
+    check_convexity: bool = True
+    verbose: bool = False
+    time_limit: float = _TIME_LIMIT
+
+    @classmethod
+    def checked(cls, problem: CollisionProblem, dc_tol: float | None, **options: Any) -> ConicOptions:
+        """Options validated against ``problem``; a ``ValueError``/``TypeError`` names the bad one."""
+        if problem.batched:
+            raise ValueError("method='conic' solves one problem at a time; pass problem.slice(i)")
+        if problem.fisher == "log":
+            raise ValueError(
+                'fisher="log" is not conic-representable; use fisher="perspective" for method="conic" '
+                '(or method="sqp"/"newton" for the log form)'
+            )
+        solver = options["solver"]
+        if not isinstance(solver, str) or solver.upper() not in conic_solvers():
+            raise ValueError(f"solver must be one of the installed conic solvers {conic_solvers()}, got {solver!r}")
+        if solver != solver.upper():
+            raise ValueError(f"solver names are upper case as in CVXPY, e.g. {solver.upper()!r}; got {solver!r}")
+        tol = check_unit("tol", options["tol"])
+        if dc_tol is None:  # the solver resolves f to about sqrt(tol): a tighter threshold chases noise
+            dc_tol = min(1e-2, 10 * tol**0.5)
+        limit = options["time_limit"]
+        if isinstance(limit, (bool, np.bool_)) or not isinstance(limit, Real) or not 0 < limit < np.inf:
+            raise ValueError(f"time_limit must be a finite number of seconds > 0, got {limit!r}")
+        return cls(
+            solver=solver,
+            tol=tol,
+            energy=check_choice("energy", options["energy"], _ENERGY_MODES),
+            dc_split=check_choice("dc_split", options["dc_split"], _DC_SPLITS),
+            fisher_cone=check_choice("fisher_cone", options["fisher_cone"], _FISHER_CONES),
+            max_passes=check_int("max_passes", options["max_passes"]),
+            dc_tol=check_unit("dc_tol", dc_tol),
+            kkt_tol=check_unit("kkt_tol", options["kkt_tol"]),
+            solver_options=check_options_dict("solver_options", options["solver_options"]),
+            check_convexity=check_bool("check_convexity", options["check_convexity"]),
+            verbose=check_bool("verbose", options["verbose"]),
+            time_limit=float(limit),
+        )
 
 
 @dataclass
 class ConicModel:
     """A compiled, parameterised CVXPY model of the collision step."""
 
-    problem: cp.Problem
-    params: dict[str, cp.Parameter]
-    delta: cp.Variable
-    m_hat: cp.Variable
+    problem: Any  # cvxpy.Problem
+    params: dict[str, Any]  # name -> cvxpy.Parameter
+    delta: Any  # cvxpy.Variable
+    m_hat: Any  # cvxpy.Variable
     compile_seconds: float
 
 
 _MODEL_CACHE: dict[tuple, ConicModel] = {}
-_FISHER_CONES = ("auto", "centred", "raw")
-# "auto" centres the Fisher cone when the step is this small against the data.
-_CENTRE_BELOW = 1e-4
+
+
+def clear_model_cache() -> None:
+    """Forget every compiled model (the next solve of each structure compiles again)."""
+    _MODEL_CACHE.clear()
+
+
+def model_cache_size() -> int:
+    """Number of compiled models held (one per N, Fisher form, split and solver)."""
+    return len(_MODEL_CACHE)
 
 
 def _build_model(
@@ -109,6 +209,7 @@ def _build_model(
     model = _MODEL_CACHE.get(key)
     if model is not None:
         return model, False
+    cp = _cvxpy()
     p = {
         "f_star": cp.Parameter(n, name="f_star"),
         "h": cp.Parameter(n, nonneg=True, name="h"),
@@ -168,30 +269,224 @@ def _build_model(
 def _flux_scale(problem: CollisionProblem) -> tuple[float, float]:
     """(mu, varsigma): size of the explicit step's flux and of its Wasserstein cost.
 
-    The explicit step is the first SQP step from ``(f*, 0)`` (one tridiagonal solve):
-    it includes the Fisher-driven flux, which dominates for rough data.  It is capped
+    The explicit step (:func:`~jko_cvx.collision.explicit.explicit_step`, one tridiagonal
+    solve) includes the Fisher-driven flux, which dominates for rough data.  It is capped
     at a quarter of the mass, the largest flux a feasible point can carry.
     """
-    from .sqp import _qp_step_banded
-
-    f, m = problem.initial_point()
-    gf, gm = problem.gradient(f, m)
+    f = problem.f_star
+    # NumPy scalars throughout: data at the edge of the floating-point range give inf or 0
+    # here (caught by _fill), never a Python OverflowError or ZeroDivisionError.
     with np.errstate(all="ignore"):
-        _, pm = _qp_step_banded(problem, f, m, gf, gm)
-    mu = float(np.abs(pm).max()) if np.all(np.isfinite(pm)) else np.nan
-    if not np.isfinite(mu) or mu <= 0:
-        mu, pm = problem.dt * float(problem.mass), np.zeros_like(m)
-    # No feasible flux exceeds the mass (|m_k| = |sum_{j<=k} h_j (f_j - f*_j)| <= M); for
-    # large dt the explicit step overshoots the implicit one by orders of magnitude.
-    cap = 0.25 * float(problem.mass)
-    if mu > cap:
-        pm, mu = pm * (cap / mu), cap
-    s = f[:-1] + f[1:]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        cost = float(np.sum(np.where(s > 0, problem.wass_coef * pm**2 / s, 0.0)))
-    if not np.isfinite(cost) or cost <= 0:
-        cost = mu**2 * float(problem.grid.dv.sum()) / max(float(f.max()), 1e-300)
-    return mu, cost
+        _, pm = explicit_step(problem)
+        mu = np.abs(pm).max() if np.all(np.isfinite(pm)) else np.float64(np.nan)
+        if not np.isfinite(mu) or mu <= 0:
+            mu, pm = np.float64(problem.dt) * problem.mass, np.zeros(problem.n - 1)
+        # No feasible flux exceeds the mass (|m_k| = |sum_{j<=k} h_j (f_j - f*_j)| <= M); for
+        # large dt the explicit step overshoots the implicit one by orders of magnitude.
+        cap = 0.25 * np.float64(problem.mass)
+        if mu > cap:
+            pm, mu = pm * (cap / mu), cap
+        s = f[:-1] + f[1:]
+        cost = np.sum(np.where(s > 0, problem.wass_coef * pm**2 / np.where(s > 0, s, 1.0), 0.0))
+        if not np.isfinite(cost) or cost <= 0:
+            cost = mu**2 * problem.grid.dv.sum() / np.maximum(f.max(), 1e-300)
+    return float(mu), float(cost)
+
+
+@dataclass
+class _Filled:
+    """A model with its parameters filled for one problem, and what the loop needs."""
+
+    model: ConicModel
+    compiled_now: bool
+    mu: float
+    varsigma: float
+    grad_star: NDArray[np.float64]  # linear part at f* (energy, plus Fisher for the centred cone)
+    concave: Callable[[NDArray], NDArray] | None  # gradient of the linearised concave part, or None
+    fisher_cone: str | None
+
+
+def _fill(problem: CollisionProblem, opts: ConicOptions, fisher_cone: str) -> _Filled | None:
+    """Fetch the model and fill its parameters; None where the data's scale gives non-finite values."""
+    split = problem.energy.split()
+    linearized = opts.energy == "linearized"
+    rho = split.rho if opts.dc_split == "diagonal" else 0.0  # convex part: exact, or rho*|delta|^2
+    diagonal = opts.dc_split == "diagonal" and rho > 0 and not linearized
+    r_plus = 0 if (linearized or diagonal) else split.P_plus.shape[0]
+    has_concave = not linearized and (split.P_minus.shape[0] > 0 or diagonal)
+    mu, varsigma = (np.float64(x) for x in _flux_scale(problem))
+    with_fisher = problem.fisher is not None
+    centred = with_fisher and fisher_cone == "centred"
+    ec, fs = problem.energy_coef, problem.f_star
+    values: dict[str, Any] = {"f_star": fs, "h": problem.grid.h, "mu": float(mu)}
+    with np.errstate(all="ignore"):
+        values["wass"] = problem.wass_coef * mu**2 / varsigma
+        if problem.conserve_momentum:
+            values["dv"] = problem.grid.dv / problem.grid.dv.max()
+        if centred:
+            s_star, d_star = fs[:-1] + fs[1:], fs[1:] - fs[:-1]
+            values["ratio"] = np.divide(d_star, s_star, out=np.zeros_like(s_star), where=s_star > 0)
+        if with_fisher:
+            values["fisher"] = 2 * problem.fisher_coef * (mu**2 if centred else 1.0) / varsigma
+        if r_plus:
+            values["P_plus"] = np.sqrt(ec / varsigma) * mu * split.P_plus
+        if diagonal:
+            values["rho"] = ec * rho * mu**2 / varsigma
+        # Linear part at f*: the energy gradient and the Fisher gradient (see the centred cone).
+        parts = problem.gradient_parts(*problem.initial_point())
+        grad_star = parts.energy[0] + parts.fisher[0] if centred else parts.energy[0]
+        scales = np.array([mu, varsigma, mu * mu / varsigma])
+        finite = np.all(np.isfinite(scales)) and np.all(scales > 0) and np.all(np.isfinite(grad_star * mu / varsigma))
+    if not (finite and all(np.all(np.isfinite(v)) for v in values.values())):
+        return None  # f* at the edge of the floating-point range (e.g. of order 1e-320): no O(1) scaling
+    model, compiled_now = _build_model(
+        problem.n, with_fisher, centred, r_plus, diagonal, opts.solver, problem.conserve_momentum
+    )
+    for name, value in values.items():
+        model.params[name].value = value
+
+    def concave(d: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Gradient (in f units) of the concave part -d'(K_c)d at mu*d, K_c = rho I - K~ or K~_-."""
+        x = mu * d
+        if diagonal:
+            kt = split.P_plus.T @ (split.P_plus @ x) - split.concave_matvec(x)
+            return -2 * ec * (rho * x - kt)
+        return -2 * ec * split.concave_matvec(x)
+
+    cone = ("centred" if centred else "raw") if with_fisher else None
+    return _Filled(model, compiled_now, mu, varsigma, grad_star, concave if has_concave else None, cone)
+
+
+@dataclass
+class _Loop:
+    """Outcome of the convex-concave loop."""
+
+    delta: NDArray[np.float64]
+    claimed: Status
+    raw_status: str | None = None
+    passes: int = 0
+    ipm_iterations: int = 0
+    solver_seconds: float = 0.0
+    last_move: float = np.inf
+
+
+def _raw_to_status(raw: str) -> Status | None:
+    """CVXPY's status of one pass as a package status; None where the loop goes on."""
+    cp = _cvxpy()
+    table = {
+        cp.OPTIMAL: None,
+        cp.OPTIMAL_INACCURATE: None,  # judged after the loop (INACCURATE, never hidden)
+        cp.INFEASIBLE: Status.INFEASIBLE,
+        cp.UNBOUNDED: Status.INFEASIBLE,
+        cp.INFEASIBLE_INACCURATE: Status.INFEASIBLE,
+        cp.UNBOUNDED_INACCURATE: Status.INFEASIBLE,
+        cp.USER_LIMIT: Status.TIME_LIMIT,  # Clarabel MaxTime / MaxIterations, SCS time limit
+    }
+    return table.get(raw, Status.SOLVER_ERROR)
+
+
+def _dc_loop(problem: CollisionProblem, filled: _Filled, opts: ConicOptions, t_start: float) -> _Loop:
+    """Convex-concave passes: one conic solve each, until the iterate moves less than ``dc_tol``."""
+    cp = _cvxpy()
+    model, mu, varsigma = filled.model, filled.mu, filled.varsigma
+    loop = _Loop(np.zeros(problem.n), Status.MAX_ITERATIONS)
+    while loop.passes < opts.max_passes:
+        left = opts.time_limit - (time.perf_counter() - t_start)
+        if left <= 0:
+            loop.claimed = Status.TIME_LIMIT
+            break
+        lin = filled.grad_star if filled.concave is None else filled.grad_star + filled.concave(loop.delta)
+        model.params["lin"].value = lin * mu / varsigma
+        settings = {**_solver_settings(opts.solver, opts.tol, left), **opts.solver_options}
+        try:
+            with warnings.catch_warnings():
+                # CVXPY warns "Solution may be inaccurate"; the status says it (INACCURATE).
+                warnings.filterwarnings("ignore", message="Solution may be inaccurate")
+                model.problem.solve(solver=opts.solver, verbose=opts.verbose, warm_start=False, **settings)
+        except cp.error.SolverError:
+            loop.claimed, loop.raw_status = Status.SOLVER_ERROR, "SolverError"
+            break
+        loop.passes += 1
+        loop.raw_status = model.problem.status
+        stats = model.problem.solver_stats
+        loop.ipm_iterations += int(getattr(stats, "num_iters", 0) or 0)
+        loop.solver_seconds += float(getattr(stats, "solve_time", 0.0) or 0.0)
+        failed = _raw_to_status(loop.raw_status)
+        if failed is None and model.delta.value is None:
+            failed = Status.SOLVER_ERROR
+        if failed is not None:
+            loop.claimed = failed
+            break
+        new = np.asarray(model.delta.value, dtype=float)
+        if not np.all(np.isfinite(new)):
+            loop.claimed = Status.NUMERICAL_ERROR
+            break
+        loop.last_move = float(np.abs(new - loop.delta).max())
+        loop.delta = new
+        if filled.concave is None or loop.last_move <= opts.dc_tol:
+            loop.claimed = Status.CONVERGED
+            break
+    return loop
+
+
+def _finish(
+    problem: CollisionProblem, filled: _Filled | None, loop: _Loop, opts: ConicOptions, t_start: float
+) -> CollisionResult:
+    """Project the loop's point onto the constraint and certify it."""
+    usable = filled is not None and loop.claimed not in (Status.SOLVER_ERROR, Status.NUMERICAL_ERROR)
+    with np.errstate(all="ignore"):
+        f_raw = problem.f_star + filled.mu * loop.delta if usable else problem.f_star.copy()
+        f, m = problem.project_feasible(f_raw)
+    claimed = loop.claimed
+    if claimed is Status.CONVERGED and loop.raw_status == _cvxpy().OPTIMAL_INACCURATE:
+        claimed = Status.INACCURATE
+    elif claimed is Status.CONVERGED and opts.energy == "linearized":
+        claimed = Status.LINEARIZED
+    cert = certify(problem, f, m, kkt_tol=opts.kkt_tol, check_convexity=opts.check_convexity, claimed=claimed)
+    compile_s = filled.model.compile_seconds if filled is not None else 0.0
+    info = {
+        "compiled_now": filled is not None and filled.compiled_now,
+        "fisher_cone": None if filled is None else filled.fisher_cone,
+        "passes": loop.passes,
+        "solver": opts.solver,
+        "solver_status": loop.raw_status,
+        "last_move": loop.last_move,
+        "compile_seconds": compile_s,
+        "solver_seconds": loop.solver_seconds,
+        "kkt": cert.kkt,
+    }
+    seconds = time.perf_counter() - t_start - (compile_s if info["compiled_now"] else 0.0)
+    return CollisionResult.from_certificate(problem, f, m, cert, "conic", loop.ipm_iterations, seconds, info)
+
+
+def _solve_form(problem: CollisionProblem, opts: ConicOptions, fisher_cone: str) -> CollisionResult:
+    """One conic solve with the Fisher cone in the given form."""
+    t_start = time.perf_counter()
+    filled = _fill(problem, opts, fisher_cone)
+    if filled is None:
+        return _finish(problem, None, _Loop(np.zeros(problem.n), Status.NUMERICAL_ERROR), opts, t_start)
+    loop = _dc_loop(problem, filled, opts, t_start)
+    return _finish(problem, filled, loop, opts, t_start)
+
+
+def _solve_auto(problem: CollisionProblem, opts: ConicOptions) -> CollisionResult:
+    """Neither cone form wins everywhere (measured): try the one the step size favours,
+    fall back to the other when the first is not certified, keep the better result."""
+    t_start = time.perf_counter()
+    mu, _ = _flux_scale(problem)
+    first = "centred" if mu < _CENTRE_BELOW * float(problem.f_star.max()) else "raw"
+    res = _solve_form(problem, opts, first)
+    if res.status in (Status.CONVERGED, Status.NONCONVEX, Status.LINEARIZED, Status.TIME_LIMIT):
+        return res
+    left = opts.time_limit - (time.perf_counter() - t_start)
+    if left <= 0:
+        return res
+    other = _solve_form(problem, replace(opts, time_limit=left), "raw" if first == "centred" else "centred")
+    rank = {Status.CONVERGED: 0, Status.NONCONVEX: 1}
+    best = min((res, other), key=lambda r: (rank.get(r.status, 2), r.kkt_residual))
+    best.info["fallback_from"] = first
+    best.seconds = res.seconds + other.seconds
+    return best
 
 
 def solve_conic(
@@ -208,6 +503,7 @@ def solve_conic(
     solver_options: dict[str, Any] | None = None,
     check_convexity: bool = True,
     verbose: bool = False,
+    time_limit: float = _TIME_LIMIT,
 ) -> CollisionResult:
     """Solve the collision step with CVXPY (the conic reference).
 
@@ -218,8 +514,9 @@ def solve_conic(
     solver : str, default "CLARABEL"
         Any installed CVXPY solver that accepts second-order cones (:func:`conic_solvers`).
     tol : float, default 1e-10
-        Relative tolerance passed to the solver (gap and feasibility).  The objective
-        is flat in f, so f is accurate to roughly ``sqrt(tol)`` (DESIGN.md).
+        This method's own stopping tolerance: the relative gap (and feasibility, floored
+        at 1e-8 for Clarabel) passed to the solver.  The objective is flat in f, so f is
+        accurate to roughly ``sqrt(tol)`` (DESIGN.md).
     energy : {"dc", "linearized"}, default "dc"
         ``"dc"``: convex-concave loop, one conic solve per pass, until the iterate moves
         less than ``dc_tol`` (relative to the flux scale) -- a KKT point of the full
@@ -246,196 +543,47 @@ def solve_conic(
     dc_tol : float, optional
         Stopping threshold of the convex-concave loop: the largest change of
         :math:`(f - f^*)/\\mu` between passes (:math:`\\mu` = size of the explicit-Euler
-        flux).  Default ``10 * sqrt(tol)``: the solver resolves f only to about
+        flux).  Default ``min(1e-2, 10 * sqrt(tol))``: the solver resolves f only to about
         ``sqrt(tol)``, so a tighter threshold chases noise.
     kkt_tol : float, default 1e-6
-        A converged loop is reported ``CONVERGED`` only if the scaled KKT residual of the
-        full problem is at most this; otherwise ``NOT_CERTIFIED``.
+        Certification threshold (the same for every method,
+        :func:`~jko_cvx.collision.certify.certify`): a settled loop is ``CONVERGED`` only
+        if the scaled KKT residual of the full problem is at most this, else ``NOT_CERTIFIED``.
     solver_options : dict, optional
-        Extra keyword arguments for the solver (override ``tol``).
+        Extra keyword arguments for the solver (override ``tol`` and the time limit).
     check_convexity : bool, default True
         Second-order test at a certified point: if the reduced Hessian is not positive
         definite the point is a KKT point but not a minimiser, reported ``NONCONVEX``.
     verbose : bool
         Passed to CVXPY.
+    time_limit : float, default 120
+        Wall-clock bound in seconds on the whole solve (all passes, and the fallback
+        cone form): each pass hands the solver the time left (Clarabel ``time_limit``,
+        SCS ``time_limit_secs``, MOSEK ``MSK_DPAR_OPTIMIZER_MAX_TIME``) and no pass starts
+        after it; status ``TIME_LIMIT`` when reached.
 
     Returns
     -------
     CollisionResult
         ``info`` holds ``passes``, ``solver_status`` (CVXPY's, last pass),
-        ``compile_seconds`` and ``solver_seconds``.
+        ``compile_seconds`` and ``solver_seconds``.  Every solve starts cold: the answer
+        does not depend on earlier solves.
     """
-    if dc_tol is None:
-        dc_tol = min(1e-2, 10 * float(tol) ** 0.5) if isinstance(tol, (int, float)) and tol > 0 else 1e-4
-    _check_conic_args(problem, solver, tol, energy, max_passes, dc_tol, kkt_tol)
-    if fisher_cone not in _FISHER_CONES:
-        raise ValueError(f"fisher_cone must be one of {_FISHER_CONES}, got {fisher_cone!r}")
-    if dc_split not in ("diagonal", "eigen"):
-        raise ValueError(f"dc_split must be 'diagonal' or 'eigen', got {dc_split!r}")
-    opts = {
-        "solver": solver,
-        "tol": tol,
-        "energy": energy,
-        "dc_split": dc_split,
-        "max_passes": max_passes,
-        "dc_tol": dc_tol,
-        "kkt_tol": kkt_tol,
-        "solver_options": solver_options,
-        "check_convexity": check_convexity,
-        "verbose": verbose,
-    }
-    if fisher_cone == "auto" and problem.fisher is not None:
-        # Neither cone form wins everywhere (measured): try the one the step size favours,
-        # fall back to the other when the first is not certified, keep the better result.
-        mu, _ = _flux_scale(problem)
-        first = "centred" if mu < _CENTRE_BELOW * float(problem.f_star.max()) else "raw"
-        res = solve_conic(problem, fisher_cone=first, **opts)
-        if res.status in (Status.CONVERGED, Status.NONCONVEX, Status.LINEARIZED):
-            return res
-        other = solve_conic(problem, fisher_cone="raw" if first == "centred" else "centred", **opts)
-        rank = {Status.CONVERGED: 0, Status.NONCONVEX: 1}
-        best = min((res, other), key=lambda r: (rank.get(r.status, 2), r.kkt_residual))
-        best.info["fallback_from"] = first
-        best.seconds = res.seconds + other.seconds
-        return best
-    t_start = time.perf_counter()
-    n = problem.n
-    split = problem.energy.split()
-    linearized = energy == "linearized"
-    # Convex part of the split: exact (P_+ quadratic) or a diagonal majorant rho*|delta|^2.
-    rho = split.rho if dc_split == "diagonal" else 0.0
-    diagonal = dc_split == "diagonal" and rho > 0 and not linearized
-    r_plus = 0 if (linearized or diagonal) else split.P_plus.shape[0]
-    has_concave = not linearized and (split.P_minus.shape[0] > 0 or diagonal)
-    mu, varsigma = _flux_scale(problem)
-    with_fisher = problem.fisher is not None
-    centred = with_fisher and fisher_cone == "centred"
-    model, compiled_now = _build_model(n, with_fisher, centred, r_plus, diagonal, solver, problem.conserve_momentum)
-    ec = problem.energy_coef
-    prm = model.params
-    prm["f_star"].value = problem.f_star
-    prm["h"].value = problem.grid.h
-    prm["mu"].value = mu
-    if problem.conserve_momentum:
-        prm["dv"].value = problem.grid.dv / problem.grid.dv.max()
-    prm["wass"].value = problem.wass_coef * mu**2 / varsigma
-    fs = problem.f_star
-    if centred:
-        s_star, d_star = fs[:-1] + fs[1:], fs[1:] - fs[:-1]
-        prm["ratio"].value = np.divide(d_star, s_star, out=np.zeros_like(s_star), where=s_star > 0)
-    if with_fisher:
-        prm["fisher"].value = 2 * problem.fisher_coef * (mu**2 if centred else 1.0) / varsigma
-    if r_plus:
-        prm["P_plus"].value = np.sqrt(ec / varsigma) * mu * split.P_plus
-    if diagonal:
-        prm["rho"].value = ec * rho * mu**2 / varsigma
-    # Linear part at f*: the energy gradient and the Fisher gradient (see the centred cone).
-    parts = problem.gradient_parts(*problem.initial_point())
-    grad_star = parts.energy[0] + parts.fisher[0] if centred else parts.energy[0]
-    opts = _tolerance_options(solver, tol)
-    opts.update(solver_options or {})
-
-    def concave_gradient(d: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Gradient (in f units) of the concave part -d'(K_c)d at mu*d, K_c = rho I - K~ or K~_-."""
-        x = mu * d
-        if diagonal:
-            kt = split.P_plus.T @ (split.P_plus @ x) - split.concave_matvec(x)
-            return -2 * ec * (rho * x - kt)
-        return -2 * ec * split.concave_matvec(x)
-
-    delta = np.zeros(n)
-    passes, ipm_iters, solver_seconds = 0, 0, 0.0
-    status = Status.MAX_ITERATIONS
-    raw_status: str | None = None
-    moved = np.inf
-    while passes < max_passes:
-        lin = grad_star + concave_gradient(delta) if has_concave else grad_star
-        prm["lin"].value = lin * mu / varsigma
-        try:
-            with warnings.catch_warnings():
-                # CVXPY warns "Solution may be inaccurate"; the status says it (INACCURATE).
-                warnings.filterwarnings("ignore", message="Solution may be inaccurate")
-                model.problem.solve(solver=solver, verbose=verbose, **opts)
-        except cp.error.SolverError:
-            status, raw_status = Status.SOLVER_ERROR, "SolverError"
-            break
-        passes += 1
-        raw_status = model.problem.status
-        stats = model.problem.solver_stats
-        ipm_iters += int(getattr(stats, "num_iters", 0) or 0)
-        solver_seconds += float(getattr(stats, "solve_time", 0.0) or 0.0)
-        if raw_status in (cp.INFEASIBLE, cp.UNBOUNDED, cp.INFEASIBLE_INACCURATE, cp.UNBOUNDED_INACCURATE):
-            status = Status.INFEASIBLE
-            break
-        if raw_status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE) or model.delta.value is None:
-            status = Status.SOLVER_ERROR
-            break
-        new = np.asarray(model.delta.value, dtype=float)
-        if not np.all(np.isfinite(new)):
-            status = Status.NUMERICAL_ERROR
-            break
-        moved = float(np.abs(new - delta).max())
-        delta = new
-        if not has_concave or moved <= dc_tol:
-            status = Status.CONVERGED
-            break
-
-    if model.m_hat.value is not None and status not in (Status.SOLVER_ERROR, Status.NUMERICAL_ERROR):
-        f_raw = problem.f_star + mu * delta
-    else:
-        f_raw = problem.f_star.copy()
-    f, m = problem.project_feasible(f_raw)
-    kkt = problem.kkt_residual(f, m)
-    if status is Status.CONVERGED:
-        if raw_status == cp.OPTIMAL_INACCURATE:
-            status = Status.INACCURATE
-        elif linearized:
-            status = Status.LINEARIZED
-        elif not kkt.total <= kkt_tol:
-            status = Status.NOT_CERTIFIED
-        elif check_convexity and not problem.is_local_minimiser(f, m):
-            status = Status.NONCONVEX
-    return CollisionResult.from_point(
+    opts = ConicOptions.checked(
         problem,
-        f,
-        m,
-        status,
-        "conic",
-        ipm_iters,
-        kkt.total,
-        time.perf_counter() - t_start - (model.compile_seconds if compiled_now else 0.0),
-        {
-            "compiled_now": compiled_now,
-            "fisher_cone": "centred" if centred else ("raw" if with_fisher else None),
-            "passes": passes,
-            "solver": solver,
-            "solver_status": raw_status,
-            "last_move": moved,
-            "compile_seconds": model.compile_seconds,
-            "solver_seconds": solver_seconds,
-            "kkt": kkt,
-        },
+        dc_tol,
+        solver=solver,
+        tol=tol,
+        energy=energy,
+        dc_split=dc_split,
+        fisher_cone=fisher_cone,
+        max_passes=max_passes,
+        kkt_tol=kkt_tol,
+        solver_options=solver_options,
+        check_convexity=check_convexity,
+        verbose=verbose,
+        time_limit=time_limit,
     )
-
-
-def _check_conic_args(
-    problem: CollisionProblem, solver: str, tol: float, energy: str, max_passes: int, dc_tol: float, kkt_tol: float
-) -> None:
-    if problem.batched:
-        raise ValueError("method='conic' solves one problem at a time; pass problem.slice(i)")
-    if problem.fisher == "log":
-        raise ValueError(
-            'fisher="log" is not conic-representable; use fisher="perspective" for method="conic" '
-            '(or method="sqp"/"newton" for the log form)'
-        )
-    if not isinstance(solver, str) or solver.upper() not in conic_solvers():
-        raise ValueError(f"solver must be one of the installed conic solvers {conic_solvers()}, got {solver!r}")
-    if solver != solver.upper():
-        raise ValueError(f"solver names are upper case as in CVXPY, e.g. {solver.upper()!r}; got {solver!r}")
-    if energy not in _ENERGY_MODES:
-        raise ValueError(f"energy must be one of {_ENERGY_MODES}, got {energy!r}")
-    for name, val in (("tol", tol), ("dc_tol", dc_tol), ("kkt_tol", kkt_tol)):
-        if not (isinstance(val, (int, float)) and np.isfinite(val) and 0 < val < 1):
-            raise ValueError(f"{name} must lie in (0, 1), got {val!r}")
-    if not (isinstance(max_passes, (int, np.integer)) and max_passes >= 1):
-        raise ValueError(f"max_passes must be an integer >= 1, got {max_passes!r}")
+    if opts.fisher_cone == "auto" and problem.fisher is not None:
+        return _solve_auto(problem, opts)
+    return _solve_form(problem, opts, opts.fisher_cone)

@@ -44,6 +44,9 @@ from scipy.linalg import lapack
 
 from ..kernels import FluxBlock
 from ..threads import blas_limited  # h15
+from .certify import certify
+from .checks import check_bool, check_choice, check_int, check_unit
+from .explicit import explicit_step
 from .linalg import divergence, divergence_adjoint
 from .problem import CollisionProblem, TermParts, add_pentadiagonal
 from .result import CollisionResult, Status
@@ -390,6 +393,7 @@ def solve_newton(
     problem: CollisionProblem,
     *,
     tol: float = 1e-10,
+    kkt_tol: float | None = None,
     max_iter: int = 100,
     m0: Any = None,
     start: str = "explicit",
@@ -404,7 +408,15 @@ def solve_newton(
         (the iterates are interior points); a step from data with exact zeros is
         reported ``NUMERICAL_ERROR`` without iterating.
     tol : float, default 1e-10
-        Stop when the scaled KKT residual is at most ``tol`` (per slice).
+        This method's own stopping tolerance: iterate until the scaled KKT residual is at
+        most ``tol`` (per slice), or until it stalls at its rounding floor.
+    kkt_tol : float, optional
+        Certification threshold (the same for every method,
+        :func:`~jko_cvx.collision.certify.certify`): a slice that stopped is ``CONVERGED``
+        only if its residual is at most ``kkt_tol``, else ``NOT_CERTIFIED``.  Default:
+        ``tol`` -- Newton certifies what it was asked for (its iterations reach ``tol``
+        quadratically, so a looser threshold would only relabel slices that stalled at
+        their rounding floor above ``tol``).
     max_iter : int, default 100
         Newton iterations (status ``MAX_ITERATIONS`` beyond).
     m0 : array_like, optional
@@ -427,11 +439,9 @@ def solve_newton(
         ``jammed`` (the first, undamped attempt ended on a jam) and ``interior_damping``
         (the returned point comes from the interior-damped attempt); per slice when batched.
     """
-    _check_newton_args(problem, tol, max_iter)
-    if start not in ("explicit", "zero"):
-        raise ValueError(f"start must be 'explicit' or 'zero', got {start!r}")
+    tol, kkt_tol, max_iter, m0 = _check_newton_args(problem, tol, kkt_tol, max_iter, m0, start, check_convexity)
     t0 = time.perf_counter()
-    args = (tol, max_iter, m0, start, check_convexity, t0)
+    args = (tol, kkt_tol, max_iter, m0, start, check_convexity, t0)
     if not problem.batched:
         res = _solve_single(problem, *args, damping=False, jam_exit=True)
         res.info["interior_damping"] = False
@@ -478,10 +488,10 @@ _RETRY = (Status.MAX_ITERATIONS, Status.NUMERICAL_ERROR)
 
 
 def _subset(args: tuple, rows: NDArray[np.bool_], shape: tuple[int, int]) -> tuple:
-    """The solver arguments ``(tol, max_iter, m0, ...)`` restricted to the batch rows ``rows``."""
-    tol, max_iter, m0, *rest = args
+    """The solver arguments ``(tol, kkt_tol, max_iter, m0, ...)`` restricted to the batch rows ``rows``."""
+    tol, kkt_tol, max_iter, m0, *rest = args
     m0r = None if m0 is None else np.broadcast_to(np.asarray(m0, dtype=float), shape)[rows]
-    return (tol, max_iter, m0r, *rest)
+    return (tol, kkt_tol, max_iter, m0r, *rest)
 
 
 def _merge(res: CollisionResult, rows: NDArray[np.bool_], again: CollisionResult, take: NDArray[np.bool_]) -> None:
@@ -498,6 +508,7 @@ def _merge(res: CollisionResult, rows: NDArray[np.bool_], again: CollisionResult
 def _solve_batched(
     P: CollisionProblem,
     tol: float,
+    kkt_tol: float,
     max_iter: int,
     m0: Any,
     start: str,
@@ -535,6 +546,7 @@ def _solve_batched(
     # stopping test) is worth its cost at the new point.
     near = np.zeros(B, dtype=bool)
     stall = np.zeros(B, dtype=int)
+    second = np.zeros(B, dtype=bool)  # second-order test at the point where a slice stopped
     damped = np.full(B, damping)
     jammed = np.zeros(B, dtype=bool)
     flat = np.zeros(B, dtype=int)  # consecutive jammed iterations, per slice
@@ -563,17 +575,14 @@ def _solve_batched(
                 worse = check & ~done & (prev == prev) & (kk > 0.5 * prev) & (dec_last[idx] <= 1e-14)
                 stall[idx] = np.where(check, np.where(worse, stall[idx] + 1, 0), stall[idx])
                 stalled = check & ~done & (stall[idx] >= _STALL_CHECKS)  # the residual's rounding floor
-                if stalled.any():
-                    status[idx[stalled]] = Status.NOT_CERTIFIED
-                    active[idx[stalled]] = False
-                # pd is the (shifted) Cholesky of the reduced Hessian at this very point:
-                # the second-order test comes for free.
-                if done.any():
-                    ok = _second_order(Pa, fa, ma, pd, done)
-                    status[idx[done]] = [
-                        Status.CONVERGED if (o or not check_convexity) else Status.NONCONVEX for o in ok[done]
-                    ]
-                    active[idx[done]] = False
+                # Stopped (converged, or stalled at the rounding floor): certify() judges the
+                # point at the end.  pd is the (shifted) Cholesky of the reduced Hessian at
+                # this very point: the second-order test comes for free.
+                stop = done | stalled
+                if stop.any():
+                    second[idx[stop]] = _second_order(Pa, fa, ma, pd, stop)[stop]
+                    status[idx[stop]] = Status.CONVERGED
+                    active[idx[stop]] = False
             if it == max_iter:
                 # Out of iterations where the Hessian still needed a shift: loss of convexity
                 # is what stopped the solver (typically a minimiser on the vacuum boundary).
@@ -659,24 +668,18 @@ def _solve_batched(
         if redo.any():
             Pr = P.with_f_star(F_star[redo]) if redo.sum() < B else P
             kkt_all[redo] = Pr.kkt_residual(f_out[redo], m_out[redo]).total
-        for i in range(B):
-            if status[i] is Status.CONVERGED and not kkt_all[i] <= 10 * tol:
-                status[i] = Status.NOT_CERTIFIED
-        objective = P.objective(f_out, m_out)
-    seconds = time.perf_counter() - t0
-    mass_error = P.mass_error(f_out)
-    return CollisionResult(
-        f_out,
-        m_out,
-        status,
-        "newton",
-        iters,
-        objective,
-        kkt_all,
-        mass_error,
-        seconds,
-        {"warm_started": warm, "jammed": jammed},
-    )
+        cert = certify(
+            P,
+            f_out,
+            m_out,
+            kkt_tol=kkt_tol,
+            check_convexity=check_convexity,
+            claimed=status,
+            residual=kkt_all,
+            second_order=second,
+        )
+    info = {"warm_started": warm, "jammed": jammed}
+    return CollisionResult.from_certificate(P, f_out, m_out, cert, "newton", iters, time.perf_counter() - t0, info)
 
 
 solve_newton.batched = True  # type: ignore[attr-defined]
@@ -688,11 +691,8 @@ def _explicit_start(P: CollisionProblem, F_star: NDArray, m: NDArray, use: NDArr
     Works on one problem (1-D arrays) or a batch (2-D); the step is damped to keep
     ``f >= f*/2``.
     """
-    from .sqp import _qp_step_banded
-
     zero = np.zeros_like(m)
-    gf, gm = P.gradient(F_star, zero)
-    pf, pm = _qp_step_banded(P, F_star, zero, gf, gm)
+    pf, pm = explicit_step(P)
     ratio = np.where(pf < 0, -F_star / np.where(pf < 0, pf, -1.0), np.inf).min(axis=-1)
     alpha = np.minimum(1.0, 0.5 * ratio)
     cand = _on_momentum_plane(P, np.asarray(alpha)[..., None] * pm)
@@ -709,6 +709,7 @@ def _explicit_start(P: CollisionProblem, F_star: NDArray, m: NDArray, use: NDArr
 def _solve_single(
     P: CollisionProblem,
     tol: float,
+    kkt_tol: float,
     max_iter: int,
     m0: Any,
     start: str,
@@ -736,6 +737,7 @@ def _solve_single(
             m, warm = cand.copy(), True
     status, iters, kkt, stall, dec_last, kkt_here = None, 0, np.nan, 0, np.inf, False
     flat, jammed = 0, False  # consecutive jammed iterations; whether the attempt ended on a jam
+    second = None  # second-order test at the point where the iteration stopped
     if not np.all(f_star > 0):
         status = Status.NUMERICAL_ERROR
     tiny = np.finfo(float).tiny
@@ -755,13 +757,12 @@ def _solve_single(
             if check:
                 prev, kkt = kkt, float(P.kkt_residual(f, m, parts).total)
                 kkt_here = True  # the residual belongs to the current (f, m)
-                if kkt <= tol:
-                    pd = pd or (P.conserve_momentum and P.is_local_minimiser(f, m))
-                    status = Status.CONVERGED if (pd or not check_convexity) else Status.NONCONVEX
-                    break
                 stall = stall + 1 if (prev == prev and kkt > 0.5 * prev and dec_last <= 1e-14) else 0
-                if stall >= _STALL_CHECKS:  # the residual no longer falls: its rounding floor
-                    status = Status.NOT_CERTIFIED
+                # Stopped (converged, or the residual no longer falls: its rounding floor):
+                # certify() judges the point below.
+                if kkt <= tol or stall >= _STALL_CHECKS:
+                    second = pd or (P.conserve_momentum and P.is_local_minimiser(f, m))
+                    status = Status.CONVERGED
                     break
             if it == max_iter:
                 status = Status.MAX_ITERATIONS if (pd or not check_convexity) else Status.NONCONVEX
@@ -812,25 +813,37 @@ def _solve_single(
             kkt_here = False
         if not kkt_here:
             kkt = float(P.kkt_residual(f_out, m_out).total)
-        if status is Status.CONVERGED and not kkt <= 10 * tol:
-            status = Status.NOT_CERTIFIED
-        objective = float(P.objective(f_out, m_out))
-    return CollisionResult(
-        f_out,
-        m_out,
-        status,
-        "newton",
-        iters,
-        objective,
-        kkt,
-        float(P.mass_error(f_out)),
-        time.perf_counter() - t0,
-        {"warm_started": warm, "jammed": jammed},
-    )
+        cert = certify(
+            P,
+            f_out,
+            m_out,
+            kkt_tol=kkt_tol,
+            check_convexity=check_convexity,
+            claimed=status,
+            residual=kkt,
+            second_order=second,
+        )
+    info = {"warm_started": warm, "jammed": jammed}
+    return CollisionResult.from_certificate(P, f_out, m_out, cert, "newton", iters, time.perf_counter() - t0, info)
 
 
-def _check_newton_args(problem: CollisionProblem, tol: float, max_iter: int) -> None:
-    if not (isinstance(tol, (int, float)) and np.isfinite(tol) and 0 < tol < 1):
-        raise ValueError(f"tol must lie in (0, 1), got {tol!r}")
-    if not (isinstance(max_iter, (int, np.integer)) and max_iter >= 1):
-        raise ValueError(f"max_iter must be an integer >= 1, got {max_iter!r}")
+def _check_newton_args(
+    problem: CollisionProblem, tol: Any, kkt_tol: Any, max_iter: Any, m0: Any, start: Any, check_convexity: Any
+) -> tuple[float, float, int, NDArray | None]:
+    """Checked ``(tol, kkt_tol, max_iter, m0)``; errors name the option."""
+    tol = check_unit("tol", tol)
+    kkt_tol = tol if kkt_tol is None else check_unit("kkt_tol", kkt_tol)
+    max_iter = check_int("max_iter", max_iter)
+    check_choice("start", start, ("explicit", "zero"))
+    check_bool("check_convexity", check_convexity)
+    if m0 is not None:
+        shape = (*problem.f_star.shape[:-1], problem.n - 1)
+        try:
+            m0 = np.broadcast_to(np.asarray(m0, dtype=float), shape)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(
+                f"m0 must be None or fluxes of shape {(problem.n - 1,)}"
+                + (f" or {shape}" if problem.batched else "")
+                + f", got {np.shape(m0)}"
+            ) from exc
+    return tol, kkt_tol, max_iter, m0

@@ -23,6 +23,7 @@ class Status(enum.Enum):
     INACCURATE = "the solver reports reduced accuracy (e.g. CVXPY OPTIMAL_INACCURATE); not certified"
     NOT_CERTIFIED = "the solver stopped but the KKT residual is above tolerance"
     MAX_ITERATIONS = "iteration limit reached before convergence (the paper's exit flag e_f = 1)"
+    TIME_LIMIT = "time limit reached before convergence"
     NONCONVEX = "loss of convexity: the reduced Hessian is not positive definite"
     NUMERICAL_ERROR = "numerical breakdown (non-finite values or a failed factorisation)"
     INFEASIBLE = "the solver reports the problem infeasible or unbounded"
@@ -97,6 +98,33 @@ class CollisionResult:
             objective=float(problem.objective(f, m)),
             kkt_residual=float(kkt_residual),
             mass_error=float(problem.mass_error(f)),
+            seconds=seconds,
+            info=info or {},
+        )
+
+    @classmethod
+    def from_certificate(
+        cls,
+        problem: Any,
+        f: NDArray,
+        m: NDArray,
+        certificate: Any,
+        method: str,
+        iterations: Any,
+        seconds: float,
+        info: dict[str, Any] | None = None,
+    ) -> CollisionResult:
+        """A result at ``(f, m)`` from a :class:`~jko_cvx.collision.certify.Certificate` (single or batched)."""
+        batched = np.ndim(f) == 2
+        return cls(
+            f=f,
+            m=m,
+            status=certificate.status,
+            method=method,
+            iterations=iterations,
+            objective=certificate.objective if batched else float(certificate.objective),
+            kkt_residual=certificate.residual if batched else float(certificate.residual),
+            mass_error=problem.mass_error(f) if batched else float(problem.mass_error(f)),
             seconds=seconds,
             info=info or {},
         )

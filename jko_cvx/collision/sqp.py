@@ -33,39 +33,22 @@ residual is reported ``NOT_CERTIFIED``, never as success).
 from __future__ import annotations
 
 import time
+from numbers import Real
 from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
 
-from .linalg import divergence, divergence_adjoint, solve_sym_tridiagonal
+from .certify import certify
+from .checks import check_bool, check_callable, check_choice, check_int, check_unit
+from .explicit import diagonal_hessian, sqp_step
+from .linalg import divergence
 from .problem import CollisionProblem
 from .result import CollisionResult, Status
 
 __all__ = ["solve_sqp"]
 
 _FRACTION_TO_BOUNDARY = 0.995
-
-
-def _diag_hessian(problem: CollisionProblem, f: np.ndarray, m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Diagonal of the Hessian of F (Wasserstein + Fisher) in f and in m."""
-    e = problem.edge_hessian(f, m)
-    hf = np.zeros_like(f)
-    hf[..., :-1] += e["xx"]
-    hf[..., 1:] += e["yy"]
-    return hf, e["mm"]
-
-
-def _qp_step_banded(problem: CollisionProblem, f, m, gf, gm) -> tuple[np.ndarray, np.ndarray]:
-    h = problem.grid.h
-    hf, hm = _diag_hessian(problem, f, m)
-    a = hf / h**2
-    diag = a[..., :-1] + a[..., 1:] + hm
-    off = -a[..., 1:-1]
-    rhs = -(gm - divergence_adjoint(gf / h))
-    pm = solve_sym_tridiagonal(diag, off, rhs)
-    pf = -divergence(pm) / h
-    return pf, pm
 
 
 class _OsqpStep:
@@ -100,7 +83,7 @@ class _OsqpStep:
 
     def __call__(self, problem: CollisionProblem, f, m, gf, gm) -> tuple[np.ndarray, np.ndarray]:
         n = self.n
-        hf, hm = _diag_hessian(problem, f, m)
+        hf, hm = diagonal_hessian(problem, f, m)
         # OSQP needs a strictly convex diagonal for a unique step; the constraint fixes p_f anyway.
         pdiag = np.r_[np.maximum(hf, 1e-14 * max(float(hm.max()), 1.0)), hm]
         lo = np.r_[np.zeros(n), self.floor - f]
@@ -171,10 +154,11 @@ def solve_sqp(
     """
     if floor is None:
         floor = 1e-10 * float(problem.f_star.max())
-    _check_sqp_args(problem, step, tol, max_iter, kkt_tol, qp, floor)
+    _check_sqp_args(problem, step, tol, max_iter, kkt_tol, qp, floor, osqp_eps, check_convexity, callback)
+    step, tol, kkt_tol, floor = float(step), float(tol), float(kkt_tol), float(floor)
     t0 = time.perf_counter()
     f, m = problem.initial_point()
-    qp_step = _qp_step_banded if qp == "banded" else _OsqpStep(problem, floor, osqp_eps, 100000)
+    qp_step = sqp_step if qp == "banded" else _OsqpStep(problem, floor, osqp_eps, 100000)
     zeta, it, safeguarded = 1.0, 0, 0
     status: Status | None = None
     with np.errstate(all="ignore"):
@@ -209,31 +193,17 @@ def solve_sqp(
             if callback is not None:
                 callback(it, f, m, zeta)
     exit_flag = int(it >= max_iter and zeta > tol)
+    if status is None and exit_flag:
+        status = Status.MAX_ITERATIONS
     # Remove the rounding drift of many feasible updates (rebuild f from m), then clip
     # rounding negatives (~1e-25) and restore the mass exactly.
     f, m = problem.project_feasible(problem.density_from_flux(m))
-    kkt = problem.kkt_residual(f, m)
-    if status is None:
-        if exit_flag:
-            status = Status.MAX_ITERATIONS
-        elif kkt.total <= kkt_tol:
-            status = Status.NONCONVEX if check_convexity and not problem.is_local_minimiser(f, m) else Status.CONVERGED
-        else:
-            status = Status.NOT_CERTIFIED
-    return CollisionResult.from_point(
-        problem,
-        f,
-        m,
-        status,
-        "sqp",
-        it,
-        kkt.total,
-        time.perf_counter() - t0,
-        {"exit_flag": exit_flag, "zeta": float(zeta), "safeguard_steps": safeguarded, "qp": qp, "kkt": kkt},
-    )
+    cert = certify(problem, f, m, kkt_tol=kkt_tol, check_convexity=check_convexity, claimed=status)
+    info = {"exit_flag": exit_flag, "zeta": float(zeta), "safeguard_steps": safeguarded, "qp": qp, "kkt": cert.kkt}
+    return CollisionResult.from_certificate(problem, f, m, cert, "sqp", it, time.perf_counter() - t0, info)
 
 
-def _check_sqp_args(problem, step, tol, max_iter, kkt_tol, qp, floor) -> None:
+def _check_sqp_args(problem, step, tol, max_iter, kkt_tol, qp, floor, osqp_eps, check_convexity, callback) -> None:
     if problem.conserve_momentum:
         raise ValueError(
             "method='sqp' is the paper's Algorithm 1, which has no momentum constraint; "
@@ -241,14 +211,14 @@ def _check_sqp_args(problem, step, tol, max_iter, kkt_tol, qp, floor) -> None:
         )
     if problem.batched:
         raise ValueError("method='sqp' solves one problem at a time; pass problem.slice(i)")
-    if not (isinstance(step, (int, float)) and 0 < step <= 1):
+    if isinstance(step, (bool, np.bool_)) or not isinstance(step, Real) or not 0 < step <= 1:
         raise ValueError(f"step (the relaxation step lambda) must lie in (0, 1], got {step!r}")
-    for name, val in (("tol", tol), ("kkt_tol", kkt_tol)):
-        if not (isinstance(val, (int, float)) and np.isfinite(val) and 0 < val < 1):
-            raise ValueError(f"{name} must lie in (0, 1), got {val!r}")
-    if not (isinstance(max_iter, (int, np.integer)) and max_iter >= 1):
-        raise ValueError(f"max_iter (I_max) must be an integer >= 1, got {max_iter!r}")
-    if qp not in ("banded", "osqp"):
-        raise ValueError(f"qp must be 'banded' or 'osqp', got {qp!r}")
-    if not (isinstance(floor, (int, float)) and np.isfinite(floor) and floor >= 0):
+    check_unit("tol", tol)
+    check_unit("kkt_tol", kkt_tol)
+    check_unit("osqp_eps", osqp_eps)
+    check_int("max_iter (I_max)", max_iter)
+    check_choice("qp", qp, ("banded", "osqp"))
+    if isinstance(floor, (bool, np.bool_)) or not isinstance(floor, Real) or not (np.isfinite(floor) and floor >= 0):
         raise ValueError(f"floor must be a finite number >= 0, got {floor!r}")
+    check_bool("check_convexity", check_convexity)
+    check_callable("callback", callback)

@@ -3,7 +3,7 @@
 Homogeneous gamma = 1 (``sec31``), N_v = 121, mesh refinement delta = delta0 = 0.5, fixed
 dt, the run stopped when min dv < eps_v: T_b is that time.  Each (data, eps_v, dt) is one
 sweep point (:func:`blowup_time`), a pure function of its parameters.  The scenes are
-those of ``studies/scenes/tab_bu_g*.toml`` (a test checks they agree).
+the shipped ``jko_cvx/scenes/tab_bu_g*.toml`` with eps_v, dt, beta and the end time set per point.
 
 The paper does not state its Fisher weight.  The log-Fisher term with weight beta bounds
 the collapsed bump's width by about ``(dt / (beta^2 M))^(1/3)``, so beta decides whether
@@ -31,12 +31,13 @@ import pandas as pd
 from ..exact import GaussianMixture, blowup_time_gamma1, exact_gamma1
 from ..grid import Grid
 from ..refine import OneBumpMap, TwoBumpMap
-from ..scene import Scene, scene_from_dict
+from ..scene import Scene, shipped_scene
 from ..simulate import simulate
 from ..sweep import run_sweep
 from . import paper
 
 __all__ = [
+    "DATA",
     "TAB_BU_BETA",
     "TAB_BU_TB2_BETA",
     "blowup_scene",
@@ -45,38 +46,34 @@ __all__ = [
     "reproduce_tab_bu_tb2",
 ]
 
-_DATA = {
-    # amplitudes, rates, centres, L, bumps of the mesh map
-    "g1": ([1.0], [2.0], [0.0], 2.0, 1),
-    "g2": ([2.0], [2.0], [0.0], 2.0, 1),
-    "g3": ([4.0], [2.0], [0.0], 2.0, 1),
-    "g4": ([1.0, 1.0], [10.0, 10.0], [1.5, -1.5], 3.0, 2),
-}
+DATA = ("g1", "g2", "g3", "g4")
+"""The initial data of the tables: the shipped scenes ``tab_bu_g1`` ... ``tab_bu_g4``."""
 
 
 TAB_BU_BETA = 6000.0
 TAB_BU_TB2_BETA = 1000.0
 
 
-def blowup_scene(data: str, eps_v: float, dt: float, beta: float = TAB_BU_BETA) -> Scene:
-    """The ``tab:bu`` / ``tab:bu_tb2`` scene for initial datum ``data`` (g1-g4), log-Fisher weight ``beta``."""
-    if data not in _DATA:
-        raise ValueError(f"data must be one of {sorted(_DATA)}, got {data!r}")
-    amps, rates, centres, L, bumps = _DATA[data]
-    return scene_from_dict(
+def blowup_scene(
+    data: str, eps_v: float, dt: float, beta: float = TAB_BU_BETA, overrides: dict[str, Any] | None = None
+) -> Scene:
+    """The shipped ``tab_bu_{data}`` scene (g1-g4) at eps_v, dt and log-Fisher weight ``beta``, run to 2 T.
+
+    ``overrides`` sets further dotted keys (:func:`jko_cvx.scene.with_overrides`).
+    """
+    if data not in DATA:
+        raise ValueError(f"data must be one of {list(DATA)}, got {data!r}")
+    return shipped_scene(
+        f"tab_bu_{data}",
         {
-            "name": f"tab_bu_{data}",
-            "gamma": 1.0,
-            "strength": 1.0,
             "t_end": 2 * paper.EXACT_T[data],
-            "v": {"L": L, "n": 121},
-            "initial": {"kind": "gaussians", "amplitudes": amps, "rates": rates, "centres": centres},
-            "time": {"policy": "fixed", "dt": dt},
-            "refine": {"v": {"bumps": bumps, "delta0": 0.5, "delta": 0.5}},
-            "collision": {"method": "newton", "beta": beta, "fisher": "log"},
-            "stop": {"eps_v": eps_v, "on_solver_failure": False},
-            "output": {"every": 10**6, "checkpoint_every": 10**6},
-        }
+            "time.dt": dt,
+            "stop.eps_v": eps_v,
+            "collision.beta": beta,
+            "output.every": 10**6,
+            "output.checkpoint_every": 10**6,
+            **(overrides or {}),
+        },
     )
 
 
@@ -111,14 +108,19 @@ def mesh_rule_time(data: str, eps_v: float) -> float:
 
 @functools.cache
 def _mesh_rule_curve(data: str, n_fine: int = 6001, n_times: int = 160) -> tuple[np.ndarray, np.ndarray]:
-    amps, rates, centres, L, bumps = _DATA[data]
-    f0 = GaussianMixture(amps, rates, centres)
+    scene = blowup_scene(data, 0.0, 0.01)
+    p = scene.initial
+    f0 = GaussianMixture(p["amplitudes"], p["rates"], p["centres"])
     T = blowup_time_gamma1(f0)
-    fine = Grid(np.linspace(-L, L, n_fine))
-    cls = OneBumpMap if bumps == 1 else TwoBumpMap
+    fine = Grid(np.linspace(-scene.v_L, scene.v_L, n_fine))
+    r, n = scene.refine_v, scene.v_n
+    cls = OneBumpMap if r.bumps == 1 else TwoBumpMap
     ts = T * (1 - np.geomspace(0.5, 1e-4, n_times))
     spacing = np.array(
-        [np.diff(cls.from_density(fine, exact_gamma1(f0, t, fine.points), 0.5, 0.5).grid(121).points).min() for t in ts]
+        [
+            np.diff(cls.from_density(fine, exact_gamma1(f0, t, fine.points), r.delta0, r.delta).grid(n).points).min()
+            for t in ts
+        ]
     )
     return ts, spacing
 

@@ -35,18 +35,19 @@ import numpy as np
 import pandas as pd
 
 from ..grid import Grid
-from ..scene import Scene, scene_from_dict
+from ..scene import Scene, shipped_scene
 from ..simulate import simulate, snapshot_record
 from ..sweep import run_sweep
 from .paper import TAB_G2BU
 
 __all__ = ["g2bu_run", "g2bu_scene", "level_set_components", "reproduce_tab_g2bu", "secondary_peaks"]
 
-A, B, X1 = 120.0, 10.0, 0.1
+_SHIPPED = shipped_scene("inhom_gamma2_lambda310")
+A, B, X1 = (_SHIPPED.initial[k] for k in ("a", "b", "x1"))  # eqn:ic_g2 of the shipped scene
 T = 1 / B
 RHO0 = 1 / np.sqrt(2 * A)
 LEVEL = 0.1  # the level of sec:sup_g2's connectivity check
-EPS = 5e-6
+EPS = _SHIPPED.eps_v  # = eps_x: the stopping threshold of alg:SPMCSL-JKO
 
 
 EVOLUTION_LAMBDA = 310.0
@@ -55,25 +56,20 @@ EVOLUTION_TIMES = (0.02, 0.04, 0.06, 0.08, 0.09, 0.095)
 
 
 def g2bu_scene(lam: float, n_x: int = 121, n_v: int = 201, t_end: float = 0.2) -> Scene:
-    """The ``tab:g2bu`` scene for lambda (strength lambda / 2); see the module docstring."""
-    return scene_from_dict(
+    """The ``tab:g2bu`` scene for lambda (strength lambda / 2): the shipped ``inhom_gamma2_lambda310`` with
+    lambda, the grids and the end time set, a snapshot every step; see the module docstring."""
+    return shipped_scene(
+        "inhom_gamma2_lambda310",
         {
             "name": f"inhom_gamma2_lambda{lam:g}",
-            "gamma": 2.0,
+            "description": f"inhomogeneous gamma = 2, lambda = {lam:g}",
             "strength": lam / 2,
             "t_end": t_end,
-            "v": {"L": 3.0, "n": n_v},
-            "x": {"L": 0.5, "n": n_x},
-            "initial": {"kind": "gamma2", "a": A, "b": B, "x1": X1},
-            "time": {"policy": "cfl", "dt": 0.01},
-            "refine": {
-                "v": {"bumps": 1, "delta0": 0.5, "delta": 0.5},
-                "x": {"bumps": 1, "delta0": 0.5, "delta": 0.5},
-            },
-            "collision": {"method": "newton", "beta": 1000.0, "fisher": "log"},
-            "stop": {"eps_v": EPS, "eps_x": EPS, "on_solver_failure": True},
-            "output": {"every": 1, "checkpoint_every": 10**6},
-        }
+            "v.n": n_v,
+            "x.n": n_x,
+            "output.every": 1,
+            "output.checkpoint_every": 10**6,
+        },
     )
 
 

@@ -7,9 +7,10 @@ t = 0.4, ``fig:gk1p5_C5``) and *after* they have passed for lambda = 5 (b = 3, s
 t = 1.3, ``fig:gk1p5_C2p5``); rows 3-4 of ``fig:gk3_properties`` are the two runs'
 conservation and dissipation records.
 
-Settings not stated in the paper are those of ``studies/scenes/inhom_gamma1p5_*.toml``
-(CFL steps with dt0 = 0.01, eps = 1e-3/16, delta0 = delta = 0.5, two-bump map in v; a test
-checks the scenes agree).  The table compares T_b with the meeting time c/d.
+Settings not stated in the paper are those of the shipped scenes
+``jko_cvx/scenes/inhom_gamma1p5_*.toml`` (CFL steps with dt0 = 0.01, eps = 1e-3/16,
+delta0 = delta = 0.5, two-bump map in v), which the runs load and override.  The table
+compares T_b with the meeting time c/d.
 
 The paper's criterion (min dv < eps_v) watches the grid the map builds.  Beside it the
 sweep records two indicators of the density itself (:func:`jko_cvx.diagnostics.diagnostics`):
@@ -21,7 +22,6 @@ map-free reference for sigma_v.
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from pathlib import Path
 from typing import Any
@@ -30,15 +30,16 @@ import numpy as np
 import pandas as pd
 
 from ..grid import Grid, PeriodicGrid
-from ..scene import Scene, scene_from_dict
+from ..scene import Scene, shipped_scene
 from ..simulate import simulate, snapshot_record
 from ..sweep import run_sweep
 
 __all__ = ["gamma1p5_run", "gamma1p5_scene", "gamma1p5_uniform", "reproduce_inhom_gamma1p5"]
 
-_CASES = {"before": (10.0, 6.0, 1.0), "after": (5.0, 3.0, 2.0)}  # lambda, b, t_end
-_C = _D = 2.5
-_L = 5.0  # both half-widths
+_SHIPPED = {case: shipped_scene(f"inhom_gamma1p5_{case}") for case in ("before", "after")}
+_CASES = {case: (2 * s.strength, s.initial["b"], s.t_end) for case, s in _SHIPPED.items()}  # lambda, b, t_end
+_C, _D = _SHIPPED["before"].initial["c"], _SHIPPED["before"].initial["d"]  # 2.5, 2.5 in both cases
+_L = _SHIPPED["before"].x_L  # both half-widths (5)
 _PAPER = {"before": "blow-up in v before the bumps meet", "after": "blow-up in v after the bumps pass x = 0"}
 PAPER_TIMES = {"before": (0.04, 0.1, 0.2, 0.3, 0.4), "after": (0.1, 0.4, 0.8, 1.2, 1.3)}
 """Snapshot times of ``fig:gk1p5_C5`` and ``fig:gk1p5_C2p5``."""
@@ -70,30 +71,11 @@ QUICK_T_END = 0.6
 _SEPARATE = 0.7  # until then the bumps (x-width 0.29) stay 1.5 apart: each keeps x-bar' = u-bar
 
 
-def gamma1p5_scene(case: str, n: int = 121) -> Scene:
-    """The ``inhom_gamma1p5_{before,after}`` scene on an n x n grid."""
+def gamma1p5_scene(case: str, n: int = 121, overrides: dict[str, Any] | None = None) -> Scene:
+    """The shipped ``inhom_gamma1p5_{before,after}`` scene on an n x n grid, with further ``overrides``."""
     if case not in _CASES:
         raise ValueError(f"case must be one of {sorted(_CASES)}, got {case!r}")
-    lam, b, t_end = _CASES[case]
-    return scene_from_dict(
-        {
-            "name": f"inhom_gamma1p5_{case}",
-            "gamma": 1.5,
-            "strength": lam / 2,
-            "t_end": t_end,
-            "v": {"L": _L, "n": n},
-            "x": {"L": _L, "n": n},
-            "initial": {"kind": "two_bump_phase", "a": 6.0, "b": b, "c": _C, "d": _D},
-            "time": {"policy": "cfl", "dt": 0.01},
-            "refine": {
-                "v": {"bumps": 2, "delta0": 0.5, "delta": 0.5},
-                "x": {"bumps": 1, "delta0": 0.5, "delta": 0.5},
-            },
-            "collision": {"method": "newton", "beta": 1000.0, "fisher": "log"},
-            "stop": {"eps_v": 6.25e-5, "eps_x": 6.25e-5, "on_solver_failure": True},
-            "output": {"every": 100, "times": list(PAPER_TIMES[case]), "checkpoint_every": 100},
-        }
-    )
+    return shipped_scene(f"inhom_gamma1p5_{case}", {"v.n": n, "x.n": n, **(overrides or {})})
 
 
 def _series(run) -> dict[str, list[float]]:
@@ -122,9 +104,13 @@ def gamma1p5_run(case: str, n: int, collapse_stop: bool = False) -> dict[str, An
     T_b = 0.82, against 111 steps to the collapse at t = 0.33).
     """
     t0 = time.perf_counter()
-    scene = gamma1p5_scene(case, n)
+    overrides = {}
     if collapse_stop:
-        scene = dataclasses.replace(scene, spread_v=COLLAPSE_SPREAD, t_end=min(scene.t_end, QUICK_T_END))
+        t_end = min(_CASES[case][2], QUICK_T_END)
+        # the paper's times past the shortened end are never reached: dropped from the scene
+        times = [tk for tk in PAPER_TIMES[case] if tk <= t_end]
+        overrides = {"stop.spread_v": COLLAPSE_SPREAD, "t_end": t_end, "output.times": times}
+    scene = gamma1p5_scene(case, n, overrides)
     run = simulate(scene)
     # the paper's times and the last state (T_b where the run stopped on blow-up)
     snaps = [snapshot_record(s) for s in run.snapshots_at((*PAPER_TIMES[case], run.t))]
@@ -134,17 +120,18 @@ def gamma1p5_run(case: str, n: int, collapse_stop: bool = False) -> dict[str, An
 def gamma1p5_uniform(case: str, n_x: int, n_v: int, t_end: float) -> dict[str, Any]:
     """One sweep point: the case on fixed uniform n_x x n_v grids (no maps, no eps stop) to t_end."""
     t0 = time.perf_counter()
-    scene = dataclasses.replace(
-        gamma1p5_scene(case),
-        x_n=n_x,
-        v_n=n_v,
-        refine_v=None,
-        refine_x=None,
-        eps_v=0.0,
-        eps_x=0.0,
-        t_end=t_end,
-        snapshot_times=(),
-        every=10**9,
+    scene = gamma1p5_scene(
+        case,
+        overrides={
+            "x.n": n_x,
+            "v.n": n_v,
+            "refine": None,
+            "stop.eps_v": 0.0,
+            "stop.eps_x": 0.0,
+            "t_end": t_end,
+            "output.times": None,
+            "output.every": 10**9,
+        },
     )
     run = simulate(scene)
     return {**_verdict(run), **_series(run), "seconds": time.perf_counter() - t0}

@@ -3,7 +3,8 @@
 Homogeneous, ``in_two`` = exp(-10 (v - 1.5)^2) + exp(-10 (v + 1.5)^2), the paper's
 N_v = 101, dt = 0.01, two-bump map with delta0 = 0.8, delta = 0.5, to t = 20.  Two
 point masses M/2 at +-p obey p' = -2 M p^2 (W = |v|^3/3), p = p0 / (1 + 2 M p0 t): the
-analytic law the peaks are compared with.  The scene is ``studies/scenes/ibu_gamma3.toml``.
+analytic law the peaks are compared with.  The scene is the shipped ``ibu_gamma3``
+(``jko_cvx/scenes/ibu_gamma3.toml``).
 """
 
 from __future__ import annotations
@@ -14,29 +15,15 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ..scene import Scene, scene_from_dict
+from ..scene import Scene, shipped_scene
 from ..simulate import simulate
 
 __all__ = ["bump_positions", "ibu_scene", "reproduce_ibu"]
 
 
 def ibu_scene(t_end: float = 20.0) -> Scene:
-    """The ``sec:ibu`` scene (see ``studies/scenes/ibu_gamma3.toml`` for the choices)."""
-    return scene_from_dict(
-        {
-            "name": "ibu_gamma3",
-            "gamma": 3.0,
-            "strength": 1.0,
-            "t_end": t_end,
-            "v": {"L": 3.0, "n": 101},
-            "initial": {"kind": "gaussians", "amplitudes": [1.0, 1.0], "rates": [10.0, 10.0], "centres": [1.5, -1.5]},
-            "time": {"policy": "fixed", "dt": 0.01},
-            "refine": {"v": {"bumps": 2, "delta0": 0.8, "delta": 0.5, "tol": 0.1}},
-            "collision": {"method": "newton", "beta": 1e4, "fisher": "log"},
-            "stop": {"eps_v": 0.0, "on_solver_failure": True},
-            "output": {"every": 25, "checkpoint_every": 10**6},
-        }
-    )
+    """The shipped ``ibu_gamma3`` scene (``jko_cvx/scenes/ibu_gamma3.toml`` for the choices), to ``t_end``."""
+    return shipped_scene("ibu_gamma3", {"t_end": t_end, "output.every": 25, "output.checkpoint_every": 10**6})
 
 
 def bump_positions(snapshots) -> pd.DataFrame:

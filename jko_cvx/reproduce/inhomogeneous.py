@@ -1,6 +1,6 @@
 """``sec:sp_inhom_gamma_3`` and ``sec:sup_g3``: gamma = 3, two phase-space bumps, lambda in {2, 4, 6, 8, 10}.
 
-The set-up of ``studies/scenes/inhom_gamma3_lambdaK.toml`` (``eqn:f0`` with a = b = 6,
+The set-up of the shipped ``jko_cvx/scenes/inhom_gamma3_lambdaK.toml`` (``eqn:f0`` with a = b = 6,
 c = 1.5, d = 2, L_x = L_v = 4, N_x = N_v = 121, delta0 = 0.02, delta = 0.5, dt = 0.05, to
 t = 4).  Each lambda is one sweep point; the figures are the record plots (min dx, min dv,
 max f against t), the final snapshots, the snapshots at the paper's times for lambda = 4
@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from ..scene import Scene, scene_from_dict
+from ..scene import Scene, shipped_scene, shipped_scene_names
 from ..simulate import simulate, snapshot_record
 from ..sweep import run_sweep
 
@@ -29,30 +29,29 @@ _SERIES = ("t", "mass", "momentum", "moment2", "moment3", "moment4", "entropy", 
 
 
 def inhomogeneous_scene(lam: float, n: int = 121, t_end: float = 4.0) -> Scene:
-    """The ``sec:sp_inhom_gamma_3`` scene for lambda (strength lambda / 2)."""
-    return scene_from_dict(
+    """The ``sec:sp_inhom_gamma_3`` scene for lambda (strength lambda / 2) on an n x n grid, to ``t_end``.
+
+    The shipped ``inhom_gamma3_lambda{lam}`` scene where there is one (lambda = 2, 4, ..., 10),
+    else ``inhom_gamma3_lambda4`` with the strength and name set.
+    """
+    name = f"inhom_gamma3_lambda{lam:g}"
+    own = name in shipped_scene_names()
+    overrides = {} if own else {"name": name, "strength": lam / 2, "description": f"{_DESCRIPTION}, lambda = {lam:g}"}
+    return shipped_scene(
+        name if own else "inhom_gamma3_lambda4",
         {
-            "name": f"inhom_gamma3_lambda{lam:g}",
-            "gamma": 3.0,
-            "strength": lam / 2,
+            **overrides,
             "t_end": t_end,
-            "v": {"L": 4.0, "n": n},
-            "x": {"L": 4.0, "n": n},
-            "initial": {"kind": "two_bump_phase", "a": 6.0, "b": 6.0, "c": 1.5, "d": 2.0},
-            "time": {"policy": "fixed", "dt": 0.05},
-            "refine": {
-                "v": {"bumps": 1, "delta0": 0.02, "delta": 0.5},
-                "x": {"bumps": 1, "delta0": 0.02, "delta": 0.5},
-            },
-            "collision": {"method": "newton", "beta": 1000.0, "fisher": "log"},
-            "stop": {"eps_v": 1e-5, "eps_x": 1e-5, "on_solver_failure": True},
-            "output": {
-                "every": 10**6,
-                "times": [tk for tk in PAPER_TIMES.get(lam, ()) if tk <= t_end],
-                "checkpoint_every": 10**6,
-            },
-        }
+            "v.n": n,
+            "x.n": n,
+            "output.every": 10**6,
+            "output.times": [tk for tk in PAPER_TIMES.get(lam, ()) if tk <= t_end],
+            "output.checkpoint_every": 10**6,
+        },
     )
+
+
+_DESCRIPTION = "inhomogeneous gamma = 3, two phase-space bumps"
 
 
 def inhomogeneous_gamma3(lam: float, n: int, t_end: float) -> dict[str, Any]:

@@ -1,0 +1,152 @@
+"""One judge for every collision solver: the certificate of a returned point.
+
+Each method has its own stopping rule and tolerance ``tol`` (the conic solver's gap, the
+SQP's :math:`\\zeta` test, Newton's residual target).  When its rule says it has stopped at
+a solution, the method hands the point to :func:`certify`, which decides the status by
+the same three checks for every method:
+
+1. the point and its objective are finite (an infinite objective means a flux through
+   an emptied cell, :math:`s_k = 0`, :math:`m_k \\ne 0`, or a log-Fisher term at f = 0):
+   ``NUMERICAL_ERROR``;
+2. the scaled KKT residual (:meth:`CollisionProblem.kkt_residual`) is at most ``kkt_tol``,
+   else ``NOT_CERTIFIED``;
+3. with ``check_convexity``, the reduced Hessian is positive definite there (second-order
+   test, :meth:`CollisionProblem.is_local_minimiser`), else ``NONCONVEX``.
+
+A method that did not stop at a solution (iteration or time limit, solver failure,
+reduced accuracy, the linearised energy) passes its own status as ``claimed``; it is kept,
+and the residual and objective are still evaluated for the result.
+
+A new method calls it once on its final, feasible point::
+
+    cert = certify(problem, f, m, kkt_tol=kkt_tol, check_convexity=check_convexity)
+    return CollisionResult.from_certificate(problem, f, m, cert, "mine", iterations, seconds, info)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .checks import check_bool, check_unit
+from .problem import CollisionProblem, KKTResidual
+from .result import Status
+
+__all__ = ["Certificate", "certify"]
+
+
+@dataclass(frozen=True)
+class Certificate:
+    """What :func:`certify` found at a point (per slice for a batch).
+
+    Attributes
+    ----------
+    status : Status or ndarray of Status
+        The certified status (see :func:`certify`).
+    residual : float or ndarray
+        The total scaled KKT residual, the number compared with ``kkt_tol``.
+    objective : float or ndarray
+        :math:`J(f, m)` at the point (``inf`` outside the domain).
+    kkt : KKTResidual or None
+        The residual's components (None when the caller passed only ``residual``).
+    """
+
+    status: Status | NDArray
+    residual: float | NDArray[np.float64]
+    objective: float | NDArray[np.float64]
+    kkt: KKTResidual | None = None
+
+
+def certify(
+    problem: CollisionProblem,
+    f: ArrayLike,
+    m: ArrayLike,
+    *,
+    kkt_tol: float,
+    check_convexity: bool = True,
+    claimed: Status | NDArray | None = None,
+    kkt: KKTResidual | None = None,
+    residual: float | NDArray | None = None,
+    second_order: bool | NDArray[np.bool_] | None = None,
+) -> Certificate:
+    """Certify the point ``(f, m)`` a solver returned for ``problem``.
+
+    Parameters
+    ----------
+    problem : CollisionProblem
+        Unbatched, or batched with ``f`` of shape ``(B, N)``.
+    f, m : array_like
+        The returned point (feasible: the solver has projected it).
+    kkt_tol : float
+        Certification threshold on the scaled KKT residual, in (0, 1).
+    check_convexity : bool, default True
+        Run the second-order test on points that pass the residual test.
+    claimed : Status or array of Status, optional
+        The method's own verdict (per slice for a batch).  ``None`` or ``CONVERGED``
+        means "stopped at a solution by its own rule" and is judged here; any other
+        status is kept as it is.
+    kkt : KKTResidual, optional
+        The residual at ``(f, m)`` when the caller has it already.
+    residual : float or ndarray, optional
+        Only its total (``kkt.total``), when the caller has that already.
+    second_order : bool or array of bool, optional
+        The second-order test's outcome when the caller has it already (Newton gets it
+        from its last Cholesky factorisation); computed here where needed otherwise.
+
+    Returns
+    -------
+    Certificate
+        ``status`` is ``CONVERGED``, ``NOT_CERTIFIED``, ``NONCONVEX``, ``NUMERICAL_ERROR``
+        or the ``claimed`` failure status.
+    """
+    kkt_tol = check_unit("kkt_tol", kkt_tol)
+    check_convexity = check_bool("check_convexity", check_convexity)
+    f = np.asarray(f, dtype=float)
+    m = np.asarray(m, dtype=float)
+    with np.errstate(all="ignore"):
+        if residual is None:
+            kkt = problem.kkt_residual(f, m) if kkt is None else kkt
+            residual = kkt.total
+        objective = problem.objective(f, m)
+    if f.ndim == 1:
+        status = _judge(problem, f, m, float(residual), objective, kkt_tol, check_convexity, claimed, second_order)
+        return Certificate(status, float(residual), float(objective), kkt)
+    total = np.broadcast_to(residual, f.shape[:1])
+    claims = np.broadcast_to(np.asarray(claimed, dtype=object), f.shape[:1])
+    orders = np.broadcast_to(np.asarray(second_order, dtype=object), f.shape[:1])
+    status = np.empty(f.shape[0], dtype=object)
+    for i in range(f.shape[0]):
+        status[i] = _judge(
+            problem, f[i], m[i], total[i], objective[i], kkt_tol, check_convexity, claims[i], orders[i], i
+        )
+    return Certificate(status, np.asarray(total, dtype=float).copy(), np.asarray(objective, dtype=float), kkt)
+
+
+def _judge(
+    problem: CollisionProblem,
+    f: NDArray,
+    m: NDArray,
+    residual: float,
+    objective: float,
+    kkt_tol: float,
+    check_convexity: bool,
+    claimed: Status | None,
+    second_order: bool | None,
+    row: int | None = None,
+) -> Status:
+    """The status of one point (row ``row`` of a batched problem); see :func:`certify`."""
+    if claimed is not None and claimed is not Status.CONVERGED:
+        return claimed
+    if not (np.all(np.isfinite(f)) and np.all(np.isfinite(m)) and np.isfinite(objective)):
+        return Status.NUMERICAL_ERROR
+    if not residual <= kkt_tol:
+        return Status.NOT_CERTIFIED
+    if check_convexity:
+        if second_order is None:
+            sub = problem.with_f_star(problem.f_star[row]) if problem.batched else problem
+            second_order = sub.is_local_minimiser(f, m)
+        if not second_order:
+            return Status.NONCONVEX
+    return Status.CONVERGED

@@ -1,0 +1,356 @@
+"""The scene schema: one small frozen dataclass per TOML table, parsed strictly.
+
+Every table rejects keys it does not know (:class:`SceneError` naming the dotted key and
+the closest valid one), must be a table (``collision = "newton"`` is refused, not an
+``AttributeError``), and checks each value's type and range before anything is built:
+floats accept TOML integers but not booleans, integers must be integers, booleans must be
+``true`` / ``false``, enumerations are closed.  :func:`parse_table` is the one parser; the
+tables below only declare their keys with :func:`key`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import math
+import re
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any, TypeVar
+
+__all__ = [
+    "INITIAL_KINDS",
+    "CollisionTable",
+    "Gamma2Initial",
+    "GaussiansInitial",
+    "OutputTable",
+    "RefineTable",
+    "Rule",
+    "SceneError",
+    "SceneTable",
+    "StopTable",
+    "TimeTable",
+    "TwoBumpInitial",
+    "VTable",
+    "XTable",
+    "check_known",
+    "key",
+    "parse_table",
+]
+
+
+class SceneError(ValueError):
+    """A scene that does not validate; the message names the key and the allowed values."""
+
+
+@dataclass(frozen=True)
+class Rule:
+    """What one key accepts: a type (``float``, ``int``, ``bool``, ``str``, ``floats``) and a range.
+
+    ``lo`` / ``hi`` bound numbers (open when ``lo_open`` / ``hi_open``); ``inf`` allows
+    +inf beside the range (beta); ``choices`` closes an enumeration; ``pattern`` is a
+    full-match regular expression for strings; ``nonempty`` for lists.
+    """
+
+    kind: str
+    lo: float | None = None
+    hi: float | None = None
+    lo_open: bool = False
+    hi_open: bool = False
+    inf: bool = False
+    choices: tuple[Any, ...] | None = None
+    pattern: str | None = None
+    nonempty: bool = False
+    text: str | None = None
+
+    def describe(self) -> str:
+        """The allowed values in words, as the error messages say them."""
+        if self.text is not None:
+            return self.text
+        if self.choices is not None:
+            return f"one of {sorted(self.choices)}"
+        if self.kind == "floats":
+            return f"a {'non-empty ' if self.nonempty else ''}list of numbers"
+        if self.kind in ("table", "str", "bool"):
+            return {"table": "a table", "str": "a string", "bool": "true or false"}[self.kind]
+        what = "an integer" if self.kind == "int" else "a finite number"
+        if self.lo is not None and self.hi is not None:
+            lb, rb = "(" if self.lo_open else "[", ")" if self.hi_open else "]"
+            rng = f"in {lb}{self.lo:g}, {self.hi:g}{rb}"
+            return f"an integer {rng}" if self.kind == "int" else rng
+        if self.lo is not None:
+            op = ">" if self.lo_open else ">="
+            if self.inf:
+                return f"a number {op} {self.lo:g} (inf allowed)"
+            return f"{what} {op} {self.lo:g}"
+        return what
+
+    def _in_range(self, x: float) -> bool:
+        if self.inf and x == math.inf:
+            return True
+        if not math.isfinite(x):
+            return False
+        if self.lo is not None and (x < self.lo or (self.lo_open and x == self.lo)):
+            return False
+        return not (self.hi is not None and (x > self.hi or (self.hi_open and x == self.hi)))
+
+    def parse(self, val: Any, name: str) -> Any:
+        """Check ``val`` for the dotted key ``name``; return it in canonical form (float, int, tuple)."""
+        if self.kind == "floats":
+            if not isinstance(val, list | tuple) or (self.nonempty and not val):
+                what = "a non-empty list" if self.nonempty else "a list"
+                raise SceneError(f"{name} must be {what} of numbers, got {val!r}")
+            return tuple(self._number(v, f"{name}[{i}]") for i, v in enumerate(val))
+        if self.kind in ("float", "int"):
+            return self._number(val, name)
+        if self.kind == "table":
+            return require_table(val, name)
+        if self.kind == "bool":
+            if not isinstance(val, bool):
+                raise SceneError(f"{name} must be of type bool (true or false), got {val!r}")
+            return val
+        if not isinstance(val, str):
+            raise SceneError(f"{name} must be of type str, got {val!r}")
+        if self.choices is not None and val not in self.choices:
+            raise SceneError(f"{name} must be {self.describe()}, got {val!r}{_suggest(val, self.choices)}")
+        if self.pattern is not None and not re.fullmatch(self.pattern, val):
+            raise SceneError(f"{name} must be {self.describe()}, got {val!r}")
+        return val
+
+    def _number(self, val: Any, name: str) -> float | int:
+        if self.kind == "int":
+            if isinstance(val, bool) or not isinstance(val, int):
+                raise SceneError(f"{name} must be of type int, got {val!r}")
+        elif isinstance(val, bool) or not isinstance(val, int | float):
+            raise SceneError(f"{name} must be of type float, got {val!r}")
+        else:
+            val = float(val)
+        if self.choices is not None and val not in self.choices:
+            raise SceneError(f"{name} must be {self.describe()}, got {val!r}")
+        if not self._in_range(val):
+            raise SceneError(f"{name} must be {self.describe()}, got {val!r}")
+        return val
+
+
+def key(rule: Rule, default: Any = dataclasses.MISSING) -> Any:
+    """A dataclass field that carries its :class:`Rule` (no default: the key is required)."""
+    return dataclasses.field(default=default, metadata={"rule": rule})
+
+
+def _dotted(where: str, name: str) -> str:
+    return f"{where}.{name}" if where else name
+
+
+def _suggest(name: str, valid) -> str:
+    close = difflib.get_close_matches(str(name), [str(v) for v in valid], n=1, cutoff=0.6)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+def check_known(data: Mapping[str, Any], valid, where: str) -> None:
+    """Refuse keys of ``data`` outside ``valid``, naming the first as a dotted key with a suggestion."""
+    unknown = sorted(set(data) - set(valid), key=str)
+    if not unknown:
+        return
+    names = [_dotted(where, str(u)) for u in unknown]
+    close = difflib.get_close_matches(str(unknown[0]), sorted(valid), n=1, cutoff=0.6)
+    hint = f" (did you mean {_dotted(where, close[0])!r}?)" if close else ""
+    label = f"key(s) {names} in [{where}]" if where else f"top-level key(s) {names}"
+    raise SceneError(f"unknown {label}{hint}; allowed: {sorted(valid)}")
+
+
+def require_table(val: Any, where: str) -> Mapping[str, Any]:
+    """``val`` must be a TOML table (a section such as ``[stop]``, or an inline table)."""
+    if not isinstance(val, Mapping):
+        raise SceneError(f"{where} must be a table (a [{where}] section or an inline {{...}}), got {val!r}")
+    return val
+
+
+T = TypeVar("T")
+
+
+def parse_table(cls: type[T], data: Any, where: str) -> T:
+    """Build the table dataclass ``cls`` from ``data`` (the TOML table at dotted path ``where``).
+
+    Unknown keys, a non-table, a missing required key and every value outside its
+    :class:`Rule` raise :class:`SceneError` naming the dotted key.
+    """
+    if where:
+        data = require_table(data, where)
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    check_known(data, fields, where)
+    values = {}
+    for name, f in fields.items():
+        dotted = _dotted(where, name)
+        if name not in data:
+            if f.default is dataclasses.MISSING:
+                raise SceneError(f"{dotted} is required ({f.metadata['rule'].describe()})")
+            continue
+        values[name] = f.metadata["rule"].parse(data[name], dotted)
+    table = cls(**values)
+    table.check(where)
+    return table
+
+
+_FLOAT = "float"
+_POS = Rule(_FLOAT, lo=0.0, lo_open=True)
+_NONNEG = Rule(_FLOAT, lo=0.0)
+_ANY = Rule(_FLOAT)
+_FRAC = Rule(_FLOAT, lo=0.0, hi=1.0, lo_open=True, hi_open=True)
+_NPTS = Rule("int", lo=3)
+_BOOL = Rule("bool")
+_EVERY = Rule("int", lo=1)
+_TABLE = Rule("table")
+_NAME = Rule(
+    "str",
+    pattern=r"(?!.*\.\.)[A-Za-z0-9_][A-Za-z0-9_.-]{0,127}",
+    text="a plain file name: letters, digits, '_', '.', '-' (no path separator, no '..', no leading dot; "
+    "at most 128 characters)",
+)
+
+
+class _Table:
+    """Shared behaviour: cross-key checks after the keys parsed (none by default)."""
+
+    def check(self, where: str) -> None:
+        return None
+
+
+@dataclass(frozen=True)
+class VTable(_Table):
+    """``[v]``: the velocity grid [-L, L] with n points."""
+
+    L: float = key(_POS)
+    n: int = key(_NPTS)
+
+
+@dataclass(frozen=True)
+class XTable(_Table):
+    """``[x]``: the periodic space grid [-L, L) with n points; optional (homogeneous without it)."""
+
+    L: float = key(_POS)
+    n: int = key(_NPTS)
+    conserve_moment: bool = key(_BOOL, True)
+
+
+@dataclass(frozen=True)
+class GaussiansInitial(_Table):
+    """``initial.kind = "gaussians"``: f0(v) = sum_j A_j exp(-a_j (v - c_j)^2), the same on every x."""
+
+    amplitudes: tuple[float, ...] = key(Rule("floats", lo=0.0, nonempty=True))
+    rates: tuple[float, ...] = key(Rule("floats", lo=0.0, lo_open=True, nonempty=True))
+    centres: tuple[float, ...] = key(Rule("floats", nonempty=True))
+
+    def check(self, where: str) -> None:
+        if not len(self.amplitudes) == len(self.rates) == len(self.centres):
+            raise SceneError(
+                f"{where}.amplitudes, rates and centres must be lists of the same length, got "
+                f"{len(self.amplitudes)}, {len(self.rates)} and {len(self.centres)}"
+            )
+        if not any(a > 0 for a in self.amplitudes):
+            raise SceneError(f"{where}.amplitudes must have at least one entry > 0 (f0 = 0 has no mass)")
+
+
+@dataclass(frozen=True)
+class TwoBumpInitial(_Table):
+    """``initial.kind = "two_bump_phase"`` (``eqn:f0``): two Gaussian bumps in phase space."""
+
+    a: float = key(_POS)
+    b: float = key(_POS)
+    c: float = key(_ANY)
+    d: float = key(_ANY)
+
+
+@dataclass(frozen=True)
+class Gamma2Initial(_Table):
+    """``initial.kind = "gamma2"`` (``eqn:ic_g2``): a sheared Gaussian cut off at |x| = x1."""
+
+    a: float = key(_POS)
+    b: float = key(_ANY)
+    x1: float = key(_POS)
+
+
+INITIAL_KINDS: dict[str, type[_Table]] = {
+    "gaussians": GaussiansInitial,
+    "two_bump_phase": TwoBumpInitial,
+    "gamma2": Gamma2Initial,
+}
+
+
+@dataclass(frozen=True)
+class TimeTable(_Table):
+    """``[time]``: the step policy, its (first / largest) step and the halving floor."""
+
+    dt: float = key(_POS)
+    policy: str = key(Rule("str", choices=("fixed", "halving", "halving_reset", "cfl")), "fixed")
+    eps_t: float = key(_POS, 1e-6)
+
+
+@dataclass(frozen=True)
+class RefineTable(_Table):
+    """``[refine.v]`` / ``[refine.x]``: the mesh map (one or two bumps), delta0, delta, remesh tolerance."""
+
+    bumps: int = key(Rule("int", choices=(1, 2)), 1)
+    delta0: float = key(_FRAC, 0.5)
+    delta: float = key(_FRAC, 0.5)
+    tol: float = key(Rule(_FLOAT, lo=0.0, hi=1.0, hi_open=True), 0.0)
+    conserve_energy: bool = key(_BOOL, False)
+
+
+@dataclass(frozen=True)
+class CollisionTable(_Table):
+    """``[collision]``: method, Fisher weight and form, momentum constraint; ``options`` checked separately."""
+
+    method: str = key(Rule("str", choices=("newton", "sqp", "conic")), "newton")
+    beta: float = key(Rule(_FLOAT, lo=0.0, lo_open=True, inf=True), math.inf)
+    fisher: str = key(Rule("str", choices=("perspective", "log", "none")), "perspective")
+    conserve_momentum: bool | None = key(_BOOL, None)
+    options: Mapping[str, Any] | None = key(_TABLE, None)
+
+    def check(self, where: str) -> None:
+        if self.method == "conic" and self.fisher == "log":
+            raise SceneError(
+                f'{where}.fisher = "log" is not conic-representable: use fisher = "perspective" with '
+                f'{where}.method = "conic" (or method "newton" / "sqp" for the log form)'
+            )
+        if self.conserve_momentum and self.method == "sqp":
+            raise SceneError(
+                f"{where}.conserve_momentum = true needs method 'newton' or 'conic' (sqp has no such constraint)"
+            )
+
+
+@dataclass(frozen=True)
+class StopTable(_Table):
+    """``[stop]``: blow-up thresholds on min dv, min dx and the density spread; stop on solver failure."""
+
+    eps_v: float = key(_NONNEG, 0.0)
+    eps_x: float = key(_NONNEG, 0.0)
+    spread_v: float = key(_NONNEG, 0.0)
+    on_solver_failure: bool = key(_BOOL, True)
+
+
+@dataclass(frozen=True)
+class OutputTable(_Table):
+    """``[output]``: snapshot every K steps and at given times; checkpoint every K steps."""
+
+    every: int = key(_EVERY, 10)
+    times: tuple[float, ...] = key(Rule("floats", lo=0.0), ())
+    checkpoint_every: int = key(_EVERY, 10)
+
+
+@dataclass(frozen=True)
+class SceneTable(_Table):
+    """The top level: name, description, gamma, strength, t_end and the sections."""
+
+    gamma: float = key(_POS)
+    t_end: float = key(_POS)
+    v: Mapping[str, Any] = key(_TABLE)
+    initial: Mapping[str, Any] = key(_TABLE)
+    time: Mapping[str, Any] = key(_TABLE)
+    name: str = key(_NAME, "scene")
+    description: str = key(Rule("str"), "")
+    strength: float = key(_POS, 1.0)
+    x: Mapping[str, Any] | None = key(_TABLE, None)
+    refine: Mapping[str, Any] | None = key(_TABLE, None)
+    collision: Mapping[str, Any] | None = key(_TABLE, None)
+    stop: Mapping[str, Any] | None = key(_TABLE, None)
+    output: Mapping[str, Any] | None = key(_TABLE, None)

@@ -1,0 +1,185 @@
+"""Runs as data: load_run, Run.to_xarray, jko-cvx export, jko_cvx.plot, and the run summary."""
+
+import dataclasses
+import json
+import sys
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import jko_cvx
+from jko_cvx.cli import main
+from jko_cvx.plot import exact_max_f, plot_records, plot_solution, refinement_switches, save_figures
+from jko_cvx.run import Run
+from jko_cvx.runstate import RunDirError
+from jko_cvx.scene import default_scene, load_scene
+from jko_cvx.simulate import simulate
+from jko_cvx.verdict import StopReason
+
+xr = pytest.importorskip("xarray")
+
+ROOT = Path(__file__).parent.parent
+SCENES = ROOT / "studies" / "scenes"
+
+
+def _inhomogeneous():
+    s = load_scene(SCENES / "inhom_gamma3_lambda4.toml")
+    return dataclasses.replace(s, v_n=31, x_n=21, t_end=0.3, every=2, snapshot_times=(0.15,))
+
+
+def _failing():
+    """The default scene with a step too large for a small Newton budget: stops on a solver failure at step 2,
+    right after the snapshot of step 1 (every = 1)."""
+    return dataclasses.replace(
+        default_scene(), dt=0.05, t_end=0.3, stop_on_solver_failure=True, options={"max_iter": 6}, every=1
+    )
+
+
+def _assert_same_run(a: Run, b: Run):
+    assert a.scene == b.scene and a.t == b.t and a.verdict == b.verdict and a.seconds == b.seconds
+    assert np.array_equal(a.f, b.f) and np.array_equal(a.vgrid.points, b.vgrid.points)
+    assert (a.xgrid is None) == (b.xgrid is None)
+    if a.xgrid is not None:
+        assert np.array_equal(a.xgrid.points, b.xgrid.points) and a.xgrid.period == b.xgrid.period
+    pd.testing.assert_frame_equal(a.diagnostics, b.diagnostics, check_exact=True)
+    assert len(a.snapshots) == len(b.snapshots)
+    for s, r in zip(a.snapshots, b.snapshots, strict=True):
+        assert s.keys() == r.keys() and s["step"] == r["step"] and s["t"] == r["t"]
+        assert all(np.array_equal(s[k], r[k]) for k in ("v", "f", "x") if k in s)
+
+
+@pytest.mark.parametrize("make", [default_scene, _inhomogeneous, _failing], ids=["refined", "inhomogeneous", "failed"])
+def test_load_run_returns_the_run_that_simulate_returned(tmp_path, make):
+    run = simulate(make(), out=tmp_path / "r")
+    _assert_same_run(jko_cvx.load_run(tmp_path / "r"), run)
+    if make is _failing:
+        assert run.verdict.stop is StopReason.SOLVER_FAILURE and [s["step"] for s in run.snapshots] == [0, 1]
+
+
+def test_load_run_refuses_an_unfinished_run_unless_asked(tmp_path):
+    out = tmp_path / "r"
+    run = simulate(default_scene(), out=out)
+    (out / "verdict.json").unlink()
+    with pytest.raises(RunDirError, match=r"has not ended \(no verdict.json; checkpoint at step 51"):
+        jko_cvx.load_run(out)
+    assert jko_cvx.load_run(out, allow_partial=True).t == run.t
+    with pytest.raises(RunDirError, match="does not exist"):
+        jko_cvx.load_run(tmp_path / "nowhere")
+    with pytest.raises(RunDirError, match=r"is not a run directory: it has no scene\.json"):
+        jko_cvx.load_run(out / "snapshots")
+    (out / "scene.json").write_text(json.dumps({**json.loads((out / "scene.json").read_text()), "gamma": 2.0}))
+    with pytest.raises(RunDirError, match="does not rebuild the scene"):  # an edited scene.json is caught
+        jko_cvx.load_run(out, allow_partial=True)
+
+
+def test_to_xarray_lays_out_snapshots_and_diagnostics_with_named_dimensions():
+    run = simulate(default_scene())
+    ds = run.to_xarray()
+    d = run.diagnostics
+    assert ds["f"].dims == ("t_snap", "iv") and ds["v"].dims == ("t_snap", "iv")
+    assert np.array_equal(ds["t"].values, d["t"].to_numpy())
+    assert np.array_equal(ds["min_dv"].values, d["min_dv"].to_numpy())
+    assert np.array_equal(ds["t_snap"].values, [s["t"] for s in run.snapshots])
+    for k, s in enumerate(run.snapshots):
+        assert np.array_equal(ds["f"].isel(t_snap=k).values, s["f"]) and np.array_equal(ds["v"][k].values, s["v"])
+    assert not np.array_equal(ds["v"][0].values, ds["v"][-1].values)  # refinement moved the grid: one per snapshot
+    assert ds.attrs["stop"] == "EPS_V" and ds.attrs["B_v"] == 1 and ds.attrs["T_b"] == run.verdict.T_b
+    assert json.loads(ds.attrs["scene"])["gamma"] == 1.0
+
+
+def test_to_xarray_of_an_inhomogeneous_run_has_x_and_v():
+    run = simulate(_inhomogeneous())
+    ds = run.to_xarray()
+    assert ds["f"].dims == ("t_snap", "ix", "iv") and ds["x"].dims == ("t_snap", "ix")
+    assert np.array_equal(ds["f"].sel(t_snap=run.t).values, run.f)
+    assert np.array_equal(ds["x"][-1].values, run.xgrid.points)
+    assert np.isnan(ds.attrs["T_b"]) and ds.attrs["blowup"] == 0
+
+
+def test_export_writes_the_dataset_as_netcdf(tmp_path):
+    out = tmp_path / "r"
+    run = simulate(_inhomogeneous(), out=out)
+    assert main(["export", str(out), "--netcdf", str(tmp_path / "r.nc")]) == 0
+    with xr.open_dataset(tmp_path / "r.nc", engine="h5netcdf") as back:
+        xr.testing.assert_identical(back.load(), run.to_xarray())
+
+
+def test_a_missing_extra_is_named(tmp_path, monkeypatch, capsys):
+    run = simulate(dataclasses.replace(default_scene(), t_end=0.02), out=tmp_path / "r")
+    monkeypatch.setitem(sys.modules, "xarray", None)  # as if not installed
+    with pytest.raises(ImportError, match=r"install the optional extra jko_cvx\[netcdf\]"):
+        run.to_xarray()
+    assert main(["export", str(tmp_path / "r"), "--netcdf", str(tmp_path / "r.nc")]) == 2
+    assert "jko_cvx[netcdf]" in capsys.readouterr().err and not (tmp_path / "r.nc").exists()
+
+
+def test_the_netcdf_extra_is_declared_and_tested():
+    extras = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["optional-dependencies"]
+    names = {r.split(">")[0].split("[")[0] for r in extras["netcdf"]}
+    assert names == {"xarray", "h5netcdf"} and "h5netcdf[h5py]>=1.1" in extras["netcdf"]
+    assert set(extras["netcdf"]) <= set(extras["test"])
+
+
+# --- jko_cvx.plot -------------------------------------------------------------------------------
+
+
+def test_records_figure_of_a_loaded_run_shows_thresholds_exact_law_and_blowup(tmp_path):
+    import matplotlib.pyplot as plt
+
+    simulate(default_scene(), out=tmp_path / "r")
+    run = jko_cvx.load_run(tmp_path / "r")
+    fig = plot_records(run)
+    labels = fig.axes[0].get_legend_handles_labels()[1]
+    assert "eps_v = 0.00025" in labels and "v-grid remeshed" in labels
+    assert any(lab.startswith("exact max f") for lab in labels) and "exact T = 0.5001" in labels
+    assert "T_b = 0.51" in labels
+    plt.close(fig)
+    _t, law, T = exact_max_f(run)
+    m0 = run.diagnostics.max_f.iloc[0]
+    assert T == 1 / (2 * m0) and law[0] == m0 and np.all(np.diff(law) > 0)  # f0 / (1 - 2 f0 t)
+    assert exact_max_f(simulate(_inhomogeneous())) is None
+
+
+def test_refinement_switches_are_the_steps_whose_grid_changed():
+    """Checked against the grids themselves: a snapshot at every step of a run that remeshes only when the set moved."""
+    s = dataclasses.replace(load_scene(SCENES / "ibu_gamma3.toml"), t_end=1.0, v_n=61, every=1)
+    run = simulate(s)
+    pairs = zip(run.snapshots[1:], run.snapshots[:-1], strict=True)
+    changed = [snap["step"] for snap, prev in pairs if not np.array_equal(snap["v"], prev["v"])]
+    assert 0 < len(changed) < run.steps  # tol = 0.1: some steps remesh, most do not
+    assert list(refinement_switches(run, "v")) == changed
+    assert refinement_switches(run, "x").size == 0
+
+
+def test_save_figures_writes_both_without_pyplot(tmp_path):
+    import matplotlib.pyplot as plt
+
+    run = simulate(_inhomogeneous())
+    paths = save_figures(run, tmp_path)
+    assert [p.name for p in paths] == ["solution.png", "records.png"] and all(p.stat().st_size > 0 for p in paths)
+    assert plt.get_fignums() == []
+    fig = plot_solution(run)
+    assert fig.axes[0].get_title().startswith("f(t = 0.3")
+    plt.close(fig)
+
+
+# --- the run summary ----------------------------------------------------------------------------
+
+
+def test_summary_counts_steps_as_verdict_json_and_a_failure_stop_as_a_failed_step(tmp_path, capsys):
+    scene = tmp_path / "fails.toml"
+    scene.write_text(
+        'name = "fails"\ngamma = 1.0\nt_end = 0.3\n[v]\nL = 2.0\nn = 121\n[initial]\nkind = "gaussians"\n'
+        "amplitudes = [1.0]\nrates = [2.0]\ncentres = [0.0]\n[time]\ndt = 0.05\n"
+        '[refine.v]\nbumps = 1\n[collision]\nbeta = 1000.0\nfisher = "log"\noptions = { max_iter = 6 }\n'
+    )
+    assert main(["run", str(scene), "--out", str(tmp_path / "r"), "--quiet"]) == 0
+    text = capsys.readouterr().out
+    verdict = json.loads((tmp_path / "r" / "verdict.json").read_text())
+    assert verdict["stop"] == "SOLVER_FAILURE" and verdict["steps"] == 1
+    assert f"steps = {verdict['steps']}," in text
+    assert "steps with a failed collision solve: 1" in text
+    assert "max f over the run" in text

@@ -1,0 +1,265 @@
+"""Run directories: provenance on resume, no silent overwrite, one run at a time, interruptions, damaged files."""
+
+import dataclasses
+import json
+import os
+import re
+import shlex
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import jko_cvx.rundir as rundir_module
+from jko_cvx import load_run
+from jko_cvx.cli import main
+from jko_cvx.rundir import RunDir, scene_differences, scene_fingerprint
+from jko_cvx.runstate import RunDirError
+from jko_cvx.scene import load_scene, scene_from_dict
+from jko_cvx.simulate import simulate
+
+SMALL = {
+    "name": "small",
+    "gamma": 1.0,
+    "t_end": 0.05,
+    "v": {"L": 2.0, "n": 41},
+    "initial": {"kind": "gaussians", "amplitudes": [1.0], "rates": [2.0], "centres": [0.0]},
+    "time": {"dt": 0.01},
+    "output": {"every": 2, "checkpoint_every": 2},
+}
+
+# gamma = 3, two bumps on a refined grid (ibu_gamma3 on a shorter interval): 800 steps, about 2 s
+LONG_TOML = """
+name = "interrupt_me"
+gamma = 3.0
+t_end = 8.0
+[v]
+L = 3.0
+n = 101
+[initial]
+kind = "gaussians"
+amplitudes = [1.0, 1.0]
+rates = [10.0, 10.0]
+centres = [1.5, -1.5]
+[time]
+dt = 0.01
+[refine.v]
+bumps = 2
+delta0 = 0.8
+delta = 0.5
+tol = 0.1
+[collision]
+beta = 1e4
+fisher = "log"
+[output]
+every = 20
+checkpoint_every = 100000   # the only checkpoint is the one the interruption writes
+"""
+
+
+def _small(**changes):
+    return dataclasses.replace(scene_from_dict(SMALL), **changes)
+
+
+def _cli(*args, check_rc=None):
+    env = dict(os.environ, PYTHONUNBUFFERED="1", OPENBLAS_NUM_THREADS="1")
+    proc = subprocess.run([sys.executable, "-m", "jko_cvx.cli", *args], env=env, capture_output=True, text=True)
+    if check_rc is not None:
+        assert proc.returncode == check_rc, proc.stderr
+    return proc
+
+
+# --- provenance --------------------------------------------------------------------------------
+
+
+def test_the_fingerprint_is_the_scene_and_only_the_scene():
+    a, b = _small(), _small()
+    assert scene_fingerprint(a) == scene_fingerprint(b) and len(scene_fingerprint(a)) == 64
+    assert scene_fingerprint(_small(gamma=2.0)) != scene_fingerprint(a)
+    assert scene_fingerprint(_small(options={"max_iter": 7})) != scene_fingerprint(a)
+    diff = scene_differences({"gamma": 1.0, "refine_v": {"tol": 0.1}}, {"gamma": 2.0, "refine_v": {"tol": 0.2}, "k": 1})
+    assert diff == ["gamma: 1.0 -> 2.0", "k: (absent) -> 1", "refine_v.tol: 0.1 -> 0.2"]
+
+
+def test_the_run_directory_records_the_fingerprint_and_version(tmp_path):
+    scene = _small()
+    simulate(scene, out=tmp_path / "r")
+    meta = json.loads((tmp_path / "r" / "metadata.json").read_text())
+    assert meta["scene_sha256"] == scene_fingerprint(scene) and meta["jko_cvx"] == rundir_module.__version__
+    ck = np.load(tmp_path / "r" / "checkpoint.npz")
+    assert str(ck["scene_sha256"]) == scene_fingerprint(scene) and str(ck["jko_cvx"]) == rundir_module.__version__
+
+
+def test_resume_refuses_another_scene_and_names_what_differs(tmp_path):
+    out = tmp_path / "r"
+    simulate(_small(t_end=0.1), out=out)
+    changed = _small(t_end=0.1, gamma=2.0, dt=0.02)
+    named = r"not the one its checkpoint was made from \(dt: 0.01 -> 0.02; gamma: 1.0 -> 2.0\)"
+    with pytest.raises(RunDirError, match=named):
+        simulate(changed, out=out, resume=True)
+    with pytest.raises(RunDirError, match="the keys cannot be named"):  # scene.json gone: still refused
+        (out / "scene.json").unlink()
+        simulate(changed, out=out, resume=True)
+
+
+def test_resume_refuses_a_checkpoint_of_another_package_version(tmp_path, monkeypatch):
+    out = tmp_path / "r"
+    simulate(_small(), out=out)
+    monkeypatch.setattr(rundir_module, "__version__", "99.0")
+    with pytest.raises(RunDirError, match=r"made by jko_cvx .* this is 99.0"):
+        simulate(_small(), out=out, resume=True)
+
+
+def test_resume_with_nothing_to_resume_fails(tmp_path):
+    with pytest.raises(RunDirError, match=r"nothing to resume: run directory .* does not exist"):
+        simulate(_small(), out=tmp_path / "none", resume=True)
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(RunDirError, match=r"nothing to resume in .*empty: it has no checkpoint\.npz"):
+        simulate(_small(), out=tmp_path / "empty", resume=True)
+    with pytest.raises(ValueError, match="need a run directory"):
+        simulate(_small(), resume=True)
+
+
+def test_a_checkpoint_without_provenance_is_refused(tmp_path):
+    out = tmp_path / "r"
+    simulate(_small(), out=out)
+    ck = dict(np.load(out / "checkpoint.npz"))
+    del ck["scene_sha256"]
+    np.savez(out / "checkpoint.npz", **ck)
+    with pytest.raises(RunDirError, match="records no scene fingerprint"):
+        simulate(_small(), out=out, resume=True)
+
+
+# --- no silent overwrite, one run at a time ------------------------------------------------------
+
+
+def test_a_rerun_refuses_an_existing_run_unless_overwrite(tmp_path):
+    out = tmp_path / "r"
+    first = simulate(_small(t_end=0.1), out=out)
+    (out / "notes.txt").write_text("mine")
+    (out / "snapshots" / "step_0009999.npz").write_bytes(b"stale")  # a file of the old run
+    with pytest.raises(RunDirError, match=r"already holds a run \(scene.json, .*--overwrite"):
+        simulate(_small(), out=out)
+    assert np.array_equal(load_run(out).f, first.f)  # untouched by the refusal
+    second = simulate(_small(), out=out, overwrite=True)
+    assert (out / "notes.txt").read_text() == "mine"  # only the run's own files are replaced
+    assert not (out / "snapshots" / "step_0009999.npz").exists()
+    assert load_run(out).t == second.t == pytest.approx(0.05)
+    with pytest.raises(ValueError, match="resume and overwrite exclude each other"):
+        simulate(_small(), out=out, resume=True, overwrite=True)
+
+
+def test_a_locked_run_directory_is_refused_and_the_lock_dies_with_its_run(tmp_path):
+    out = tmp_path / "r"
+    with RunDir.open(out, _small()):
+        with pytest.raises(RunDirError, match=rf"run directory {out} is in use by another run \(process {os.getpid()}"):
+            simulate(_small(), out=out, overwrite=True)
+    simulate(_small(), out=out, overwrite=True)  # released on exit
+    holder = subprocess.Popen(
+        [sys.executable, "-c", f"import fcntl, os, time; fd = os.open({str(out / '.lock')!r}, os.O_RDWR); "
+         "fcntl.flock(fd, fcntl.LOCK_EX); print('locked', flush=True); time.sleep(60)"],
+        stdout=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        assert holder.stdout.readline().strip() == "locked"
+        proc = _cli("run", "--out", str(out), "--overwrite", "--quiet")
+        assert proc.returncode == 2 and "is in use by another run" in proc.stderr and "Traceback" not in proc.stderr
+    finally:
+        holder.kill()
+        holder.wait()
+    simulate(_small(), out=out, overwrite=True)  # a killed holder leaves no stale lock
+
+
+def test_cli_rerun_resume_and_overwrite(tmp_path, capsys):
+    out = tmp_path / "r"
+    scene = tmp_path / "s.toml"
+    scene.write_text(
+        'name = "s"\ngamma = 1.0\nt_end = 0.05\n[v]\nL = 2.0\nn = 41\n[initial]\nkind = "gaussians"\n'
+        "amplitudes = [1.0]\nrates = [2.0]\ncentres = [0.0]\n[time]\ndt = 0.01\n"
+    )
+    run = ["run", str(scene), "--out", str(out), "--quiet"]
+    assert main(run) == 0
+    assert main(run) == 2 and "already holds a run" in capsys.readouterr().err
+    assert main([*run, "--overwrite"]) == 0
+    assert main([*run, "--resume"]) == 0  # an ended run: nothing left to do
+    capsys.readouterr()
+    scene.write_text(scene.read_text().replace("gamma = 1.0", "gamma = 1.5"))
+    assert main([*run, "--resume"]) == 2 and "gamma: 1.0 -> 1.5" in capsys.readouterr().err
+    assert main(["run", str(scene), "--out", str(tmp_path / "no"), "--resume"]) == 2
+    assert "nothing to resume" in capsys.readouterr().err
+    with pytest.raises(SystemExit):  # argparse: the two exclude each other
+        main([*run, "--resume", "--overwrite"])
+
+
+# --- damaged files ------------------------------------------------------------------------------
+
+
+def test_damaged_checkpoint_or_snapshot_is_named_on_resume(tmp_path, capsys):
+    out = tmp_path / "r"
+    simulate(_small(), out=out)
+    ck = out / "checkpoint.npz"
+    good = ck.read_bytes()
+    ck.write_bytes(good[: len(good) // 3])
+    with pytest.raises(RunDirError, match=rf"checkpoint {ck} is corrupted or truncated"):
+        simulate(_small(), out=out, resume=True)
+    assert main(["run", "--out", str(out), "--resume", "--quiet"]) == 2  # the default scene: the same refusal
+    assert f"checkpoint {ck} is corrupted" in capsys.readouterr().err
+    ck.write_bytes(b"PK not really")
+    with pytest.raises(RunDirError, match=rf"checkpoint {ck} is corrupted or truncated \(not an \.npz archive\)"):
+        simulate(_small(), out=out, resume=True)
+    ck.write_bytes(good)
+    snap = out / "snapshots" / "step_0000002.npz"
+    snap.write_bytes(snap.read_bytes()[:100])
+    with pytest.raises(RunDirError, match=rf"snapshot {snap} is corrupted or truncated"):
+        simulate(_small(), out=out, resume=True)
+    with pytest.raises(RunDirError, match=rf"snapshot {snap} is corrupted or truncated"):
+        load_run(out)
+
+
+# --- interruptions ------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def long_scene(tmp_path_factory):
+    path = tmp_path_factory.mktemp("scene") / "interrupt_me.toml"
+    path.write_text(LONG_TOML)
+    return path, simulate(load_scene(path))
+
+
+def _assert_same_run(a, b):
+    assert a.t == b.t and a.verdict == b.verdict
+    assert np.array_equal(a.f, b.f) and np.array_equal(a.vgrid.points, b.vgrid.points)
+    pd.testing.assert_frame_equal(a.diagnostics, b.diagnostics, check_exact=True)
+    assert [s["step"] for s in a.snapshots] == [s["step"] for s in b.snapshots]
+    for s, r in zip(a.snapshots, b.snapshots, strict=True):
+        assert np.array_equal(s["f"], r["f"]) and np.array_equal(s["v"], r["v"])
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_an_interrupted_run_checkpoints_says_how_to_resume_and_resumes_bit_for_bit(tmp_path, long_scene, signum):
+    scene_file, fresh = long_scene
+    out = tmp_path / "run"
+    env = dict(os.environ, PYTHONUNBUFFERED="1", OPENBLAS_NUM_THREADS="1")
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "jko_cvx.cli", "run", str(scene_file), "--out", str(out), "--quiet"],
+        env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    first = out / "snapshots" / "step_0000020.npz"
+    deadline = time.time() + 120
+    while not first.exists() and time.time() < deadline and proc.poll() is None:
+        time.sleep(0.01)
+    proc.send_signal(signum)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err and f"interrupted ({signal.Signals(signum).name})" in err
+    step = int(np.load(out / "checkpoint.npz")["step"])
+    assert 20 <= step < 800, "interrupted mid-way (checkpoint_every is larger than the run: this is the signal's)"
+    assert f"at step {step}," in err and not (out / "verdict.json").exists()
+    command = re.search(r"Resume with:\n\s+(.*)", err).group(1)
+    assert command == shlex.join(["jko-cvx", "run", str(scene_file), "--out", str(out), "--resume"])
+    assert main([*shlex.split(command)[1:], "--quiet"]) == 0
+    _assert_same_run(load_run(out), fresh)
