@@ -231,7 +231,7 @@ def main(argv: list[str] | None = None) -> int:
     p_rep.add_argument("--fresh", action="store_true", help="ignore the sweep cache: recompute every point")
     from .benchmarks import STUDIES
 
-    p_std = sub.add_parser("study", help="a solver study: work-precision diagrams, cost growth, the extremes matrix")
+    p_std = sub.add_parser("study", help="a solver study: work-precision (also vs the FV peer), cost growth, extremes")
     p_std.add_argument("name", choices=sorted(STUDIES), help="which study")
     # serial by default: the studies time their runs, which must not share the cores
     _sweep_arguments(p_std, "results/study", "serial", "a reduced version (about a minute)")

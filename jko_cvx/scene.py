@@ -28,6 +28,7 @@ A scene file (the shipped ones are package data, ``jko_cvx/scenes/*.toml``; see
     policy = "fixed"         # "fixed" | "halving" (alg:MR_JKO_ver2 as written) | "halving_reset" | "cfl"
     dt = 0.01
     eps_t = 1e-6             # halving only: the run ends after an accepted step <= eps_t
+    order = 1                # 2: Richardson-extrapolated collision step (and Strang splitting in x)
 
     [refine.v]               # and [refine.x]; omit for a fixed grid
     bumps = 1                # 1 (mu1) or 2 (mu2)
@@ -139,6 +140,7 @@ class Scene:
     dt: float
     policy: str = "fixed"
     eps_t: float = 1e-6
+    time_order: int = 1
     strength: float = 1.0
     x_L: float | None = None
     x_n: int | None = None
@@ -250,6 +252,7 @@ def scene_from_dict(d: Mapping[str, Any], limits: Limits | None = None) -> Scene
         dt=t.dt,
         policy=t.policy,
         eps_t=t.eps_t,
+        time_order=t.order,
         strength=top.strength,
         x_L=None if x is None else x.L,
         x_n=None if x is None else x.n,

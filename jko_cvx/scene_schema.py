@@ -283,6 +283,7 @@ class TimeTable(_Table):
     dt: float = key(_POS)
     policy: str = key(Rule("str", choices=("fixed", "halving", "halving_reset", "cfl")), "fixed")
     eps_t: float = key(_POS, 1e-6)
+    order: int = key(Rule("int", choices=(1, 2)), 1)
 
 
 @dataclass(frozen=True)

@@ -41,6 +41,8 @@ from .run import Run, load_run
 from .rundir import RunDir
 from .runstate import RunState
 from .scene import Scene
+from .scene_limits import check_limits
+from .time_order import collision_step_order2, strang_step
 from .trackers import Snapshots, SolverFailure, StepInfo, Tracker, default_trackers
 from .transport import transport_step
 from .verdict import Verdict
@@ -109,6 +111,7 @@ class _Outcome:
     res: Any
     ok: bool
     retries: int = 0
+    f: np.ndarray | None = None  # the density after the whole step (Strang: after the second half transport)
 
 
 class Stepper:
@@ -146,29 +149,53 @@ class Stepper:
         dt = min(dt, sc.t_end - state.t)
         retries = 0
         while True:
-            t0 = time.perf_counter()
-            fh = (
-                state.f
-                if xg is None
-                else transport_step(xg, state.vgrid.points, state.f, dt, conserve_moment=sc.conserve_x_moment)
-            )
-            t1 = time.perf_counter()
-            prob = CollisionProblem(
-                state.vgrid, self.kernel, fh, dt, sc.strength, sc.beta, sc.fisher, sc.conserve_momentum
-            )
-            res = solve_collision(prob, method=sc.method, **self.opts)
-            state.seconds["transport"] += t1 - t0
-            state.seconds["collision"] += time.perf_counter() - t1
+            f_new, res = self.step(state, dt)
             ok = self.accepted(res)
             retry = None if ok else self.policy.retry(dt)
             if retry is None:
-                return _Outcome(dt, res, ok, retries)
+                return _Outcome(dt, res, ok, retries, f_new)
             dt, retries = retry, retries + 1
+
+    def step(self, state: RunState, dt: float) -> tuple[np.ndarray, Any]:
+        """Transport and collision over ``dt`` from ``state``: the new density and the collision result.
+
+        ``time.order = 1``: transport, then one JKO step (``alg:SPMCSL-JKO``).  ``time.order = 2``:
+        the Richardson-extrapolated collision step of :mod:`jko_cvx.time_order`, and for
+        inhomogeneous scenes Strang splitting (half transport, collision, half transport).
+        """
+        sc, xg, vg = self.scene, state.xgrid, state.vgrid
+        secs = state.seconds
+
+        def transport(g: np.ndarray, h: float) -> np.ndarray:
+            t0 = time.perf_counter()
+            out = transport_step(xg, vg.points, g, h, conserve_moment=sc.conserve_x_moment)
+            secs["transport"] += time.perf_counter() - t0
+            return out
+
+        def problem(g: np.ndarray, h: float) -> CollisionProblem:
+            return CollisionProblem(vg, self.kernel, g, h, sc.strength, sc.beta, sc.fisher, sc.conserve_momentum)
+
+        def collide(g: np.ndarray, h: float):
+            t0 = time.perf_counter()
+            if sc.time_order == 2:
+                res = collision_step_order2(problem, g, h, method=sc.method, **self.opts)
+            else:
+                res = solve_collision(problem(g, h), method=sc.method, **self.opts)
+            secs["collision"] += time.perf_counter() - t0
+            return res
+
+        if xg is None:
+            res = collide(state.f, dt)
+            return res.f, res
+        if sc.time_order == 2:
+            return strang_step(transport, collide, state.f, dt)
+        res = collide(transport(state.f, dt), dt)
+        return res.f, res
 
     def commit(self, state: RunState, out: _Outcome) -> StepInfo:
         """Advance ``state`` by the solved step: refine, then t and step."""
         t2 = time.perf_counter()
-        f, vgrid, xgrid, vp, xp = out.res.f, state.vgrid, state.xgrid, state.v_params, state.x_params
+        f, vgrid, xgrid, vp, xp = out.f, state.vgrid, state.xgrid, state.v_params, state.x_params
         if self.scene.refine_v is not None:
             f, vgrid, vp = _refine_v(self.scene, vgrid, f, vp)
         if self.scene.refine_x is not None:
@@ -214,6 +241,9 @@ def simulate(
 
     Raises
     ------
+    SceneError
+        The scene's step count or memory estimate is beyond the limits of
+        :mod:`jko_cvx.scene_limits` (nothing has been written).
     RunDirError
         ``out`` cannot be used as asked (see :mod:`jko_cvx.rundir`); nothing has been run.
     RunInterrupted
@@ -222,6 +252,9 @@ def simulate(
     """
     if out is None and (resume or overwrite):
         raise ValueError("resume and overwrite need a run directory: pass out=")
+    # a Scene built in code (dataclasses.replace) bypasses the loader: check its size here too,
+    # before anything is written
+    check_limits(scene)
     stepper = Stepper(scene)
     with RunDir.open(out, scene, resume=resume, overwrite=overwrite) if out is not None else nullcontext() as rd:
         state = rd.state if rd is not None and rd.state is not None else initial_state(scene)

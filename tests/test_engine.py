@@ -293,3 +293,12 @@ def test_refine_v_conserve_energy_reaches_the_remap(monkeypatch):
     assert scene_from_dict(with_overrides(doc, {"refine.v.conserve_energy": True})).refine_v.conserve_energy
     with pytest.raises(SceneError, match=r"refine\.x\.conserve_energy"):
         scene_from_dict(with_overrides(doc, {"refine.x.conserve_energy": True}))
+
+
+def test_simulate_refuses_an_oversized_scene_built_in_code(tmp_path):
+    """dataclasses.replace skips the loader's checks: simulate applies the size limits itself, before writing."""
+    s = default_scene()
+    for bad in (dataclasses.replace(s, dt=1e-300), dataclasses.replace(s, v_n=10**7)):
+        with pytest.raises(SceneError, match="JKO_CVX_MAX_"):
+            simulate(bad, out=tmp_path / "run")
+        assert not (tmp_path / "run").exists()

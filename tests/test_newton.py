@@ -7,7 +7,7 @@ import pytest
 
 from jko_cvx import CollisionProblem, Grid, PowerKernel, Status, solve_collision
 from jko_cvx.collision import solve_conic, solve_newton
-from jko_cvx.collision.newton import _direction, _fused, _newton_direction, _solve_batched, _solve_single
+from jko_cvx.collision.newton import NewtonOptions, _Attempt, _attempt, _direction, _fused, _newton_direction
 from jko_cvx.collision.problem import add_pentadiagonal
 from jko_cvx.evolve import evolve_fixed_grid
 from jko_cvx.testing import random_problem
@@ -193,12 +193,11 @@ def test_vacuum_tail_jam_is_resolved_by_interior_damping():
     ref = solve_conic(P, tol=1e-10)
     assert ref.success
     batch = P.with_f_star(np.stack([P.f_star, P.f_star]))
-    t0 = 0.0
+    damped = _Attempt(damping=True, jam_exit=False)
     results = [
         solve_newton(P),
         solve_newton(batch),
-        _solve_single(P, 1e-10, 1e-10, 100, None, "explicit", True, t0, damping=True, jam_exit=False),
-        _solve_batched(batch, 1e-10, 1e-10, 100, None, "explicit", True, t0, damping=True, jam_exit=False),
+        _attempt(batch, None, NewtonOptions(), damped),
     ]
     for res in results:
         assert np.all(res.status == Status.CONVERGED), res.status

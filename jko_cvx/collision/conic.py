@@ -523,21 +523,16 @@ def solve_conic(
         problem.  ``"linearized"``: one solve with the energy linearised at ``f_star``
         (semi-implicit scheme); status ``LINEARIZED``.
     dc_split : {"eigen", "diagonal"}, default "eigen"
-        Convex part of the difference-of-convex split on mass-free directions.
-        ``"eigen"``: the exact positive part :math:`\\tilde K_+` kept as a quadratic
-        (fewest passes, but a dense N x N block in every conic solve).
-        ``"diagonal"``: the majorant :math:`\\rho\\|\\delta\\|^2`, :math:`\\rho = \\lambda_{max}(\\tilde K_+)`,
-        with :math:`\\rho I - \\tilde K` linearised (cheap solves).  Both coincide for
-        :math:`\\gamma \\le 2`, where :math:`\\tilde K_+ = 0`.
+        Convex part of the difference-of-convex split on mass-free directions: the exact
+        positive part :math:`\\tilde K_+` (fewest passes, a dense block in every solve) or
+        the majorant :math:`\\lambda_{max}(\\tilde K_+)\\|\\delta\\|^2` (cheap solves); the
+        same for :math:`\\gamma \\le 2`, where :math:`\\tilde K_+ = 0`.
     fisher_cone : {"auto", "centred", "raw"}, default "auto"
-        Form of the perspective-Fisher cone.  ``"raw"``: :math:`(f_{k+1}-f_k)^2 \\le s_k q_k`.
-        ``"centred"``: the same term rewritten about :math:`f^*` (see the module
-        docstring), whose cone variable stays O(1) however small the step.  ``"auto"``
-        tries the centred form first when the explicit flux is below 1e-4 of max f* (tiny
-        steps, where the raw cone loses the step in rounding) and the raw form otherwise,
-        and falls back to the other form when the first is not certified (``info`` then
-        has ``fallback_from``).  Measured: raw is better conditioned on rough data, centred
-        on smooth data with a strong Fisher term (beta = 1: KKT 3e-9 against 1.5e-6).
+        Form of the perspective-Fisher cone (module docstring).  ``"auto"`` tries the
+        centred form first when the explicit flux is below 1e-4 of max f* and the raw one
+        otherwise, and falls back to the other when the first is not certified (``info``
+        then has ``fallback_from``): raw is better conditioned on rough data, centred on
+        smooth data with a strong Fisher term (beta = 1: KKT 3e-9 against 1.5e-6).
     max_passes : int, default 50
         Limit on convex-concave passes (status ``MAX_ITERATIONS`` when reached).
     dc_tol : float, optional
@@ -569,21 +564,8 @@ def solve_conic(
         ``compile_seconds`` and ``solver_seconds``.  Every solve starts cold: the answer
         does not depend on earlier solves.
     """
-    opts = ConicOptions.checked(
-        problem,
-        dc_tol,
-        solver=solver,
-        tol=tol,
-        energy=energy,
-        dc_split=dc_split,
-        fisher_cone=fisher_cone,
-        max_passes=max_passes,
-        kkt_tol=kkt_tol,
-        solver_options=solver_options,
-        check_convexity=check_convexity,
-        verbose=verbose,
-        time_limit=time_limit,
-    )
+    options = {k: v for k, v in locals().items() if k not in ("problem", "dc_tol")}
+    opts = ConicOptions.checked(problem, dc_tol, **options)
     if opts.fisher_cone == "auto" and problem.fisher is not None:
         return _solve_auto(problem, opts)
     return _solve_form(problem, opts, opts.fisher_cone)

@@ -22,11 +22,20 @@ steps while the model still promises a decrease) is solved again with interior d
 Levenberg-Marquardt in the relative metric of f (``info["interior_damping"]``); if that
 does not converge either, a third time without either device, and the attempt with the
 smaller KKT residual is returned (``info["jammed"]`` marks these slices).  The
-solver terminates on the KKT residual of
-:class:`~jko_cvx.collision.problem.CollisionProblem`, never on step length alone.
+solver stops on the KKT residual of
+:class:`~jko_cvx.collision.problem.CollisionProblem` (``tol``), never on step length
+alone, and :func:`~jko_cvx.collision.certify.certify` judges the point (``kkt_tol``).
 
-Statuses: ``CONVERGED`` (KKT residual within tolerance and the reduced Hessian positive
-definite), ``NONCONVEX`` (the reduced Hessian is not positive definite at the final
+One algorithm for one problem and for a batch (a single problem is a batch of one):
+:class:`NewtonOptions` (checked once) and :class:`NewtonState` (one row per slice still
+iterating), and the phases as functions -- :func:`_start`, :func:`_residual_test`,
+:func:`_direction` (with the modified-Newton shifts), :func:`_step` (interior damping,
+:func:`_line_search`, jam bookkeeping), :func:`_finalise` -- driven by :func:`_iterate`;
+the retry cascade (:func:`_cascade`) is written once, per slice.
+
+Statuses: ``CONVERGED`` (KKT residual within ``kkt_tol`` and the reduced Hessian positive
+definite), ``NOT_CERTIFIED`` (stopped, at ``tol`` or at the residual's rounding floor, above
+``kkt_tol``), ``NONCONVEX`` (the reduced Hessian is not positive definite at the final
 point -- a stationary point that is not a minimiser -- or no shift gave a descent direction),
 ``MAX_ITERATIONS``, ``NUMERICAL_ERROR`` (non-finite values, or the line search
 stalled with the residual above tolerance).
@@ -35,7 +44,7 @@ stalled with the residual above tolerance).
 from __future__ import annotations
 
 import time
-import weakref
+from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
@@ -51,8 +60,9 @@ from .linalg import divergence, divergence_adjoint
 from .problem import CollisionProblem, TermParts, add_pentadiagonal
 from .result import CollisionResult, Status
 from .structured import dense_kernel_direction  # h15
+from .terms import FISHER_TERMS, band_coefficients, reduced_bands, wasserstein_derivatives, wasserstein_value
 
-__all__ = ["solve_newton"]
+__all__ = ["NewtonOptions", "NewtonState", "solve_newton"]
 
 _FRACTION_TO_BOUNDARY = 0.995
 _ARMIJO = 1e-4
@@ -72,6 +82,7 @@ _KEEP = 0.99
 _JAM = 5
 _JAM_STEP = 1e-3
 _MAX_BACKTRACKS = 60
+_TINY = np.finfo(float).tiny
 # Tolerance of the positive-definiteness test on the Jacobi-scaled (unit-diagonal) reduced
 # Hessian: smallest eigenvalue >= -_PD_TOL counts as convex (the factorised matrix is
 # shifted by it, a relative perturbation of the Newton step of the same size).
@@ -82,80 +93,45 @@ _PD_TOL = 1e-10
 _STALL_CHECKS = 3
 
 
-_BAND_CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
-
-
-def _band_coefficients(grid) -> tuple:
-    """Grid constants of the reduced-Hessian bands (T has columns a_k e_k + b_k e_{k+1}), cached per grid."""
-    c = _BAND_CACHE.get(grid)
-    if c is None:
-        h = grid.h
-        a, b = -1 / h[:-1], 1 / h[1:]
-        c = (h, a, b, a * a, 2 * a * b, b * b, a[:-1] * a[1:], b[:-1] * a[1:], b[:-1] * b[1:], b[:-2] * a[2:])
-        _BAND_CACHE[grid] = c
-    return c
-
-
 def _fused(
     problem: CollisionProblem, f: NDArray, m: NDArray, want_parts: bool = True
 ) -> tuple[NDArray, tuple, TermParts | None]:
     """Reduced gradient and the bands of the edge part of the reduced Hessian, in one pass.
 
-    Same formulas as :meth:`CollisionProblem.gradient` and
-    :meth:`CollisionProblem.reduced_hessian` (tests check they agree), computed once
-    for the shared quantities :math:`s`, :math:`m/s` and the Fisher terms.
+    The formulas of :mod:`~jko_cvx.collision.terms` (those of :meth:`CollisionProblem.gradient`
+    and :meth:`CollisionProblem.reduced_hessian`), evaluated once for the shared quantities
+    :math:`s` and :math:`m/s`, at interior points (no domain guards).
     """
-    h, a, b, aa, ab2, bb, o1a, o1b, o1c, o2 = _band_coefficients(problem.grid)
+    h = problem.grid.h
     x, y = f[..., :-1], f[..., 1:]
     s = x + y
-    w = problem.wass_coef
-    u = m / s
-    gm = 2 * w * u
-    gs = -w * u * u
-    hss = 2 * w * u * u / s
-    hsm = -2 * w * u / s
-    hmm = 2 * w / s
-    gx = gs.copy()
-    gy = gs.copy()
-    xx, yy, xy = hss.copy(), hss.copy(), hss.copy()
+    wd = wasserstein_derivatives(m, s, problem.wass_coef)
+    gx, gy = wd.g_s.copy(), wd.g_s.copy()
+    xx, yy, xy = wd.h_ss.copy(), wd.h_ss.copy(), wd.h_ss.copy()
     if problem.fisher is not None:
+        term = FISHER_TERMS[problem.fisher]
         c = problem.fisher_coef
-        if problem.fisher == "perspective":
-            r = (y - x) / s
-            gx += c * (-4 * r - 2 * r * r)
-            gy += c * (4 * r - 2 * r * r)
-            k = 16 * c / (s * s * s)
-            xx += k * y * y
-            yy += k * x * x
-            xy -= k * x * y
-        else:
-            L = np.log(y) - np.log(x)
-            gx += c * (-L * s / x + 0.5 * L * L)
-            gy += c * (L * s / y + 0.5 * L * L)
-            q = c * (s + L * (y - x))
-            xx += q / (x * x)
-            yy += q / (y * y)
-            xy += c * (-s + L * (x - y)) / (x * y)
+        fx, fy = term.gradient(x, y, s, c)
+        gx += fx
+        gy += fy
+        hx, hy, hxy = term.hessian(x, y, s, c)
+        xx += hx
+        yy += hy
+        xy += hxy
     gfe = 2 * problem.energy_coef * problem.energy.matvec(f)
     gf = gfe.copy()
     gf[..., :-1] += gx
     gf[..., 1:] += gy
-    g = gm - divergence_adjoint(gf / h)
+    g = wd.g_m - divergence_adjoint(gf / h)
     parts = None
     if want_parts:  # the per-term split, for the KKT residual's scale
         gfw = np.zeros_like(f)
-        gfw[..., :-1] += gs
-        gfw[..., 1:] += gs
+        gfw[..., :-1] += wd.g_s
+        gfw[..., 1:] += wd.g_s
         gff = gf - gfe - gfw
         zero = np.zeros_like(m)
-        parts = TermParts((gfw, gm), (gff, zero), (gfe, zero))
-    d = np.zeros_like(f)
-    d[..., :-1] += xx
-    d[..., 1:] += yy
-    diag = hmm + aa * d[..., :-1] + ab2 * xy + bb * d[..., 1:] + 2 * (a + b) * hsm
-    off1 = o1a * xy[..., :-1] + o1b * d[..., 1:-1] + o1c * xy[..., 1:] + b[:-1] * hsm[..., 1:] + a[1:] * hsm[..., :-1]
-    off2 = o2 * xy[..., 1:-1]
-    return g, (diag, off1, off2), parts
+        parts = TermParts((gfw, wd.g_m), (gff, zero), (gfe, zero))
+    return g, reduced_bands(problem.grid, xx, yy, xy, wd.h_sm, wd.h_mm), parts
 
 
 def _banded_cholesky(diag, off1, off2) -> tuple[NDArray | None, bool]:
@@ -260,8 +236,8 @@ def _direction(problem: CollisionProblem, bands, g: NDArray) -> tuple[NDArray, N
         # gamma = 3, certified CG otherwise, the per-slice Cholesky as fallback; threaded).
         x, pd = dense_kernel_direction(problem.energy, scale, bands, rhs, _PD_TOL)
     valid = pd.copy()
-    bad = np.flatnonzero(~pd)
-    if bad.size:
+    if not pd.all():
+        bad = np.nonzero(~pd)[0]
         Hb = (
             H[bad]
             if H is not None
@@ -309,10 +285,12 @@ def _interior_damped(
     (arrays of shape ``(B, ...)``).
     """
     h = problem.grid.h
-    _, _, _, aa, _, bb, _, o1b, _, _ = _band_coefficients(problem.grid)
+    _, _, _, aa, _, bb, _, o1b, _, _ = band_coefficients(problem.grid)
     pf = -divergence(p) / h
     alpha = _boundary_step(f, pf)
     todo = jammed & (alpha < 1.0)
+    if not todo.any():
+        return p, alpha
     mu = 1e-2 * np.abs(np.einsum("bi,bi->b", g, p))
     for _ in range(12):
         if not todo.any():
@@ -350,14 +328,10 @@ def _objective_interior(problem: CollisionProblem, f: NDArray, m: NDArray) -> ND
     """:math:`J(f, m)` for strictly positive f (line-search trial points), without domain guards."""
     x, y = f[..., :-1], f[..., 1:]
     s = x + y
-    val = (m * m / s) @ problem.wass_coef
-    if problem.fisher == "perspective":
-        d = y - x
-        val = val + (2 * d * d / s) @ problem.fisher_coef
-    elif problem.fisher == "log":
-        L = np.log(y) - np.log(x)
-        val = val + (0.5 * L * L * s) @ problem.fisher_coef
-    return val + problem.energy_coef * np.einsum("...i,...i->...", f, problem.energy.matvec(f))
+    val = wasserstein_value(m, s) @ problem.wass_coef
+    if problem.fisher is not None:
+        val = val + FISHER_TERMS[problem.fisher].value(x, y, s) @ problem.fisher_coef
+    return val + problem.energy_coef * problem.energy.quadratic(f)
 
 
 def _newton_direction(H: NDArray, rhs: NDArray | None) -> tuple[NDArray | None, NDArray[np.bool_]]:
@@ -388,6 +362,369 @@ def _newton_direction(H: NDArray, rhs: NDArray | None) -> tuple[NDArray | None, 
     return x, pd
 
 
+@dataclass(frozen=True)
+class NewtonOptions:
+    """The options of :func:`solve_newton`, checked once (see its docstring)."""
+
+    tol: float = 1e-10
+    kkt_tol: float = 1e-10
+    max_iter: int = 100
+    start: str = "explicit"
+    check_convexity: bool = True
+
+
+@dataclass(frozen=True)
+class _Attempt:
+    """How one pass of the iteration runs: interior damping on, and whether a jam ends it."""
+
+    damping: bool
+    jam_exit: bool
+
+
+@dataclass
+class NewtonState:
+    """Per-slice state of the Newton iteration, one row per slice still iterating.
+
+    ``rows`` are the slices' indices in the batch.  A slice leaves the state (its row is
+    written to the result arrays by :func:`_retire`) as soon as it has a status: the
+    iteration then works on whole arrays, with no per-iteration gathers, and a batch of
+    one -- the single problem -- costs no more bookkeeping than a scalar loop.  ``status``
+    ``CONVERGED`` means "stopped at a solution by its own rule" (residual within ``tol``, or
+    stalled at its rounding floor) until :func:`~jko_cvx.collision.certify.certify` judges it.
+    """
+
+    rows: NDArray[np.int_]
+    m: NDArray[np.float64]
+    f: NDArray[np.float64]
+    phi: NDArray[np.float64]  # J at the current iterate (the line search's merit function)
+    status: NDArray  # object array of Status or None (still iterating)
+    iterations: NDArray[np.int_]
+    kkt: NDArray[np.float64]  # last residual computed ...
+    kkt_here: NDArray[np.bool_]  # ... and whether it belongs to the current iterate
+    second: NDArray[np.bool_]  # second-order test where the slice stopped
+    jammed: NDArray[np.bool_]
+    near: NDArray[np.bool_]  # last decrement small: check the residual at the next iterate
+    stall: NDArray[np.int_]  # consecutive checks without progress at rounding level
+    decrement: NDArray[np.float64]  # last Newton decrement -g.p/|phi|
+    flat: NDArray[np.int_]  # consecutive jammed steps
+
+    @classmethod
+    def initial(cls, m: NDArray, f: NDArray, phi: NDArray, status: NDArray) -> NewtonState:
+        """The state before the first iteration."""
+        b = m.shape[0]
+        return cls(
+            np.arange(b), m, f, phi, status, np.zeros(b, dtype=int), np.full(b, np.nan), np.zeros(b, dtype=bool),
+            np.zeros(b, dtype=bool), np.zeros(b, dtype=bool), np.zeros(b, dtype=bool), np.zeros(b, dtype=int),
+            np.full(b, np.inf), np.zeros(b, dtype=int),
+        )  # fmt: skip
+
+    def take(self, keep: NDArray[np.bool_]) -> NewtonState:
+        """The rows ``keep``."""
+        return NewtonState(*(getattr(self, name)[keep] for name in _STATE_FIELDS))
+
+
+_STATE_FIELDS = tuple(f.name for f in fields(NewtonState))
+# What a slice hands to the result when it leaves the iteration.
+_RESULT_FIELDS = ("m", "f", "status", "iterations", "kkt", "kkt_here", "second", "jammed")
+
+
+def _explicit_start(P: CollisionProblem, F_star: NDArray, m: NDArray, use: NDArray[np.bool_]) -> NDArray:
+    """The damped explicit step (first SQP step) where ``use`` and where it lowers J, else ``m``.
+
+    The step is damped to keep ``f >= f*/2``.
+    """
+    zero = np.zeros_like(m)
+    pf, pm = explicit_step(P)
+    ratio = np.where(pf < 0, -F_star / np.where(pf < 0, pf, -1.0), np.inf).min(axis=-1)
+    alpha = np.minimum(1.0, 0.5 * ratio)
+    cand = _on_momentum_plane(P, alpha[:, None] * pm)
+    fc = F_star - divergence(cand) / P.grid.h
+    better = (
+        use
+        & np.all(np.isfinite(cand), axis=-1)
+        & np.all(fc > 0, axis=-1)
+        & (_objective_interior(P, fc, cand) < _objective_interior(P, F_star, zero))
+    )
+    return np.where(better[:, None], cand, m)
+
+
+def _start(P: CollisionProblem, m0: NDArray | None, opts: NewtonOptions) -> tuple[NewtonState, NDArray[np.bool_]]:
+    """The first iterate (``m0`` where it keeps f > 0, else the explicit step or 0), and where m0 was used."""
+    F_star = P.f_star
+    B, n = F_star.shape
+    h = P.grid.h
+    m = np.zeros((B, n - 1))
+    warm = np.zeros(B, dtype=bool)
+    if m0 is not None:
+        M0 = _on_momentum_plane(P, np.broadcast_to(m0, (B, n - 1)))
+        warm = np.all(F_star - divergence(M0) / h > 0, axis=-1) & np.all(np.isfinite(M0), axis=-1)
+        m[warm] = M0[warm]
+    status = np.full(B, None, dtype=object)
+    positive = np.all(F_star > 0, axis=-1)
+    status[~positive] = Status.NUMERICAL_ERROR  # an interior method cannot start from exact zeros
+    with np.errstate(all="ignore"):
+        if opts.start == "explicit" and positive.any():
+            m = _explicit_start(P, F_star, m, ~warm & positive)
+        f = F_star - divergence(m) / h
+        phi = _objective_interior(P, f, m)
+    return NewtonState.initial(m, f, phi, status), warm
+
+
+def _retire(Pa: CollisionProblem, st: NewtonState, out: dict[str, NDArray]) -> tuple[CollisionProblem, NewtonState]:
+    """Move the slices that have a status from ``st`` to the result arrays ``out``."""
+    if all(s is None for s in st.status):  # a Python loop: cheaper than NumPy at B = 1
+        return Pa, st
+    done = np.not_equal(st.status, None)
+    rows = st.rows[done]
+    for name in _RESULT_FIELDS:
+        out[name][rows] = getattr(st, name)[done]
+    keep = ~done
+    return Pa.rows(keep), st.take(keep)
+
+
+def _residual_test(
+    Pa: CollisionProblem, st: NewtonState, parts, pd: NDArray, check: NDArray, opts: NewtonOptions
+) -> NDArray[np.bool_]:
+    """KKT residual where ``check``: slices within ``tol`` or stalled at their rounding floor stop.
+
+    A residual that no longer halves while the Newton decrement is at rounding level
+    (``_STALL_CHECKS`` times) has reached its floor.  Returns the stopped slices.
+    """
+    kk = Pa.kkt_residual(st.f, st.m, parts).total
+    prev = st.kkt.copy()
+    st.kkt = np.where(check, kk, st.kkt)
+    st.kkt_here |= check
+    done = check & (kk <= opts.tol)
+    worse = check & ~done & (prev == prev) & (kk > 0.5 * prev) & (st.decrement <= 1e-14)
+    st.stall = np.where(check, np.where(worse, st.stall + 1, 0), st.stall)
+    stop = done | (check & (st.stall >= _STALL_CHECKS))
+    if stop.any():
+        # pd is the (shifted) Cholesky of the reduced Hessian at this very point: the
+        # second-order test comes for free; certify() judges the point at the end.
+        st.second = np.where(stop, _second_order(Pa, st.f, st.m, pd, stop), st.second)
+        st.status[stop] = Status.CONVERGED
+    return stop
+
+
+def _no_descent(st: NewtonState, g: NDArray, bands, p: NDArray, valid: NDArray) -> None:
+    """Stop the slices without a usable direction.
+
+    No descent direction even shifted: non-convexity where the model is finite; an
+    iterate at the vacuum boundary (f underflowed, inf curvature) or a non-finite step
+    is a numerical failure, which the interior-damped retry resolves.
+    """
+    go = valid & np.all(np.isfinite(p), axis=-1)
+    if not go.all():
+        free = np.equal(st.status, None)
+        finite = _finite_model(g, bands)
+        st.status[free & ~valid & finite] = Status.NONCONVEX
+        st.status[free & ~valid & ~finite] = Status.NUMERICAL_ERROR
+        st.status[free & valid & ~go] = Status.NUMERICAL_ERROR
+
+
+def _line_search(
+    Pa: CollisionProblem, m: NDArray, p: NDArray, alpha: NDArray, phi0: NDArray, slope: NDArray, dec: NDArray
+) -> tuple[NDArray[np.bool_], NDArray, NDArray]:
+    """Armijo backtracking on J from ``m`` along ``p``, starting at the boundary-safe ``alpha``.
+
+    Where the predicted decrease is below the rounding of J (decrement <= 1e-12) Armijo
+    cannot tell (it would truncate the steps at random); the quadratic model is exact
+    there, so the full, boundary-safe step is taken.  Returns (accepted, alpha, J at the
+    accepted point, NaN where it was taken without a trial).
+    """
+    h = Pa.grid.h
+    accepted = dec <= 1e-12
+    phi_new = np.full_like(phi0, np.nan)
+    for _ in range(_MAX_BACKTRACKS):
+        if accepted.all():
+            break
+        trial = m + alpha[:, None] * p
+        ft = Pa.f_star - divergence(trial) / h
+        phit = _objective_interior(Pa, ft, trial)
+        ok = ~accepted & np.all(ft > 0, axis=-1) & (phit <= phi0 + _ARMIJO * alpha * slope)
+        phi_new = np.where(ok, phit, phi_new)
+        accepted |= ok
+        alpha = np.where(accepted, alpha, 0.5 * alpha)
+    return accepted, alpha, phi_new
+
+
+def _step(Pa: CollisionProblem, st: NewtonState, g: NDArray, p: NDArray, bands, run: _Attempt, tol: float) -> None:
+    """Damp, line-search and take the step on every slice of ``st``; jam bookkeeping."""
+    p, alpha = _interior_damped(Pa, bands, g, st.f, p, np.full(st.rows.size, run.damping))
+    slope = np.einsum("bi,bi->b", g, p)
+    dec = -slope / np.maximum(np.abs(st.phi), _TINY)
+    st.decrement = dec
+    # Quadratic convergence: after a step with decrement dec the next decrement is ~dec^2
+    # and the residual far below dec, so the KKT residual is checked once dec reaches tol
+    # (or the rounding level 1e-13, below which it cannot fall further).
+    st.near = dec <= max(tol, 1e-13)
+    accepted, alpha, phi_new = _line_search(Pa, st.m, p, alpha, st.phi, slope, dec)
+    if accepted.all():
+        st.m = st.m + alpha[:, None] * p
+        st.f = Pa.f_star - divergence(st.m) / Pa.grid.h
+    else:
+        st.status[~accepted] = Status.NUMERICAL_ERROR  # no decrease even along a tiny step
+        st.m[accepted] = st.m[accepted] + alpha[accepted, None] * p[accepted]
+        st.f[accepted] = Pa.f_star[accepted] - divergence(st.m[accepted]) / Pa.grid.h
+    fresh = accepted & np.isnan(phi_new)  # full steps were taken without evaluating J
+    st.phi = np.where(accepted, phi_new, st.phi)
+    if fresh.any():
+        Pu = Pa if fresh.all() else Pa.rows(fresh)
+        st.phi[fresh] = _objective_interior(Pu, st.f[fresh], st.m[fresh])
+    st.iterations += accepted
+    st.kkt_here &= ~accepted
+    if run.jam_exit:  # jam: tiny accepted steps where the model promises a decrease
+        tiny = accepted & (alpha < _JAM_STEP) & (dec > 1e-12)
+        st.flat = np.where(tiny, st.flat + 1, np.where(accepted, 0, st.flat))
+        jam = st.flat >= _JAM
+        if jam.any():
+            st.status[jam] = Status.MAX_ITERATIONS
+            st.jammed |= jam
+
+
+def _iterate(P: CollisionProblem, st: NewtonState, opts: NewtonOptions, run: _Attempt) -> dict[str, NDArray]:
+    """The Newton loop: residual test, direction, step, until every slice has stopped.
+
+    Returns each slice's final ``_RESULT_FIELDS``.
+    """
+    out = {name: getattr(st, name).copy() for name in _RESULT_FIELDS}
+    Pa = P
+    with np.errstate(all="ignore"):
+        for it in range(opts.max_iter + 1):
+            Pa, st = _retire(Pa, st, out)
+            if st.rows.size == 0:
+                break
+            check = st.near | (it == opts.max_iter)
+            g, bands, parts = _fused(Pa, st.f, st.m, want_parts=bool(check.any()))
+            p, pd, valid = _direction(Pa, bands, g)
+            if check.any():
+                _residual_test(Pa, st, parts, pd, check, opts)
+            if it == opts.max_iter:
+                # Out of iterations where the Hessian still needed a shift: loss of convexity
+                # is what stopped the solver (typically a minimiser on the vacuum boundary).
+                for i in np.nonzero(np.equal(st.status, None))[0]:
+                    st.status[i] = Status.MAX_ITERATIONS if (pd[i] or not opts.check_convexity) else Status.NONCONVEX
+                break
+            _no_descent(st, g, bands, p, valid)
+            if not all(s is None for s in st.status):
+                free = np.equal(st.status, None)
+                Pa, st = _retire(Pa, st, out)
+                g, p, bands = g[free], p[free], tuple(band[free] for band in bands)
+            if st.rows.size:
+                _step(Pa, st, g, p, bands, run, opts.tol)
+        _retire(Pa, st, out)
+    return out
+
+
+def _finalise(
+    P: CollisionProblem, out: dict[str, NDArray], warm: NDArray[np.bool_], opts: NewtonOptions, t0: float
+) -> CollisionResult:
+    """Certify every slice at its last iterate and build the result.
+
+    Iterates are feasible (f = f* - Dm/h) and strictly positive by construction: they are
+    returned as they are, so the residual reported is that of the returned point; only
+    slices that are not strictly positive (data with zeros, which never iterate) are
+    projected, and the residual is recomputed only where none belongs to the returned point.
+    """
+    with np.errstate(all="ignore"):
+        positive = np.all(out["f"] > 0, axis=-1)
+        f_out, m_out = out["f"], out["m"]
+        if not positive.all():
+            f_out[~positive], m_out[~positive] = P.rows(~positive).project_feasible(out["f"][~positive])
+        kkt = out["kkt"]
+        redo = ~positive | ~out["kkt_here"] | ~np.isfinite(kkt)
+        if redo.any():
+            Pr = P if redo.all() else P.rows(redo)
+            kkt[redo] = Pr.kkt_residual(f_out[redo], m_out[redo]).total
+        cert = certify(
+            P,
+            f_out,
+            m_out,
+            kkt_tol=opts.kkt_tol,
+            check_convexity=opts.check_convexity,
+            claimed=out["status"],
+            residual=kkt,
+            second_order=out["second"],
+        )
+    info = {"warm_started": warm, "jammed": out["jammed"]}
+    seconds = time.perf_counter() - t0
+    return CollisionResult.from_certificate(P, f_out, m_out, cert, "newton", out["iterations"], seconds, info)
+
+
+def _attempt(P: CollisionProblem, m0: NDArray | None, opts: NewtonOptions, run: _Attempt) -> CollisionResult:
+    """One pass of the iteration over the batch ``P``, from the start point to certification."""
+    t0 = time.perf_counter()
+    st, warm = _start(P, m0, opts)
+    out = _iterate(P, st, opts, run)
+    return _finalise(P, out, warm, opts, t0)
+
+
+# Statuses after which a slice is solved again with interior damping.
+_RETRY = (Status.MAX_ITERATIONS, Status.NUMERICAL_ERROR)
+
+
+def _merge(res: CollisionResult, rows: NDArray[np.bool_], again: CollisionResult, take: NDArray[np.bool_]) -> None:
+    """Overwrite the batch rows ``rows`` of ``res`` with the rows ``take`` of a later attempt.
+
+    Every attempt's iterations count, whether or not its point is kept.
+    """
+    idx = np.flatnonzero(rows)
+    res.iterations[idx] += again.iterations
+    for name in ("f", "m", "objective", "kkt_residual", "mass_error", "status"):
+        getattr(res, name)[idx[take]] = getattr(again, name)[take]
+
+
+def _cascade(P: CollisionProblem, m0: NDArray | None, opts: NewtonOptions) -> CollisionResult:
+    """The retry cascade, per slice.
+
+    1. Undamped, ending a slice whose iterates jam at the vacuum boundary.
+    2. Slices that ended without a solution (``_RETRY``): again with interior damping.
+    3. Slices that had jammed and still are not ``CONVERGED``: a third time undamped
+       without the jam test (a slice may only look jammed: gamma = 3, lambda = 10); the
+       attempt with the smaller residual is kept.
+    """
+    res = _attempt(P, m0, opts, _Attempt(damping=False, jam_exit=True))
+    jammed = res.info["jammed"]
+    damped = np.zeros_like(jammed)
+    retry = np.array([s in _RETRY for s in res.status]) & np.all(P.f_star > 0, axis=-1)
+    if retry.any():
+        again = _attempt(P.rows(retry), _m0_rows(m0, retry), opts, _Attempt(True, False))
+        _merge(res, retry, again, np.ones(int(retry.sum()), dtype=bool))
+        damped[retry] = True
+        fallback = retry & jammed
+        fallback[fallback] = res.status[fallback] != Status.CONVERGED
+        if fallback.any():
+            plain = _attempt(P.rows(fallback), _m0_rows(m0, fallback), opts, _Attempt(False, False))
+            better = plain.kkt_residual < res.kkt_residual[fallback]
+            _merge(res, fallback, plain, better)
+            damped[np.flatnonzero(fallback)[better]] = False
+    res.info.update(jammed=jammed, interior_damping=damped)
+    return res
+
+
+def _m0_rows(m0: NDArray | None, rows: NDArray[np.bool_]) -> NDArray | None:
+    """The warm start restricted to the batch rows ``rows``."""
+    return None if m0 is None else m0[rows]
+
+
+def _single(res: CollisionResult) -> CollisionResult:
+    """The one-slice batch result as an unbatched one."""
+    info = {key: value[0] if isinstance(value, np.ndarray) else value for key, value in res.info.items()}
+    info = {key: bool(v) if isinstance(v, np.bool_) else v for key, v in info.items()}
+    return CollisionResult(
+        res.f[0],
+        res.m[0],
+        res.status[0],
+        res.method,
+        int(res.iterations[0]),
+        float(res.objective[0]),
+        float(res.kkt_residual[0]),
+        float(res.mass_error[0]),
+        res.seconds,
+        info,
+    )
+
+
 @blas_limited  # h15: BLAS threads per jko_cvx.threads
 def solve_newton(
     problem: CollisionProblem,
@@ -413,21 +750,18 @@ def solve_newton(
     kkt_tol : float, optional
         Certification threshold (the same for every method,
         :func:`~jko_cvx.collision.certify.certify`): a slice that stopped is ``CONVERGED``
-        only if its residual is at most ``kkt_tol``, else ``NOT_CERTIFIED``.  Default:
-        ``tol`` -- Newton certifies what it was asked for (its iterations reach ``tol``
-        quadratically, so a looser threshold would only relabel slices that stalled at
-        their rounding floor above ``tol``).
+        only if its residual is at most ``kkt_tol``, else ``NOT_CERTIFIED``.  Default
+        ``tol``: its iterations reach ``tol`` quadratically, so a looser threshold would
+        only relabel slices that stalled at their rounding floor above ``tol``.
     max_iter : int, default 100
-        Newton iterations (status ``MAX_ITERATIONS`` beyond).
+        Newton iterations per attempt (status ``MAX_ITERATIONS`` beyond).
     m0 : array_like, optional
         Warm start: fluxes of shape ``(N-1,)`` or ``(B, N-1)`` (e.g. the previous
-        solution's ``m``).  It is used only where it keeps ``f(m0) > 0``; otherwise the
-        solver starts from ``m = 0``.  With ``conserve_momentum`` it is first projected
-        onto the constraint :math:`\\sum_k m_k\\Delta v_k = 0`.
+        solution's ``m``), used only where it keeps ``f(m0) > 0`` (else ``start``).  With
+        ``conserve_momentum`` it is first projected onto :math:`\\sum_k m_k\\Delta v_k = 0`.
     start : {"explicit", "zero"}, default "explicit"
-        Starting point without ``m0``: the explicit step (the first step of the paper's
-        SQP, one tridiagonal solve; damped to keep f >= f*/2 and kept only if it lowers J;
-        it saves one Newton iteration for moderate Fisher weights) or ``m = 0``.
+        Starting point without ``m0``: the explicit step (:func:`~jko_cvx.collision.explicit.explicit_step`,
+        damped to keep f >= f*/2 and kept only if it lowers J) or ``m = 0``.
     check_convexity : bool, default True
         Report ``NONCONVEX`` when the reduced Hessian at the final point is not positive
         definite (a stationary point that is not a minimiser).
@@ -438,404 +772,31 @@ def solve_newton(
         One status per slice for a batched problem.  ``info`` holds ``warm_started``,
         ``jammed`` (the first, undamped attempt ended on a jam) and ``interior_damping``
         (the returned point comes from the interior-damped attempt); per slice when batched.
+        A single problem is solved as a batch of one.
     """
-    tol, kkt_tol, max_iter, m0 = _check_newton_args(problem, tol, kkt_tol, max_iter, m0, start, check_convexity)
+    opts, m0 = _check_newton_args(problem, tol, kkt_tol, max_iter, m0, start, check_convexity)
     t0 = time.perf_counter()
-    args = (tol, kkt_tol, max_iter, m0, start, check_convexity, t0)
-    if not problem.batched:
-        res = _solve_single(problem, *args, damping=False, jam_exit=True)
-        res.info["interior_damping"] = False
-        if res.status not in _RETRY or not np.all(problem.f_star > 0):
-            return res
-        again = _solve_single(problem, *args, damping=True, jam_exit=False)
-        again.iterations += res.iterations
-        again.info.update(interior_damping=True, jammed=res.info["jammed"])
-        if not res.info["jammed"] or again.status is Status.CONVERGED:
-            return again
-        plain = _solve_single(problem, *args, damping=False, jam_exit=False)
-        plain.iterations += again.iterations
-        plain.info.update(interior_damping=False, jammed=True)
-        return plain if plain.kkt_residual < again.kkt_residual else again
-    res = _solve_batched(problem, *args, damping=False, jam_exit=True)
-    jammed = res.info["jammed"]
-    retry = np.array([st in _RETRY for st in res.status]) & np.all(problem.f_star > 0, axis=-1)
-    res.info["interior_damping"] = np.zeros_like(retry)
-    if retry.any():
-        again = _solve_batched(
-            problem.with_f_star(problem.f_star[retry]), *_subset(args, retry, res.m.shape), damping=True, jam_exit=False
-        )
-        _merge(res, retry, again, np.ones(int(retry.sum()), dtype=bool))
-        res.info["interior_damping"][retry] = True
-        fallback = retry & jammed
-        fallback[fallback] = res.status[fallback] != Status.CONVERGED
-        if fallback.any():
-            plain = _solve_batched(
-                problem.with_f_star(problem.f_star[fallback]),
-                *_subset(args, fallback, res.m.shape),
-                damping=False,
-                jam_exit=False,
-            )
-            better = plain.kkt_residual < res.kkt_residual[fallback]
-            _merge(res, fallback, plain, better)
-            res.info["interior_damping"][np.flatnonzero(fallback)[better]] = False
-    res.info["jammed"] = jammed
+    batch = problem if problem.batched else problem.rows(slice(None))
+    res = _cascade(batch, None if m0 is None else np.broadcast_to(m0, batch.f_star.shape[:1] + m0.shape[-1:]), opts)
     res.seconds = time.perf_counter() - t0
-    return res
-
-
-# Statuses after which a slice is solved again with interior damping.
-_RETRY = (Status.MAX_ITERATIONS, Status.NUMERICAL_ERROR)
-
-
-def _subset(args: tuple, rows: NDArray[np.bool_], shape: tuple[int, int]) -> tuple:
-    """The solver arguments ``(tol, kkt_tol, max_iter, m0, ...)`` restricted to the batch rows ``rows``."""
-    tol, kkt_tol, max_iter, m0, *rest = args
-    m0r = None if m0 is None else np.broadcast_to(np.asarray(m0, dtype=float), shape)[rows]
-    return (tol, kkt_tol, max_iter, m0r, *rest)
-
-
-def _merge(res: CollisionResult, rows: NDArray[np.bool_], again: CollisionResult, take: NDArray[np.bool_]) -> None:
-    """Overwrite the batch rows ``rows`` of ``res`` with the rows ``take`` of a later attempt.
-
-    Every attempt's iterations count, whether or not its point is kept.
-    """
-    idx = np.flatnonzero(rows)
-    res.iterations[idx] += again.iterations
-    for name in ("f", "m", "objective", "kkt_residual", "mass_error", "status"):
-        getattr(res, name)[idx[take]] = getattr(again, name)[take]
-
-
-def _solve_batched(
-    P: CollisionProblem,
-    tol: float,
-    kkt_tol: float,
-    max_iter: int,
-    m0: Any,
-    start: str,
-    check_convexity: bool,
-    t0: float,
-    *,
-    damping: bool,
-    jam_exit: bool,
-) -> CollisionResult:
-    """The batched Newton loop of :func:`solve_newton`.
-
-    ``damping`` turns interior damping on; ``jam_exit`` ends a slice whose iterates jam
-    (``info["jammed"]``, status ``MAX_ITERATIONS``) so that it can be solved again.
-    """
-    F_star = P.f_star
-    B, n = F_star.shape
-    h = P.grid.h
-    m = np.zeros((B, n - 1))
-    warm = np.zeros(B, dtype=bool)
-    if m0 is not None:
-        M0 = _on_momentum_plane(P, np.broadcast_to(np.asarray(m0, dtype=float), (B, n - 1)))
-        f0 = F_star - divergence(M0) / h
-        warm = np.all(f0 > 0, axis=-1) & np.all(np.isfinite(M0), axis=-1)
-        m[warm] = M0[warm]
-    status = np.full(B, None, dtype=object)
-    iters = np.zeros(B, dtype=int)
-    positive = np.all(F_star > 0, axis=-1)
-    status[~positive] = Status.NUMERICAL_ERROR
-    if start == "explicit" and positive.any():
-        with np.errstate(all="ignore"):
-            m = _explicit_start(P, F_star, m, ~warm & positive)
-    f = F_star - divergence(m) / h
-    kkt_last = np.full(B, np.nan)
-    # "near": the last Newton decrement -g.p/|phi| was small, so the KKT residual (the
-    # stopping test) is worth its cost at the new point.
-    near = np.zeros(B, dtype=bool)
-    stall = np.zeros(B, dtype=int)
-    second = np.zeros(B, dtype=bool)  # second-order test at the point where a slice stopped
-    damped = np.full(B, damping)
-    jammed = np.zeros(B, dtype=bool)
-    flat = np.zeros(B, dtype=int)  # consecutive jammed iterations, per slice
-    dec_last = np.full(B, np.inf)
-    kkt_here = np.zeros(B, dtype=bool)  # kkt_last belongs to the current (f, m)
-    active = status == None  # noqa: E711 (object array): slices still iterating
-    with np.errstate(all="ignore"):
-        phi = _objective_interior(P, f, m)
-        for it in range(max_iter + 1):
-            idx = np.flatnonzero(active)
-            if idx.size == 0:
-                break
-            sub = idx.size < B
-            Pa = P.with_f_star(F_star[idx]) if sub else P
-            fa, ma = (f[idx], m[idx]) if sub else (f, m)
-            check = near[idx] | (it == max_iter)
-            g, bands, parts = _fused(Pa, fa, ma, want_parts=bool(check.any()))
-            p, pd, valid = _direction(Pa, bands, g)
-            done = np.zeros(idx.size, dtype=bool)
-            if check.any():
-                kk = Pa.kkt_residual(fa, ma, parts).total
-                prev = kkt_last[idx]
-                kkt_last[idx[check]] = kk[check]
-                kkt_here[idx[check]] = True
-                done = check & (kk <= tol)
-                worse = check & ~done & (prev == prev) & (kk > 0.5 * prev) & (dec_last[idx] <= 1e-14)
-                stall[idx] = np.where(check, np.where(worse, stall[idx] + 1, 0), stall[idx])
-                stalled = check & ~done & (stall[idx] >= _STALL_CHECKS)  # the residual's rounding floor
-                # Stopped (converged, or stalled at the rounding floor): certify() judges the
-                # point at the end.  pd is the (shifted) Cholesky of the reduced Hessian at
-                # this very point: the second-order test comes for free.
-                stop = done | stalled
-                if stop.any():
-                    second[idx[stop]] = _second_order(Pa, fa, ma, pd, stop)[stop]
-                    status[idx[stop]] = Status.CONVERGED
-                    active[idx[stop]] = False
-            if it == max_iter:
-                # Out of iterations where the Hessian still needed a shift: loss of convexity
-                # is what stopped the solver (typically a minimiser on the vacuum boundary).
-                status[idx[~done]] = [
-                    Status.MAX_ITERATIONS if (ok or not check_convexity) else Status.NONCONVEX for ok in pd[~done]
-                ]
-                break
-            if check.any():
-                done = done | stalled
-            go = ~done & valid & np.all(np.isfinite(p), axis=-1)
-            if not go.all():
-                # No descent direction even shifted: non-convexity where the Hessian is
-                # finite; an iterate at the vacuum boundary (f underflowed, inf curvature)
-                # is a numerical failure, which the interior-damped retry resolves.
-                finite = _finite_model(g, bands)
-                status[idx[~done & ~valid & finite]] = Status.NONCONVEX
-                status[idx[~done & ~valid & ~finite]] = Status.NUMERICAL_ERROR
-                status[idx[~done & valid & ~go]] = Status.NUMERICAL_ERROR
-                active[idx[~go]] = False
-            if not go.any():
-                continue
-            sel, g, p = idx[go], g[go], p[go]
-            fa, ma = fa[go], ma[go]
-            Pl = P.with_f_star(F_star[sel]) if sel.size < B else P
-            p, alpha = _interior_damped(Pl, tuple(band[go] for band in bands), g, fa, p, damped[sel])
-            phi0 = phi[sel]
-            slope = np.einsum("bi,bi->b", g, p)
-            dec = -slope / np.maximum(np.abs(phi0), np.finfo(float).tiny)
-            dec_last[sel] = dec
-            # Quadratic convergence: after a step with decrement dec the next decrement is
-            # ~dec^2 and the residual far below dec, so the KKT residual is checked once dec
-            # reaches tol (or the rounding level 1e-13, below which it cannot fall further).
-            near[sel] = dec <= max(tol, 1e-13)
-            # Where the predicted decrease is below the rounding of phi, Armijo cannot tell
-            # (it would truncate the steps at random); the quadratic model is exact there,
-            # so the full, boundary-safe Newton step is taken.
-            accepted = dec <= 1e-12
-            phi_new = phi0.copy()
-            for _ in range(_MAX_BACKTRACKS):
-                if accepted.all():
-                    break
-                trial = ma + alpha[:, None] * p
-                ft = Pl.f_star - divergence(trial) / h
-                phit = _objective_interior(Pl, ft, trial)
-                ok = ~accepted & np.all(ft > 0, axis=-1) & (phit <= phi0 + _ARMIJO * alpha * slope)
-                phi_new = np.where(ok, phit, phi_new)
-                accepted |= ok
-                alpha = np.where(accepted, alpha, 0.5 * alpha)
-            if not accepted.all():
-                status[sel[~accepted]] = Status.NUMERICAL_ERROR  # no decrease even along a tiny step
-                active[sel[~accepted]] = False
-            upd = sel[accepted]
-            m[upd] = ma[accepted] + alpha[accepted, None] * p[accepted]
-            f[upd] = F_star[upd] - divergence(m[upd]) / h
-            full = dec[accepted] <= 1e-12
-            phi[upd] = phi_new[accepted]
-            if full.any():
-                up = upd[full]
-                Pu = P.with_f_star(F_star[up]) if up.size < B else P
-                phi[up] = _objective_interior(Pu, f[up], m[up])
-            iters[upd] += 1
-            kkt_here[upd] = False
-            if jam_exit:  # jam: tiny accepted steps where the model promises a decrease
-                tiny_step = (alpha[accepted] < _JAM_STEP) & (dec[accepted] > 1e-12)
-                flat[upd] = np.where(tiny_step, flat[upd] + 1, 0)
-                jam = upd[flat[upd] >= _JAM]
-                status[jam] = Status.MAX_ITERATIONS
-                jammed[jam] = True
-                active[jam] = False
-        # Results: project (clip rounding, exact mass); re-evaluate the residual only where
-        # the projection moved f beyond rounding or no residual was computed.
-        # Iterates are feasible and positive by construction: return them as they are (the
-        # reported residual is then that of the returned point); project only slices that
-        # are not strictly positive (data with zeros, which never iterate).
-        positive_rows = np.all(f > 0, axis=-1)
-        f_out, m_out = f.copy(), m.copy()
-        if not positive_rows.all():
-            bad = ~positive_rows
-            Pb = P.with_f_star(F_star[bad]) if bad.sum() < B else P
-            f_out[bad], m_out[bad] = Pb.project_feasible(f[bad])
-        kkt_all = kkt_last.copy()
-        redo = ~positive_rows | ~kkt_here | ~np.isfinite(kkt_all)
-        if redo.any():
-            Pr = P.with_f_star(F_star[redo]) if redo.sum() < B else P
-            kkt_all[redo] = Pr.kkt_residual(f_out[redo], m_out[redo]).total
-        cert = certify(
-            P,
-            f_out,
-            m_out,
-            kkt_tol=kkt_tol,
-            check_convexity=check_convexity,
-            claimed=status,
-            residual=kkt_all,
-            second_order=second,
-        )
-    info = {"warm_started": warm, "jammed": jammed}
-    return CollisionResult.from_certificate(P, f_out, m_out, cert, "newton", iters, time.perf_counter() - t0, info)
+    return res if problem.batched else _single(res)
 
 
 solve_newton.batched = True  # type: ignore[attr-defined]
 
 
-def _explicit_start(P: CollisionProblem, F_star: NDArray, m: NDArray, use: NDArray[np.bool_] | bool) -> NDArray:
-    """The damped explicit step (first SQP step) where ``use`` and where it lowers J, else ``m``.
-
-    Works on one problem (1-D arrays) or a batch (2-D); the step is damped to keep
-    ``f >= f*/2``.
-    """
-    zero = np.zeros_like(m)
-    pf, pm = explicit_step(P)
-    ratio = np.where(pf < 0, -F_star / np.where(pf < 0, pf, -1.0), np.inf).min(axis=-1)
-    alpha = np.minimum(1.0, 0.5 * ratio)
-    cand = _on_momentum_plane(P, np.asarray(alpha)[..., None] * pm)
-    fc = F_star - divergence(cand) / P.grid.h
-    better = (
-        use
-        & np.all(np.isfinite(cand), axis=-1)
-        & np.all(fc > 0, axis=-1)
-        & (_objective_interior(P, fc, cand) < _objective_interior(P, F_star, zero))
-    )
-    return np.where(np.asarray(better)[..., None], cand, m)
-
-
-def _solve_single(
-    P: CollisionProblem,
-    tol: float,
-    kkt_tol: float,
-    max_iter: int,
-    m0: Any,
-    start: str,
-    check_convexity: bool,
-    t0: float,
-    *,
-    damping: bool,
-    jam_exit: bool,
-) -> CollisionResult:
-    """The same algorithm as the batched loop of :func:`solve_newton`, on plain 1-D arrays.
-
-    At N ~ 100 a Newton iteration costs tens of NumPy calls of ~1 microsecond each; the
-    per-slice bookkeeping of the batched loop would double that, so one problem takes
-    this path (tests check that both paths agree).
-    """
-    h = P.grid.h
-    f_star = P.f_star
-    n = P.n
-    m = np.zeros(n - 1)
-    warm = False
-    if m0 is not None:
-        cand = _on_momentum_plane(P, np.asarray(m0, dtype=float).reshape(n - 1))
-        fc = f_star - divergence(cand) / h
-        if np.all(np.isfinite(cand)) and np.all(fc > 0):
-            m, warm = cand.copy(), True
-    status, iters, kkt, stall, dec_last, kkt_here = None, 0, np.nan, 0, np.inf, False
-    flat, jammed = 0, False  # consecutive jammed iterations; whether the attempt ended on a jam
-    second = None  # second-order test at the point where the iteration stopped
-    if not np.all(f_star > 0):
-        status = Status.NUMERICAL_ERROR
-    tiny = np.finfo(float).tiny
-    with np.errstate(all="ignore"):
-        if status is None and start == "explicit" and not warm:
-            m = _explicit_start(P, f_star, m, True)
-        f = f_star - divergence(m) / h
-        phi = float(_objective_interior(P, f, m))
-        near = False
-        for it in range(max_iter + 1):
-            if status is not None:
-                break
-            check = near or it == max_iter
-            g, bands, parts = _fused(P, f, m, want_parts=check)
-            p, pd, valid = _direction(P, tuple(b[None] for b in bands), g[None])
-            p, pd, valid = p[0], bool(pd[0]), bool(valid[0])
-            if check:
-                prev, kkt = kkt, float(P.kkt_residual(f, m, parts).total)
-                kkt_here = True  # the residual belongs to the current (f, m)
-                stall = stall + 1 if (prev == prev and kkt > 0.5 * prev and dec_last <= 1e-14) else 0
-                # Stopped (converged, or the residual no longer falls: its rounding floor):
-                # certify() judges the point below.
-                if kkt <= tol or stall >= _STALL_CHECKS:
-                    second = pd or (P.conserve_momentum and P.is_local_minimiser(f, m))
-                    status = Status.CONVERGED
-                    break
-            if it == max_iter:
-                status = Status.MAX_ITERATIONS if (pd or not check_convexity) else Status.NONCONVEX
-                break
-            if not valid:  # no descent direction even shifted (see the batched loop)
-                finite = bool(_finite_model(g[None], tuple(b[None] for b in bands))[0])
-                status = Status.NONCONVEX if finite else Status.NUMERICAL_ERROR
-                break
-            if not np.all(np.isfinite(p)):
-                status = Status.NUMERICAL_ERROR
-                break
-            pb, ab = _interior_damped(
-                P, tuple(band[None] for band in bands), g[None], f[None], p[None].copy(), np.array([damping])
-            )
-            p, alpha = pb[0], float(ab[0])
-            slope = float(g @ p)
-            dec = dec_last = -slope / max(abs(phi), tiny)
-            near = dec <= max(tol, 1e-13)
-            if dec <= 1e-12:  # decrease below the rounding of phi: full, boundary-safe step
-                m = m + alpha * p
-                f = f_star - divergence(m) / h
-                phi = float(_objective_interior(P, f, m))
-            else:
-                for _ in range(_MAX_BACKTRACKS):
-                    trial = m + alpha * p
-                    ft = f_star - divergence(trial) / h
-                    phit = float(_objective_interior(P, ft, trial))
-                    if np.all(ft > 0) and phit <= phi + _ARMIJO * alpha * slope:
-                        m, f, phi = trial, ft, phit
-                        break
-                    alpha *= 0.5
-                else:
-                    status = Status.NUMERICAL_ERROR  # no decrease even along a tiny step
-                    break
-            iters += 1
-            kkt_here = False
-            if jam_exit:  # jam: tiny accepted steps where the model promises a decrease
-                flat = flat + 1 if (alpha < _JAM_STEP and dec > 1e-12) else 0
-                if flat >= _JAM:
-                    status, jammed = Status.MAX_ITERATIONS, True
-                    break
-        # The iterates are feasible by construction (f = f* - Dm/h) and strictly positive:
-        # return the last one itself, so the residual reported is that of the returned point.
-        if np.all(f > 0):
-            f_out, m_out = f, m
-        else:
-            f_out, m_out = P.project_feasible(f)
-            kkt_here = False
-        if not kkt_here:
-            kkt = float(P.kkt_residual(f_out, m_out).total)
-        cert = certify(
-            P,
-            f_out,
-            m_out,
-            kkt_tol=kkt_tol,
-            check_convexity=check_convexity,
-            claimed=status,
-            residual=kkt,
-            second_order=second,
-        )
-    info = {"warm_started": warm, "jammed": jammed}
-    return CollisionResult.from_certificate(P, f_out, m_out, cert, "newton", iters, time.perf_counter() - t0, info)
-
-
 def _check_newton_args(
     problem: CollisionProblem, tol: Any, kkt_tol: Any, max_iter: Any, m0: Any, start: Any, check_convexity: Any
-) -> tuple[float, float, int, NDArray | None]:
-    """Checked ``(tol, kkt_tol, max_iter, m0)``; errors name the option."""
+) -> tuple[NewtonOptions, NDArray | None]:
+    """The checked options and warm start; errors name the option."""
     tol = check_unit("tol", tol)
-    kkt_tol = tol if kkt_tol is None else check_unit("kkt_tol", kkt_tol)
-    max_iter = check_int("max_iter", max_iter)
-    check_choice("start", start, ("explicit", "zero"))
-    check_bool("check_convexity", check_convexity)
+    opts = NewtonOptions(
+        tol=tol,
+        kkt_tol=tol if kkt_tol is None else check_unit("kkt_tol", kkt_tol),
+        max_iter=check_int("max_iter", max_iter),
+        start=check_choice("start", start, ("explicit", "zero")),
+        check_convexity=check_bool("check_convexity", check_convexity),
+    )
     if m0 is not None:
         shape = (*problem.f_star.shape[:-1], problem.n - 1)
         try:
@@ -846,4 +807,4 @@ def _check_newton_args(
                 + (f" or {shape}" if problem.batched else "")
                 + f", got {np.shape(m0)}"
             ) from exc
-    return tol, kkt_tol, max_iter, m0
+    return opts, m0

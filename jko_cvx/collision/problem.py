@@ -67,6 +67,7 @@ linear constraint, one more multiplier) and the drift is 1.4e-15 over the same r
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 from typing import Literal
 
@@ -78,6 +79,7 @@ from ..conservation import restore_moments
 from ..grid import Grid
 from ..kernels import EnergyOperator, PowerKernel
 from .linalg import divergence, divergence_adjoint, solve_sym_tridiagonal
+from .terms import FISHER_TERMS, reduced_bands, wasserstein_derivatives, wasserstein_value
 
 __all__ = ["CollisionProblem", "FisherForm", "KKTResidual"]
 
@@ -268,6 +270,20 @@ class CollisionProblem:
             self.grid, self.kernel, f_star, self.dt, self.strength, self.beta, self.fisher, self.conserve_momentum
         )
 
+    def rows(self, index: ArrayLike | slice) -> CollisionProblem:
+        """The batch of rows ``f_star[index]`` (an unbatched problem counts as one row).
+
+        The rows were validated with this problem, so nothing is checked again: this is
+        the cheap form of :meth:`with_f_star` that the batched solvers use on the slices
+        still iterating.  The result is always batched.
+        """
+        sub = copy.copy(self)
+        f = self.f_star if self.batched else self.f_star[None]
+        sub.f_star = f[index]
+        sub.f_star.flags.writeable = False
+        sub.mass = np.atleast_1d(self.mass)[index]
+        return sub
+
     def with_dt(self, dt: float) -> CollisionProblem:
         """Same problem with a new time step."""
         return CollisionProblem(
@@ -351,19 +367,12 @@ class CollisionProblem:
         x, y, s = self._edges(f)
         with np.errstate(divide="ignore", invalid="ignore"):
             # Phi(0, 0) = 0, Phi(0, m != 0) = inf (Benamou-Brenier convention).
-            q = np.where(s > 0, m**2 / s, np.where(m == 0, 0.0, np.inf))
+            q = np.where(s > 0, wasserstein_value(m, np.where(s > 0, s, 1.0)), np.where(m == 0, 0.0, np.inf))
             wass = q @ self.wass_coef
             if self.fisher is None:
                 fis = np.zeros_like(wass)
-            elif self.fisher == "perspective":
-                d = y - x
-                psi = np.where(s > 0, 2 * d**2 / s, np.where(d == 0, 0.0, np.inf))
-                fis = psi @ self.fisher_coef
             else:
-                ok = (x > 0) & (y > 0)
-                L = np.log(np.where(ok, y, 1.0)) - np.log(np.where(ok, x, 1.0))
-                psi = np.where(ok, 0.5 * L**2 * s, np.inf)
-                fis = psi @ self.fisher_coef
+                fis = FISHER_TERMS[self.fisher].guarded_value(x, y, s) @ self.fisher_coef
         en = self.energy_coef * self.energy.quadratic(f)
         return TermParts(wass, fis, en)
 
@@ -380,28 +389,19 @@ class CollisionProblem:
         zf = np.zeros_like(f)
         vac = s <= 0  # vacuum edge (f_k = f_{k+1} = 0): take the zero subgradient
         with np.errstate(divide="ignore", invalid="ignore"):
-            w = self.wass_coef
-            u = np.where(vac, 0.0, m / np.where(vac, 1.0, s))
-            gm = 2 * w * u
-            gs = -w * u**2
+            s_safe = np.where(vac, 1.0, s)
+            wd = wasserstein_derivatives(np.where(vac, 0.0, m), s_safe, self.wass_coef)
             gfw = zf.copy()
-            gfw[..., :-1] += gs
-            gfw[..., 1:] += gs
+            gfw[..., :-1] += wd.g_s
+            gfw[..., 1:] += wd.g_s
             gff = zf.copy()
             if self.fisher is not None:
-                c = self.fisher_coef
-                if self.fisher == "perspective":
-                    r = np.where(vac, 0.0, (y - x) / np.where(vac, 1.0, s))
-                    gx = c * (-4 * r - 2 * r**2)
-                    gy = c * (4 * r - 2 * r**2)
-                else:
-                    L = np.log(y) - np.log(x)
-                    gx = c * (-L * s / x + 0.5 * L**2)
-                    gy = c * (L * s / y + 0.5 * L**2)
+                x0, y0 = np.where(vac, 0.0, x), np.where(vac, 0.0, y)  # zero subgradient on vacuum edges
+                gx, gy = FISHER_TERMS[self.fisher].gradient(x0, y0, s_safe, self.fisher_coef)
                 gff[..., :-1] += gx
                 gff[..., 1:] += gy
         gfe = 2 * self.energy_coef * self.energy.matvec(f)
-        return TermParts((gfw, gm), (gff, np.zeros_like(m)), (gfe, np.zeros_like(m)))
+        return TermParts((gfw, wd.g_m), (gff, np.zeros_like(m)), (gfe, np.zeros_like(m)))
 
     def gradient(self, f: ArrayLike, m: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """:math:`(\\nabla_f J, \\nabla_m J)`."""
@@ -409,7 +409,7 @@ class CollisionProblem:
         return p.wasserstein[0] + p.fisher[0] + p.energy[0], p.wasserstein[1]
 
     def edge_hessian(self, f: ArrayLike, m: ArrayLike) -> dict[str, NDArray[np.float64]]:
-        """Hessian of the edge terms (Wasserstein + Fisher) per edge k.
+        """Hessian of the edge terms (Wasserstein + Fisher) per edge k (:mod:`~jko_cvx.collision.terms`).
 
         Returns the entries ``xx, yy, xy`` (w.r.t. :math:`f_k, f_{k+1}`), ``xm, ym``
         (mixed with :math:`m_k`) and ``mm``; each has shape ``(..., N-1)``.
@@ -417,26 +417,15 @@ class CollisionProblem:
         f = np.asarray(f, dtype=float)
         m = np.asarray(m, dtype=float)
         x, y, s = self._edges(f)
-        w = self.wass_coef
         with np.errstate(divide="ignore", invalid="ignore"):
-            u = m / s
-            hss = 2 * w * u**2 / s
-            hsm = -2 * w * u / s
-            hmm = 2 * w / s
-            xx, yy, xy = hss.copy(), hss.copy(), hss.copy()
+            wd = wasserstein_derivatives(m, s, self.wass_coef)
+            xx, yy, xy = wd.h_ss.copy(), wd.h_ss.copy(), wd.h_ss.copy()
             if self.fisher is not None:
-                c = self.fisher_coef
-                if self.fisher == "perspective":
-                    k = 16 * c / s**3
-                    xx += k * y**2
-                    yy += k * x**2
-                    xy -= k * x * y
-                else:
-                    L = np.log(y) - np.log(x)
-                    xx += c * (s + L * (y - x)) / x**2
-                    yy += c * (s + L * (y - x)) / y**2
-                    xy += c * (-s + L * (x - y)) / (x * y)
-        return {"xx": xx, "yy": yy, "xy": xy, "xm": hsm, "ym": hsm, "mm": hmm}
+                hx, hy, hxy = FISHER_TERMS[self.fisher].hessian(x, y, s, self.fisher_coef)
+                xx += hx
+                yy += hy
+                xy += hxy
+        return {"xx": xx, "yy": yy, "xy": xy, "xm": wd.h_sm, "ym": wd.h_sm, "mm": wd.h_mm}
 
     def hessian(self, f: ArrayLike, m: ArrayLike) -> NDArray[np.float64]:
         """Dense Hessian of :math:`J` w.r.t. ``u = [f, m]`` (unbatched; for tests and small N)."""
@@ -467,28 +456,10 @@ class CollisionProblem:
     def edge_hessian_bands(self, f: ArrayLike, m: ArrayLike) -> tuple[NDArray, NDArray, NDArray]:
         """Bands of :math:`Z^\\top \\nabla^2 (J - \\text{energy}) Z`: diagonal, 1st and 2nd off-diagonal.
 
-        With :math:`T = -\\operatorname{diag}(1/h)D` (columns :math:`a_k e_k + b_k e_{k+1}`,
-        :math:`a_k = -1/h_k`, :math:`b_k = 1/h_{k+1}`), the Wasserstein and Fisher terms give
-        the pentadiagonal matrix :math:`H_{mm} + T^\\top H_{ff} T + T^\\top H_{fm} + H_{mf} T`.
+        See :func:`~jko_cvx.collision.terms.reduced_bands`.
         """
-        f = np.asarray(f, dtype=float)
-        h = self.grid.h
         e = self.edge_hessian(f, m)
-        d = np.zeros_like(f)
-        d[..., :-1] += e["xx"]
-        d[..., 1:] += e["yy"]
-        o, xm, ym = e["xy"], e["xm"], e["ym"]
-        a, b = -1 / h[:-1], 1 / h[1:]
-        diag = e["mm"] + a**2 * d[..., :-1] + 2 * a * b * o + b**2 * d[..., 1:] + 2 * (a * xm + b * ym)
-        off1 = (
-            a[:-1] * a[1:] * o[..., :-1]
-            + b[:-1] * a[1:] * d[..., 1:-1]
-            + b[:-1] * b[1:] * o[..., 1:]
-            + b[:-1] * xm[..., 1:]
-            + a[1:] * ym[..., :-1]
-        )
-        off2 = b[:-2] * a[2:] * o[..., 1:-1]
-        return diag, off1, off2
+        return reduced_bands(self.grid, e["xx"], e["yy"], e["xy"], e["xm"], e["mm"])
 
     def reduced_hessian(self, f: ArrayLike, m: ArrayLike) -> NDArray[np.float64]:
         """Hessian of J on the constraint null space, :math:`Z^\\top \\nabla^2 J Z` (dense, (N-1)^2, batched).

@@ -125,11 +125,13 @@ def solve_sqp(
         The relaxation step :math:`\\lambda \\in (0, 1]` of the algorithm (the paper's
         "optimization step").
     tol : float, default 1e-10
-        The stopping threshold :math:`\\epsilon` of the :math:`\\zeta` test.
+        This method's own stopping tolerance: the threshold :math:`\\epsilon` of the
+        :math:`\\zeta` test (relative step length).
     max_iter : int, default 20000
         :math:`I_{max}`; reaching it sets the exit flag :math:`e_f = 1`.
     kkt_tol : float, default 1e-6
-        A run that passes the :math:`\\zeta` test is ``CONVERGED`` only if its scaled KKT
+        Certification threshold (the same for every method, :func:`~jko_cvx.collision.certify.certify`):
+        a run that passes the :math:`\\zeta` test is ``CONVERGED`` only if its scaled KKT
         residual is at most this, else ``NOT_CERTIFIED``.
     qp : {"banded", "osqp"}, default "banded"
         How the QP of each iteration is solved: the O(N) tridiagonal reduction, or OSQP
@@ -157,30 +159,36 @@ def solve_sqp(
     _check_sqp_args(problem, step, tol, max_iter, kkt_tol, qp, floor, osqp_eps, check_convexity, callback)
     step, tol, kkt_tol, floor = float(step), float(tol), float(kkt_tol), float(floor)
     t0 = time.perf_counter()
-    f, m = problem.initial_point()
     qp_step = sqp_step if qp == "banded" else _OsqpStep(problem, floor, osqp_eps, 100000)
+    f, m, zeta, it, safeguarded, status = _iterate(problem, qp_step, step, tol, max_iter, callback)
+    exit_flag = int(it >= max_iter and zeta > tol)
+    if status is None and exit_flag:
+        status = Status.MAX_ITERATIONS
+    # Remove the rounding drift of many feasible updates (rebuild f from m), then clip
+    # rounding negatives (~1e-25) and restore the mass exactly.
+    f, m = problem.project_feasible(problem.density_from_flux(m))
+    cert = certify(problem, f, m, kkt_tol=kkt_tol, check_convexity=check_convexity, claimed=status)
+    info = {"exit_flag": exit_flag, "zeta": float(zeta), "safeguard_steps": safeguarded, "qp": qp, "kkt": cert.kkt}
+    return CollisionResult.from_certificate(problem, f, m, cert, "sqp", it, time.perf_counter() - t0, info)
+
+
+def _iterate(
+    problem: CollisionProblem, qp_step: Any, step: float, tol: float, max_iter: int, callback: Any
+) -> tuple[np.ndarray, np.ndarray, float, int, int, Status | None]:
+    """The SQP iterations from ``(f*, 0)``: ``(f, m, zeta, iterations, safeguarded steps, failure status)``."""
+    f, m = problem.initial_point()
     zeta, it, safeguarded = 1.0, 0, 0
-    status: Status | None = None
     with np.errstate(all="ignore"):
-        while it < max_iter:
-            if not zeta > tol:
-                break
+        while it < max_iter and zeta > tol:
             gf, gm = problem.gradient(f, m)
             try:
                 pf, pm = qp_step(problem, f, m, gf, gm)
             except FloatingPointError:
-                status = Status.NUMERICAL_ERROR
-                break
+                return f, m, zeta, it, safeguarded, Status.NUMERICAL_ERROR
             if not (np.all(np.isfinite(pf)) and np.all(np.isfinite(pm))):
-                status = Status.NUMERICAL_ERROR
-                break
-            lam, truncated = step, False
-            neg = pf < 0
-            if np.any(neg):
-                to_boundary = float(np.min(-f[neg] / pf[neg]))
-                if to_boundary * _FRACTION_TO_BOUNDARY < lam:
-                    lam, truncated = to_boundary * _FRACTION_TO_BOUNDARY, True
-                    safeguarded += 1
+                return f, m, zeta, it, safeguarded, Status.NUMERICAL_ERROR
+            lam, truncated = _relaxation(f, pf, step)
+            safeguarded += truncated
             norm_u = np.sqrt(f @ f + m @ m)
             f = f + lam * pf
             m = m + lam * pm
@@ -192,15 +200,17 @@ def solve_sqp(
             it += 1
             if callback is not None:
                 callback(it, f, m, zeta)
-    exit_flag = int(it >= max_iter and zeta > tol)
-    if status is None and exit_flag:
-        status = Status.MAX_ITERATIONS
-    # Remove the rounding drift of many feasible updates (rebuild f from m), then clip
-    # rounding negatives (~1e-25) and restore the mass exactly.
-    f, m = problem.project_feasible(problem.density_from_flux(m))
-    cert = certify(problem, f, m, kkt_tol=kkt_tol, check_convexity=check_convexity, claimed=status)
-    info = {"exit_flag": exit_flag, "zeta": float(zeta), "safeguard_steps": safeguarded, "qp": qp, "kkt": cert.kkt}
-    return CollisionResult.from_certificate(problem, f, m, cert, "sqp", it, time.perf_counter() - t0, info)
+    return f, m, zeta, it, safeguarded, None
+
+
+def _relaxation(f: np.ndarray, pf: np.ndarray, step: float) -> tuple[float, bool]:
+    """The relaxation step lambda, shortened by the positivity safeguard (fraction to the boundary)."""
+    neg = pf < 0
+    if np.any(neg):
+        to_boundary = float(np.min(-f[neg] / pf[neg]))
+        if to_boundary * _FRACTION_TO_BOUNDARY < step:
+            return to_boundary * _FRACTION_TO_BOUNDARY, True
+    return step, False
 
 
 def _check_sqp_args(problem, step, tol, max_iter, kkt_tol, qp, floor, osqp_eps, check_convexity, callback) -> None:
