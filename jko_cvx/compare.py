@@ -1,15 +1,18 @@
 """Solver comparison on one collision step: every method, several tolerances, one table.
 
 :func:`compare_solvers` runs each configuration (conic with every installed CVXPY conic
-solver, the paper's SQP with its banded and OSQP subproblem paths, Newton) at several
-tolerances on the same :class:`~jko_cvx.collision.problem.CollisionProblem` and judges all
-of them the same way: the problem's KKT residual, the objective gap to the best certified
-solution, and the max-norm error in f against a high-accuracy reference (Newton at
-``tol=1e-13``, cross-checked against the best certified conic solution when the Fisher
-form is conic-representable).  Following qpbenchmark, a run counts as *certified* only
-if its status says success **and** its KKT residual is at most ``kkt_tol``; a success
-status with a larger residual is counted as *silently wrong* (the package's statuses never
-do that; a third-party solver's raw status may, which is why every result is re-checked).
+solver, the paper's SQP with its banded and OSQP subproblem paths, Newton, and the
+nonlinear CVXPY reference nlp with IPOPT) at several tolerances on the same
+:class:`~jko_cvx.collision.problem.CollisionProblem` and judges all of them the same way:
+the problem's KKT residual, the objective gap to the best certified solution, and the
+max-norm error in f against a high-accuracy reference (Newton at ``tol=1e-13``,
+cross-checked against the best certified conic and nlp solutions).  A method that cannot
+run on the problem (conic on the log Fisher form, the SQP with the momentum constraint,
+nlp without IPOPT) gets one ``NOT_RUN`` row whose setting says why.  Following
+qpbenchmark, a run counts as *certified* only if its status says success **and** its KKT
+residual is at most ``kkt_tol``; a success status with a larger residual is counted as
+*silently wrong* (the package's statuses never do that; a third-party solver's raw status
+may, which is why every result is re-checked).
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ import numpy as np
 import pandas as pd
 
 from .collision import CollisionProblem, conic_solvers, solve_collision
+from .collision.nlp import nlp_available
 
 __all__ = ["Configuration", "compare_solvers", "default_configurations", "problem_from_scene"]
 
@@ -36,11 +40,18 @@ class Configuration:
     method: str
     setting: str
     options: dict[str, Any] = field(default_factory=dict)
+    absent: str = ""  # why the method cannot run on this problem: a table row that says so, never run
 
 
 def default_configurations(problem: CollisionProblem) -> list[Configuration]:
-    """Every available method at three accuracies (the conic ones only for conic-representable Fisher forms)."""
+    """Every available method at three accuracies; a method that cannot run gets one row saying why.
+
+    Conic needs a conic-representable Fisher form (not ``"log"``), the SQP has no momentum
+    constraint, and nlp needs IPOPT.
+    """
     out: list[Configuration] = []
+    if problem.fisher == "log":
+        out.append(Configuration("conic", "conic", "absent", absent='fisher="log" is not conic-representable'))
     if problem.fisher != "log" and not problem.batched:
         for solver in conic_solvers():
             # first-order solvers (SCS) need thousands of iterations beyond 1e-8 (measured 27 s at 1e-10)
@@ -53,6 +64,13 @@ def default_configurations(problem: CollisionProblem) -> list[Configuration]:
         for eps in (1e-6, 1e-10):
             out.append(Configuration("sqp:osqp", "sqp", f"osqp_eps={eps:g}", {"qp": "osqp", "osqp_eps": eps}))
         out.append(Configuration("sqp:banded", "sqp", "max_iter=5", {"max_iter": 5}))  # truncated: must be flagged
+    else:
+        out.append(Configuration("sqp", "sqp", "absent", absent="the paper's SQP has no momentum constraint"))
+    if nlp_available():
+        for tol in (1e-6, 1e-8, 1e-10):
+            out.append(Configuration("nlp:IPOPT", "nlp", f"tol={tol:g}", {"tol": tol}))
+    else:
+        out.append(Configuration("nlp", "nlp", "absent", absent='IPOPT not installed (pip install "jko_cvx[nlp]")'))
     for tol in (1e-6, 1e-8, 1e-10):
         out.append(Configuration("newton", "newton", f"tol={tol:g}", {"tol": tol}))
     return out
@@ -94,8 +112,12 @@ def compare_solvers(
     reference = f"newton tol=1e-13: {ref.status.name}, KKT {ref.kkt_residual:.1e}"
     rows = []
     for cfg in configurations:
+        if cfg.absent:
+            rows.append(_absent_row(cfg, problem.n))
+            continue
         first = solve_collision(problem, cfg.method, **cfg.options)
-        compile_s = float(first.info.get("compile_seconds", 0.0)) if cfg.method == "conic" else np.nan
+        # CVXPY model compile (conic) or model and derivative-oracle build (nlp), when this run did it
+        compile_s = float(first.info.get("compile_seconds", first.info.get("build_seconds", np.nan)))
         times = []
         res = first
         for _ in range(repeats):
@@ -129,13 +151,34 @@ def compare_solvers(
     df["objective_gap"] = (df.objective - best) / scale
     fmax = float(np.abs(ref.f).max())
     df["f_error"] = [float(np.abs(f - ref.f).max()) / fmax for f in df.f]
-    conic_best = df[df.certified & df.family.str.startswith("conic")]
-    if ref.success and len(conic_best):
-        agree = float(conic_best.f_error.min())
-        reference += f"; best certified conic solution within {agree:.1e} (max-norm, relative)"
+    for family in ("conic", "nlp"):
+        best_rows = df[df.certified & df.family.str.startswith(family)]
+        if ref.success and len(best_rows):
+            agree = float(best_rows.f_error.min())
+            reference += f"; best certified {family} solution within {agree:.1e} (max-norm, relative)"
     df = df.drop(columns=["f", "objective"])
     df.attrs["reference"] = reference
     return df
+
+
+def _absent_row(cfg: Configuration, n: int) -> dict[str, Any]:
+    """The row of a method that cannot run on the problem: the reason in ``setting``, no figures."""
+    nan = float("nan")
+    return {
+        "family": cfg.family,
+        "setting": f"absent: {cfg.absent}",
+        "status": "NOT_RUN",
+        "certified": False,
+        "silently_wrong": False,
+        "median_s": nan,
+        "compile_s": nan,
+        "iterations": nan,
+        "objective": nan,
+        "f": np.full(n, nan),
+        "kkt": nan,
+        "mass_error": nan,
+        "min_f": nan,
+    }
 
 
 def problem_from_scene(scene, t: float) -> CollisionProblem:

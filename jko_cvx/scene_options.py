@@ -25,6 +25,7 @@ _COUNT = Rule("int", lo=1)
 _BOOL = Rule("bool")
 _SECONDS = Rule("float", lo=0.0, lo_open=True)
 _ABS = Rule("float", lo=0.0)
+_POSITIVE = Rule("float", lo=0.0, lo_open=True)  # IPOPT's tolerances may exceed 1
 
 METHOD_OPTIONS: dict[str, dict[str, Rule]] = {
     "newton": {
@@ -57,6 +58,14 @@ METHOD_OPTIONS: dict[str, dict[str, Rule]] = {
         "check_convexity": _BOOL,
         "verbose": _BOOL,
         "solver_options": Rule("table"),
+    },
+    "nlp": {
+        "tol": _TOL,
+        "kkt_tol": _TOL,
+        "max_iter": _COUNT,
+        "check_convexity": _BOOL,
+        "verbose": _BOOL,
+        "solver_options": Rule("table"),  # IPOPT's, checked against SOLVER_OPTIONS["IPOPT"]
     },
 }
 """Per method: the options a scene may pass and the values each accepts."""
@@ -101,6 +110,15 @@ SOLVER_OPTIONS: dict[str, dict[str, Rule]] = {
         "time_limit": _SECONDS,
         "verbose": _BOOL,
     },
+    "IPOPT": {  # method "nlp": limits and termination tolerances only
+        "max_cpu_time": _SECONDS,
+        "max_wall_time": _SECONDS,
+        "acceptable_tol": _POSITIVE,
+        "acceptable_iter": Rule("int", lo=0),
+        "constr_viol_tol": _POSITIVE,
+        "dual_inf_tol": _POSITIVE,
+        "compl_inf_tol": _POSITIVE,
+    },
     "ECOS": {
         "abstol": _TOL,
         "reltol": _TOL,
@@ -130,7 +148,7 @@ def parse_options(method: str, options: Any, where: str = "collision.options") -
             continue
         out[name] = allowed[name].parse(val, f"{where}.{name}")
     if "solver_options" in options:
-        solver = out.get("solver", "CLARABEL")
+        solver = "IPOPT" if method == "nlp" else out.get("solver", "CLARABEL")
         sub = require_table(options["solver_options"], f"{where}.solver_options")
         _refuse_unknown(sub, SOLVER_OPTIONS[solver], f"{where}.solver_options", f"solver {solver!r}")
         out["solver_options"] = {

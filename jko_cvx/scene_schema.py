@@ -301,7 +301,7 @@ class RefineTable(_Table):
 class CollisionTable(_Table):
     """``[collision]``: method, Fisher weight and form, momentum constraint; ``options`` checked separately."""
 
-    method: str = key(Rule("str", choices=("newton", "sqp", "conic")), "newton")
+    method: str = key(Rule("str", choices=("newton", "sqp", "conic", "nlp")), "newton")
     beta: float = key(Rule(_FLOAT, lo=0.0, lo_open=True, inf=True), math.inf)
     fisher: str = key(Rule("str", choices=("perspective", "log", "none")), "perspective")
     conserve_momentum: bool | None = key(_BOOL, None)

@@ -1,11 +1,14 @@
-"""Benchmark of one collision step: conic reference (CVXPY + Clarabel), the paper's SQP, Newton.
+"""Benchmark of one collision step: conic reference (CVXPY + Clarabel), the paper's SQP, Newton, nlp (CVXPY + IPOPT).
 
 Problem: gamma = 1, f* = exp(-2 v^2) on a uniform grid of [-2, 2], dt = 0.01,
-perspective Fisher term with beta = 10.  For each N the script reports the median wall
-time per solve over ``--repeats`` solves (measured side by side in one run), the
-iterations, the KKT residual reached and, for CVXPY, the one-off compile time apart
-from the re-solve time (the model is DPP: compiled once per N, then re-solved with new
-parameter values).
+perspective Fisher term with beta = 10 (all four methods), then the same with the log
+Fisher term (the paper's; conic cannot take it).  For each N the script reports the
+median wall time per solve over ``--repeats`` solves (measured side by side in one run),
+the iterations, the KKT residual reached and, for CVXPY, the one-off build apart from the
+re-solve time: conic's compile (the model is DPP: compiled once per N, then re-solved
+with new parameter values) and nlp's model and derivative-oracle build (once per N and
+Fisher form; each solve still runs CVXPY's reduction chain, ``canonicalize_s``, and IPOPT,
+``ipopt_s``).
 
 Second part (the fast solver): at N = 121, gamma = 1, f* = exp(-2 v^2), dt = 0.01 and
 beta in {1, 3, 10, 30}, every method is run to a KKT residual of 1e-9 or its best
@@ -30,24 +33,30 @@ import numpy as np
 import pandas as pd
 
 from jko_cvx import CollisionProblem, Grid, PowerKernel, solve_collision
-from jko_cvx.collision import conic
+from jko_cvx.collision import conic, nlp
 
 
-def bench(n: int, repeats: int, beta: float = 10.0, dt: float = 0.01) -> list[dict]:
+def bench(n: int, repeats: int, beta: float = 10.0, dt: float = 0.01, fisher: str = "perspective") -> list[dict]:
     grid = Grid.uniform(-2.0, 2.0, n)
-    prob = CollisionProblem(grid, PowerKernel(1.0), np.exp(-2 * grid.points**2), dt, beta=beta)
+    prob = CollisionProblem(grid, PowerKernel(1.0), np.exp(-2 * grid.points**2), dt, beta=beta, fisher=fisher)
     rows = []
-    conic._MODEL_CACHE.clear()  # measure the compile on a fresh cache
-    t0 = time.perf_counter()
-    first = solve_collision(prob, method="conic")
-    first_wall = time.perf_counter() - t0
-    for method in ("conic", "sqp", "newton"):
+    methods = ("conic", "sqp", "newton", "nlp") if fisher != "log" else ("sqp", "newton", "nlp")
+    first, first_wall = {}, {}
+    for method in ("conic", "nlp"):
+        if method not in methods:
+            continue
+        (conic if method == "conic" else nlp)._MODEL_CACHE.clear()  # measure the build on a fresh cache
+        t0 = time.perf_counter()
+        first[method] = solve_collision(prob, method=method)
+        first_wall[method] = time.perf_counter() - t0
+    for method in methods:
         times, res = [], None
         for _ in range(repeats):
             t0 = time.perf_counter()
             res = solve_collision(prob, method=method)
             times.append(time.perf_counter() - t0)
         row = {
+            "fisher": fisher,
             "N": n,
             "method": method,
             "median_s": statistics.median(times),
@@ -58,9 +67,14 @@ def bench(n: int, repeats: int, beta: float = 10.0, dt: float = 0.01) -> list[di
         }
         if method == "conic":
             row["passes"] = res.info["passes"]
-            row["compile_s"] = first.info["compile_seconds"]
-            row["first_solve_s"] = first_wall
+            row["compile_s"] = first[method].info["compile_seconds"]
+            row["first_solve_s"] = first_wall[method]
             row["clarabel_s"] = res.info["solver_seconds"]
+        if method == "nlp":
+            row["compile_s"] = first[method].info["build_seconds"]
+            row["first_solve_s"] = first_wall[method]
+            row["canonicalize_s"] = res.info["canonicalize_seconds"]
+            row["ipopt_s"] = res.info["solver_seconds"]
         rows.append(row)
     return rows
 
@@ -136,17 +150,19 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--no-newton", dest="newton", action="store_false", help="skip the fast-solver part")
     ap.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "bench_collision.csv")
     args = ap.parse_args(argv)
-    rows = [r for n in args.sizes for r in bench(n, args.repeats)]
+    rows = [r for fisher in ("perspective", "log") for n in args.sizes for r in bench(n, args.repeats, fisher=fisher)]
     df = pd.DataFrame(rows)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     df.to_csv(args.out, index=False)
-    cols = ["N", "method", "median_s", "iterations", "passes", "kkt_residual", "compile_s", "clarabel_s", "status"]
+    cols = ["fisher", "N", "method", "median_s", "iterations", "passes", "kkt_residual", "compile_s"]
+    cols += ["clarabel_s", "canonicalize_s", "ipopt_s", "status"]
     print(df[cols].to_markdown(index=False, floatfmt=".3g") if _has_tabulate() else df[cols].to_string(index=False))
-    piv = df.pivot(index="N", columns="method", values="median_s")
-    print(
-        "\nratio conic / sqp (median per solve):",
-        ", ".join(f"N={n}: {r:.2f}" for n, r in (piv.conic / piv.sqp).items()),
-    )
+    for fisher, part in df.groupby("fisher", sort=False):
+        piv = part.pivot(index="N", columns="method", values="median_s")
+        ratios = [(a, b) for a, b in (("conic", "sqp"), ("nlp", "newton"), ("nlp", "sqp")) if a in piv and b in piv]
+        for a, b in ratios:
+            text = ", ".join(f"N={n}: {r:.3g}" for n, r in (piv[a] / piv[b]).items())
+            print(f"{fisher}: ratio {a} / {b} (median per solve): {text}")
     print(f"wrote {args.out}")
     if args.newton:
         by_beta, by_n, lines = bench_newton(args.repeats)

@@ -19,6 +19,7 @@ def test_comparison_table_certifies_every_row():
     prob = CollisionProblem(grid, PowerKernel(1.5), np.exp(-2 * grid.points**2), 0.01, beta=10.0)
     df = compare_solvers(prob, repeats=1)
     assert not df.silently_wrong.any()
+    assert (df.f_error[df.certified] <= 1e-4).all()  # certified rows agree with the tight Newton reference
     assert set(df.family) >= {"conic:CLARABEL", "sqp:banded", "sqp:osqp", "newton"}
     truncated = df[df.setting == "max_iter=5"].iloc[0]
     assert truncated.status == "MAX_ITERATIONS" and not truncated.certified
@@ -33,7 +34,21 @@ def test_log_fisher_has_no_conic_rows_and_momentum_no_sqp_rows():
     grid = Grid.uniform(-2.0, 2.0, 31)
     prob = CollisionProblem(grid, PowerKernel(1.0), np.exp(-2 * grid.points**2), 0.01, 1.0, 10.0, "log", True)
     df = compare_solvers(prob, repeats=1)
-    assert set(df.family) == {"newton"} and df.certified.all()
+    ran = df[df.status != "NOT_RUN"]
+    assert set(ran.family) == {"newton", "nlp:IPOPT"} and ran.certified.all()
+    absent = df[df.status == "NOT_RUN"].set_index("family").setting
+    assert "not conic-representable" in absent["conic"] and "no momentum constraint" in absent["sqp"]
+    assert (ran.f_error <= 1e-6).all() and "best certified nlp solution" in df.attrs["reference"]
+
+
+def test_log_fisher_shows_nlp_and_sqp_beside_newton():
+    grid = Grid.uniform(-2.0, 2.0, 31)
+    prob = CollisionProblem(grid, PowerKernel(2.0), np.exp(-2 * grid.points**2), 0.01, 1.0, 100.0, "log")
+    df = compare_solvers(prob, repeats=1)
+    assert set(df.family) == {"conic", "newton", "nlp:IPOPT", "sqp:banded", "sqp:osqp"}
+    nlp = df[(df.family == "nlp:IPOPT") & (df.setting == "tol=1e-10")].iloc[0]
+    assert nlp.certified and nlp.f_error <= 1e-8 and nlp.kkt <= 1e-8
+    assert not df.silently_wrong.any()
 
 
 def test_problem_from_scene_takes_the_hardest_slice():

@@ -150,7 +150,14 @@ def test_killed_run_resumes_to_the_uninterrupted_result(tmp_path):
     assert np.array_equal(resumed.vgrid.points, fresh.vgrid.points)
     assert np.array_equal(resumed.f, fresh.f)
     assert len(resumed.diagnostics) == len(fresh.diagnostics)
-    assert (out / "verdict.json").exists() and (out / "diagnostics.csv").exists()
+    # the files on disk are the run's own record, not just present
+    import json
+
+    on_disk = json.loads((out / "verdict.json").read_text())
+    assert {k: on_disk[k] for k in fresh.verdict} == {k: fresh.verdict[k] for k in fresh.verdict}
+    assert on_disk["steps"] == len(fresh.diagnostics) - 1
+    csv = pd.read_csv(out / "diagnostics.csv")
+    np.testing.assert_allclose(csv[["t", "mass", "max_f"]], fresh.diagnostics[["t", "mass", "max_f"]], rtol=1e-15)
 
 
 def test_step_policies():
@@ -302,3 +309,20 @@ def test_simulate_refuses_an_oversized_scene_built_in_code(tmp_path):
         with pytest.raises(SceneError, match="JKO_CVX_MAX_"):
             simulate(bad, out=tmp_path / "run")
         assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize("method, expected", [("newton", 1e-8), ("conic", 1e-8), ("nlp", 1e-8), ("sqp", None)])
+def test_the_engine_certifies_every_method_at_its_threshold(method, expected):
+    """A run's steps are certified at 1e-8 (ACCEPT_KKT) whatever the method's single-step default kkt_tol
+    (1e-6 for conic and nlp); a scene's own collision.options.kkt_tol wins; the paper's SQP is judged by its
+    exit flag and keeps its default."""
+    from jko_cvx.simulate import ACCEPT_KKT, Stepper
+
+    fisher = "perspective" if method == "conic" else "log"
+    s = dataclasses.replace(default_scene(), method=method, fisher=fisher, conserve_momentum=method != "sqp")
+    opts = Stepper(s).opts
+    assert ACCEPT_KKT == 1e-8
+    assert opts.get("kkt_tol", opts.get("tol") if method == "newton" else None) == expected
+    if method != "sqp":
+        own = dataclasses.replace(s, options={"kkt_tol": 1e-7})
+        assert Stepper(own).opts["kkt_tol"] == 1e-7

@@ -22,7 +22,7 @@ from jko_cvx.verdict import StopReason
 xr = pytest.importorskip("xarray")
 
 ROOT = Path(__file__).parent.parent
-SCENES = ROOT / "studies" / "scenes"
+SCENES = ROOT / "jko_cvx" / "scenes"
 
 
 def _inhomogeneous():

@@ -38,6 +38,28 @@ CASES = {
 }
 
 
+# The outcome of each case, pinned (measured 2026-12-01, Clarabel, SQP with I_max = 5000):
+# (conic status, SQP status, SQP iterations).  MAX_ITERATIONS means all 5000 iterations and
+# the paper's exit flag e_f = 1.  A change here is a change of behaviour: update it with a reason.
+# Checked with one and two OpenBLAS threads: the statuses agree; the conic iteration counts
+# (and its KKT on "dt=10, gamma=3": 1.1e-6 or 3.3e-6) do not, so they are not pinned.
+EXPECTED = {
+    "tails 1e-30, beta=10": ("CONVERGED", "NOT_CERTIFIED", 7),  # zeta test stops on vacuum tails, KKT ~ 5
+    "tails 1e-30, beta=inf": ("CONVERGED", "NOT_CERTIFIED", 8),
+    "dt=1e-6, gamma=1": ("CONVERGED", "CONVERGED", 2),
+    "dt=1e-6, gamma=3": ("CONVERGED", "CONVERGED", 2),
+    "dt=1, gamma=1.5": ("CONVERGED", "MAX_ITERATIONS", 5000),
+    "dt=3, gamma=2": ("MAX_ITERATIONS", "MAX_ITERATIONS", 5000),  # conic: the DC loop does not settle
+    "dt=10, gamma=3": ("MAX_ITERATIONS", "MAX_ITERATIONS", 5000),
+    "beta=1": ("CONVERGED", "MAX_ITERATIONS", 5000),
+    "beta=inf": ("CONVERGED", "CONVERGED", 13),
+    "spacing ratio 1e3, gamma=1": ("CONVERGED", "CONVERGED", 3990),
+    "spacing ratio 1e3, gamma=3": ("SOLVER_ERROR", "NOT_CERTIFIED", 2616),  # SQP: KKT 1.4e-6 against 1e-6
+    "non-convex step (peak, dt=0.3)": ("NONCONVEX", "MAX_ITERATIONS", 5000),  # safeguard-cut steps to I_max
+    "non-convex step (peak, dt=10)": ("NONCONVEX", "MAX_ITERATIONS", 5000),
+}
+
+
 def _check_outcome(prob, res):
     assert isinstance(res.status, Status) and res.message
     assert res.f.shape == prob.f_star.shape and np.all(np.isfinite(res.f))
@@ -56,6 +78,10 @@ def test_extreme_case_is_certified_or_flagged(name):
     sqp = solve_collision(prob, method="sqp", max_iter=5000)
     for res in (conic, sqp):
         _check_outcome(prob, res)
+    want_conic, want_sqp, sqp_iterations = EXPECTED[name]
+    assert (conic.status.name, sqp.status.name) == (want_conic, want_sqp), (conic.message, sqp.message)
+    assert sqp.info["exit_flag"] == int(want_sqp == "MAX_ITERATIONS")
+    assert abs(sqp.iterations - sqp_iterations) <= 0.02 * sqp_iterations  # the iteration budget used
     if conic.success and sqp.success:
         assert np.abs(conic.f - sqp.f).max() <= 1e-4 * sqp.f.max()
         assert abs(conic.objective - sqp.objective) <= 1e-7 * abs(sqp.objective)
@@ -100,7 +126,6 @@ def test_inaccurate_solver_status_is_never_hidden():
     prob = CollisionProblem(G, PowerKernel(1.0), F_GAUSS, 0.01, beta=10.0)
     res = solve_collision(prob, method="conic", solver="SCS", tol=1e-3)
     assert res.info["solver"] == "SCS"
-    if res.success:
-        assert res.kkt_residual <= 1e-6
-    else:
-        assert res.status in (Status.NOT_CERTIFIED, Status.INACCURATE, Status.MAX_ITERATIONS)
+    # pinned (SCS 3, 2026-12-01): SCS says "optimal", the KKT residual says 6e-5, and so does the status
+    assert res.info["solver_status"] == "optimal"
+    assert res.status is Status.NOT_CERTIFIED and not res.success and 1e-6 < res.kkt_residual < 1e-3

@@ -236,3 +236,17 @@ def test_a_slice_that_only_looks_jammed_still_converges():
         assert np.all(np.abs(prob.mass_error(res.f)) <= 1e-13 * prob.mass)
         assert np.all(np.abs(prob.momentum_change(res.f)) <= 1e-12 * prob.mass)
     np.testing.assert_allclose(batched.f[0], single.f, rtol=0, atol=1e-9 * P.f_star.max())
+
+
+@pytest.mark.parametrize("gamma, fisher", [(1.0, "perspective"), (3.0, "log")])
+def test_a_single_problem_is_solved_as_a_batch_of_one(gamma, fisher):
+    """One algorithm: the single problem and the same problem as a batch of one give the same bits."""
+    rng = np.random.default_rng(int(10 * gamma))
+    prob = random_problem(rng, gamma, n=41, fisher=fisher)
+    single = solve_newton(prob, tol=1e-12)
+    batch = solve_newton(prob.with_f_star(prob.f_star[None]), tol=1e-12)
+    np.testing.assert_array_equal(single.f, batch.f[0])
+    np.testing.assert_array_equal(single.m, batch.m[0])
+    assert single.status is batch.status[0] and single.iterations == batch.iterations[0]
+    assert single.kkt_residual == batch.kkt_residual[0] and single.objective == batch.objective[0]
+    assert single.info["interior_damping"] == batch.info["interior_damping"][0]

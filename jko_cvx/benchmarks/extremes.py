@@ -1,7 +1,7 @@
 """Stability at the extremes: a library of hard collision steps and the outcome matrix.
 
 :func:`extreme_cases` builds named hard problems (tiny and huge dt, vacuum tails down to
-1e-30, lambda up to 310, grid spacing ratios up to 1e4, the step right before blow-up,
+1e-30, exact vacuum (compact support), lambda up to 310, grid spacing ratios up to 1e4, the step right before blow-up,
 gamma from 1 to 3, N from 21 to 961, beta from 0.1 to infinity).  :func:`extremes_matrix`
 runs every solver on every case and classifies each outcome:
 
@@ -16,9 +16,9 @@ runs every solver on every case and classifies each outcome:
 * ``silently wrong``: the status says success but one of the checks fails.  Zero for the
   package's solvers is the requirement.
 
-For the conic solvers the raw CVXPY status is kept too (``raw_status``): a third-party
-"optimal" that the package's certification turned into a failure is counted in
-``third_party_caught``.
+For the conic solvers the raw CVXPY status is kept too (``raw_status``), for nlp IPOPT's
+return code (``ipopt 0`` is IPOPT's success): a third-party "optimal" that the package's
+certification turned into a failure is counted in ``third_party_caught``.
 """
 
 from __future__ import annotations
@@ -33,6 +33,7 @@ import numpy as np
 import pandas as pd
 
 from ..collision import CollisionProblem, conic_solvers, solve_collision
+from ..collision.nlp import nlp_available
 from ..grid import Grid
 from ..kernels import PowerKernel
 
@@ -87,6 +88,8 @@ def extreme_cases() -> list[ExtremeCase]:
         case("dt=10, gamma=3", G, 3.0, _gauss(G), 10.0),
         case("vacuum tails 1e-30, beta=10", G4, 1.0, np.exp(-4.3 * G4.points**2), 0.01),
         case("vacuum tails 1e-30, beta=inf", G4, 1.0, np.exp(-4.3 * G4.points**2), 0.01, np.inf),
+        # exact zeros (compact support): vacuum edges, which no interior iterate of Newton/SQP can start from
+        case("vacuum edges (compact support), gamma=2", G, 2.0, np.maximum(1 - G.points**2, 0.0), 0.01),
         case("lambda=310 (strength 155), gamma=2", wide, 2.0, np.exp(-(wide.points**2)), 0.001, 10.0, 155.0),
         case("lambda=310, gamma=2, dt=0.01", wide, 2.0, np.exp(-(wide.points**2)), 0.01, 10.0, 155.0),
         case("spacing ratio 1e3, gamma=1", r3, 1.0, np.exp(-50 * r3.points**2) + 1e-3, 1e-3),
@@ -109,7 +112,7 @@ def extreme_cases() -> list[ExtremeCase]:
 
 
 def default_solvers() -> dict[str, tuple[str, dict]]:
-    """The package's solvers and every installed conic solver."""
+    """The package's solvers, every installed conic solver and nlp (IPOPT) when installed."""
     out = {
         "newton": ("newton", {}),
         "newton:tol=1e-8": ("newton", {"tol": 1e-8}),  # the tolerance the study engine runs at
@@ -122,6 +125,8 @@ def default_solvers() -> dict[str, tuple[str, dict]]:
         if solver == "SCS":  # first-order: bound its work (it otherwise runs for minutes on gamma = 3)
             opts.update(tol=1e-6, solver_options={"max_iters": 5000})
         out[f"conic:{solver}"] = ("conic", opts)
+    if nlp_available():  # bounded like the other external solvers: IPOPT's CPU-time limit
+        out["nlp"] = ("nlp", {"solver_options": {"max_cpu_time": 60.0}})
     return out
 
 
@@ -179,7 +184,7 @@ def extremes_matrix(
                 rows.append(row)
                 continue
             kkt = float(prob.kkt_residual(res.f, res.m).total)
-            raw = str(res.info.get("solver_status", "")) if label.startswith("conic") else ""
+            raw = _raw_status(label, res)
             message = ""
             if not res.success:
                 outcome, message = "flagged", res.message
@@ -202,10 +207,20 @@ def extremes_matrix(
                 kkt=kkt,
                 message=message,
                 raw_status=raw,
-                third_party_caught=bool(raw in ("optimal", "optimal_inaccurate") and not res.success),
+                third_party_caught=bool(raw in ("optimal", "optimal_inaccurate", "ipopt 0") and not res.success),
             )
             rows.append(row)
     return pd.DataFrame(rows)
+
+
+def _raw_status(label: str, res) -> str:
+    """The external solver's own verdict: CVXPY's status for conic, IPOPT's return code for nlp."""
+    if label.startswith("conic"):
+        return str(res.info.get("solver_status", ""))
+    if label.startswith("nlp"):
+        code = res.info.get("ipopt_status")
+        return "" if code is None else f"ipopt {code}"
+    return ""
 
 
 def _checks(prob: CollisionProblem, res, kkt_tol: float) -> str:
@@ -226,7 +241,7 @@ def _checks(prob: CollisionProblem, res, kkt_tol: float) -> str:
     return "; ".join(why)
 
 
-_PACKAGE = ("newton", "newton:tol=1e-8", "sqp:banded", "sqp:osqp")
+_PACKAGE = ("newton", "newton:tol=1e-8", "sqp:banded", "sqp:osqp") + (("nlp",) if nlp_available() else ())
 
 
 def extremes(out: Path, quick: bool = False, **_sweep_opts: Any) -> pd.DataFrame:

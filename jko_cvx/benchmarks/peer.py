@@ -56,7 +56,7 @@ from ..exact import GaussianMixture, exact_gamma1, exact_gamma2
 from ..finite_volume import Cells, evolve_finite_volume
 from ..grid import Grid
 from ..kernels import PowerKernel
-from .workprecision import _finish, _pareto, _pyplot
+from .figures import finish_figure, pareto_front, pyplot
 
 __all__ = ["CASES", "Case", "errors", "work_precision_peer"]
 
@@ -426,7 +426,7 @@ def _front(df: pd.DataFrame, metric: str) -> pd.DataFrame:
 
 
 def _plot_wp(df: pd.DataFrame, path: Path) -> None:
-    plt = _pyplot()
+    plt = pyplot()
     panels = list(dict.fromkeys(df.panel))
     fig, axes = plt.subplots(2, len(panels), figsize=(5.2 * len(panels), 8), squeeze=False)
     methods = list(dict.fromkeys(df.method))
@@ -439,16 +439,16 @@ def _plot_wp(df: pd.DataFrame, path: Path) -> None:
                     continue
                 t, e = b.seconds.to_numpy(float), np.maximum(b[metric].to_numpy(float), 1e-16)
                 ax.loglog(t, e, "o", color=f"C{i}", alpha=0.3, ms=4)
-                ft, fe = _pareto(t, e)
+                ft, fe = pareto_front(t, e)
                 ax.loglog(ft, fe, "-o", color=f"C{i}", ms=3, label=m)
             ax.set_xlabel("wall time per run [s] (median, 1 BLAS thread)")
             ax.set_ylabel("relative L1 error vs exact cell averages" if metric == "l1_cells" else "W2 error vs exact")
             ax.set_title(p, fontsize=9)
-    _finish(fig, axes.ravel(), path)
+    finish_figure(fig, axes.ravel(), path)
 
 
 def _plot_order(df: pd.DataFrame, path: Path) -> None:
-    plt = _pyplot()
+    plt = pyplot()
     cases = list(dict.fromkeys(df.case))
     fig, axes = plt.subplots(1, len(cases), figsize=(4.6 * len(cases), 4), squeeze=False)
     for ax, c in zip(axes[0], cases, strict=True):
@@ -461,7 +461,7 @@ def _plot_order(df: pd.DataFrame, path: Path) -> None:
         ax.set_xlabel("dt")
         ax.set_ylabel("relative L1 error vs reference")
         ax.set_title(c, fontsize=9)
-    _finish(fig, axes[0], path)
+    finish_figure(fig, axes[0], path)
 
 
 def work_precision_peer(out: Path, quick: bool = False, repeats: int | None = None, **_sweep_opts: Any) -> pd.DataFrame:

@@ -36,12 +36,14 @@ import numpy as np
 import pandas as pd
 
 from ..collision import CollisionProblem, conic_solvers
+from ..collision.nlp import nlp_available
 from ..compare import Configuration, compare_solvers
 from ..evolve import evolve_fixed_grid
 from ..exact import GaussianMixture, exact_gamma1, exact_gamma2
 from ..grid import Grid
 from ..kernels import PowerKernel
 from ..sweep import run_sweep
+from .figures import finish_figure, pareto_front, pyplot
 
 __all__ = ["run_point", "work_precision_run", "work_precision_step"]
 
@@ -53,6 +55,7 @@ _STEP_TOLS: dict[str, tuple[str, str, tuple[float, ...]]] = {
     "sqp:osqp": ("sqp", "osqp_eps", (1e-4, 1e-6, 1e-8, 1e-10)),
     "conic:CLARABEL": ("conic", "tol", (1e-4, 1e-6, 1e-8, 1e-10)),
     "conic:SCS": ("conic", "tol", (1e-3, 1e-4, 1e-5, 1e-6, 1e-7)),
+    "nlp:IPOPT": ("nlp", "tol", (1e-4, 1e-6, 1e-8, 1e-10)),
 }
 
 
@@ -71,6 +74,8 @@ def _step_configurations(quick: bool) -> list[Configuration]:
     out = []
     for family, (method, key, tols) in _STEP_TOLS.items():
         if method == "conic" and family.split(":")[1] not in installed:
+            continue
+        if method == "nlp" and not nlp_available():
             continue
         for tol in tols[::2] if quick else tols:
             opts: dict[str, Any] = {key: tol}
@@ -265,39 +270,9 @@ def _describe(row: pd.Series) -> str:
     return f"N={int(row.n)}, dt={row['dt']:g}, tol={row.tol:g}"
 
 
-def _pareto(t: np.ndarray, e: np.ndarray) -> tuple[list[float], list[float]]:
-    order = np.argsort(t)
-    front_t, front_e, best = [], [], np.inf
-    for i in order:
-        if e[i] < best:
-            best = e[i]
-            front_t.append(float(t[i]))
-            front_e.append(float(e[i]))
-    return front_t, front_e
-
-
-def _pyplot():
-    """matplotlib.pyplot on the file-only Agg backend (studies run headless)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
-def _finish(fig, axes, path: Path) -> None:
-    for ax in axes:
-        ax.grid(True, which="both", alpha=0.2)
-        ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    _pyplot().close(fig)
-
-
 def _plot(df: pd.DataFrame, panel: str, tcol: str, ecol: str, path: Path, title: str) -> None:
     """Log-log error against time: every point (hollow: not certified), each family's Pareto front as a line."""
-    plt = _pyplot()
+    plt = pyplot()
     panels = sorted(df[panel].unique())
     fig, axes = plt.subplots(1, len(panels), figsize=(6 * len(panels), 4.3), squeeze=False)
     families = sorted(df.family.unique())
@@ -311,16 +286,16 @@ def _plot(df: pd.DataFrame, panel: str, tcol: str, ecol: str, path: Path, title:
             cert = b["certified"].to_numpy(bool) if "certified" in b else np.ones(len(b), bool)
             ax.loglog(t[cert], e[cert], "o", color=f"C{i}", alpha=0.35, ms=4)
             ax.loglog(t[~cert], e[~cert], "o", mfc="none", color=f"C{i}", alpha=0.6, ms=5)
-            ft, fe = _pareto(t, e)
+            ft, fe = pareto_front(t, e)
             ax.loglog(ft, fe, "-o", color=f"C{i}", ms=3, label=fam)
         ax.set_xlabel("wall time per solve [s]" if tcol == "median_s" else "wall time per run [s]")
         ax.set_ylabel("max-norm error in f / max f" if ecol == "f_error" else "relative L1 error vs exact")
         ax.set_title(f"{title} {p}", fontsize=9)
-    _finish(fig, axes[0], path)
+    finish_figure(fig, axes[0], path)
 
 
 def _plot_bias(df: pd.DataFrame, path: Path) -> None:
-    plt = _pyplot()
+    plt = pyplot()
     gammas = sorted(df.gamma.unique())
     fig, axes = plt.subplots(1, len(gammas), figsize=(5.5 * len(gammas), 4.2), squeeze=False)
     for ax, g in zip(axes[0], gammas, strict=True):
@@ -335,4 +310,4 @@ def _plot_bias(df: pd.DataFrame, path: Path) -> None:
         ax.set_xlabel("dt")
         ax.set_ylabel("relative L1 error vs exact")
         ax.set_title(f"gamma={g:g}: Fisher bias vs time error (Newton, N={int(block.n.max())})", fontsize=9)
-    _finish(fig, axes[0], path)
+    finish_figure(fig, axes[0], path)

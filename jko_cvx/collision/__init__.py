@@ -4,6 +4,7 @@ from .certify import Certificate, certify
 from .conic import conic_solvers, solve_conic
 from .explicit import explicit_step, sqp_step
 from .newton import solve_newton
+from .nlp import solve_nlp
 from .problem import CollisionProblem, KKTResidual
 from .result import CollisionResult, Status
 from .solve import METHODS, solve_collision
@@ -22,6 +23,7 @@ __all__ = [
     "solve_collision",
     "solve_conic",
     "solve_newton",
+    "solve_nlp",
     "solve_sqp",
     "sqp_step",
 ]

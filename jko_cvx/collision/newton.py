@@ -106,18 +106,15 @@ def _fused(
     x, y = f[..., :-1], f[..., 1:]
     s = x + y
     wd = wasserstein_derivatives(m, s, problem.wass_coef)
-    gx, gy = wd.g_s.copy(), wd.g_s.copy()
-    xx, yy, xy = wd.h_ss.copy(), wd.h_ss.copy(), wd.h_ss.copy()
+    gx = gy = wd.g_s
+    xx = yy = xy = wd.h_ss
     if problem.fisher is not None:
         term = FISHER_TERMS[problem.fisher]
         c = problem.fisher_coef
         fx, fy = term.gradient(x, y, s, c)
-        gx += fx
-        gy += fy
+        gx, gy = wd.g_s + fx, wd.g_s + fy
         hx, hy, hxy = term.hessian(x, y, s, c)
-        xx += hx
-        yy += hy
-        xy += hxy
+        xx, yy, xy = wd.h_ss + hx, wd.h_ss + hy, wd.h_ss + hxy
     gfe = 2 * problem.energy_coef * problem.energy.matvec(f)
     gf = gfe.copy()
     gf[..., :-1] += gx
@@ -227,7 +224,7 @@ def _direction(problem: CollisionProblem, bands, g: NDArray) -> tuple[NDArray, N
         fb = FluxBlock("diagonal", diag=np.zeros_like(a))
     if problem.conserve_momentum:
         cols.append(np.broadcast_to(a, g.shape))
-    rhs = np.stack(cols, axis=-1)
+    rhs = np.stack(cols, axis=-1) if len(cols) > 1 else (-g)[..., None]
     H = None
     if fb.kind in ("diagonal", "rank1"):
         x, pd = _structured_direction(fb, scale, bands, rhs)
@@ -312,7 +309,8 @@ def _interior_damped(
 
 def _boundary_step(f: NDArray, pf: NDArray) -> NDArray[np.float64]:
     """Fraction-to-the-boundary step length along a direction with f-components ``pf``."""
-    ratio = np.where(pf < 0, -f / np.where(pf < 0, pf, -1.0), np.inf)
+    neg = pf < 0
+    ratio = np.where(neg, -f / np.where(neg, pf, -1.0), np.inf)
     return np.minimum(1.0, _FRACTION_TO_BOUNDARY * ratio.min(axis=-1))
 
 
@@ -595,9 +593,10 @@ def _iterate(P: CollisionProblem, st: NewtonState, opts: NewtonOptions, run: _At
             if st.rows.size == 0:
                 break
             check = st.near | (it == opts.max_iter)
-            g, bands, parts = _fused(Pa, st.f, st.m, want_parts=bool(check.any()))
+            checking = bool(check.any())
+            g, bands, parts = _fused(Pa, st.f, st.m, want_parts=checking)
             p, pd, valid = _direction(Pa, bands, g)
-            if check.any():
+            if checking:
                 _residual_test(Pa, st, parts, pd, check, opts)
             if it == opts.max_iter:
                 # Out of iterations where the Hessian still needed a shift: loss of convexity

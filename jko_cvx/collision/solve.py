@@ -13,6 +13,7 @@ import numpy as np
 from ..threads import blas_limits
 from .conic import solve_conic
 from .newton import solve_newton
+from .nlp import solve_nlp
 from .problem import CollisionProblem
 from .result import CollisionResult
 from .sqp import solve_sqp
@@ -23,6 +24,7 @@ METHODS: dict[str, Callable[..., CollisionResult]] = {
     "conic": solve_conic,
     "sqp": solve_sqp,
     "newton": solve_newton,
+    "nlp": solve_nlp,
 }
 
 
@@ -40,11 +42,13 @@ def solve_collision(problem: CollisionProblem, method: str = "conic", **options:
         The discrete JKO step.  A batched problem (``f_star`` of shape ``(B, N)``) is
         solved slice by slice for methods without a batched form, and the result
         holds one row / one status per slice.
-    method : {"conic", "sqp", "newton"}
+    method : {"conic", "sqp", "newton", "nlp"}
         ``"conic"``: the CVXPY reference (:func:`jko_cvx.collision.conic.solve_conic`);
         ``"sqp"``: the paper's Algorithm 1 (:func:`jko_cvx.collision.sqp.solve_sqp`);
         ``"newton"``: damped Newton on the reduced KKT system, batched over slices
-        (:func:`jko_cvx.collision.newton.solve_newton`).
+        (:func:`jko_cvx.collision.newton.solve_newton`);
+        ``"nlp"``: CVXPY's nonlinear mode with IPOPT, either Fisher form
+        (:func:`jko_cvx.collision.nlp.solve_nlp`; needs ``pip install "jko_cvx[nlp]"``).
     **options
         Keyword options of the chosen method (see its docstring).  Unknown options
         raise ``TypeError`` before any work is done.
