@@ -1,6 +1,7 @@
 """Thread control (jko_cvx.threads): settings, the BLAS limit, and work split across slices."""
 
 import threading
+from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 import pytest
@@ -30,6 +31,14 @@ def test_defaults(monkeypatch):
     assert slice_workers() == usable_cores()
     monkeypatch.setenv(BLAS_THREADS_ENV, "0")  # BLAS keeps its own threads: no threads on top
     assert blas_threads() == 0 and slice_workers() == 1
+
+
+def test_one_slice_thread_inside_a_process_pool_worker(monkeypatch):
+    """A sweep's worker processes already occupy the cores: no threads on top by default."""
+    monkeypatch.delenv(THREADS_ENV, raising=False)
+    monkeypatch.delenv(BLAS_THREADS_ENV, raising=False)
+    with ProcessPoolExecutor(max_workers=1) as pool:
+        assert pool.submit(slice_workers).result() == 1
 
 
 @pytest.mark.parametrize("name, value", [(BLAS_THREADS_ENV, "-1"), (BLAS_THREADS_ENV, "two"), (THREADS_ENV, "0")])
