@@ -88,7 +88,8 @@ _CG_RTOL = 1e-13
 _CG_MAXIT = 60
 # Below this many fluxes the dense Cholesky beats certified CG (gamma = 3/2, 32 slices of
 # the inhom datum, CPU seconds per batched solve, dense / CG: N_v = 241 0.031 / 0.047,
-# 361 0.094 / 0.076, 481 0.19 / 0.11, 1025 1.9 / 0.38; measured 2026-12-01 under load 12).
+# 361 0.094 / 0.076, 481 0.19 / 0.11, 1025 1.9 / 0.38; measured 2026-12-01 under load 12,
+# with the C preconditioner; G halved CG's cost since, and a lower threshold is not measured).
 _CG_MIN_N = 300
 _CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
