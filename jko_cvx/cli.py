@@ -92,9 +92,14 @@ def _solve_one(args) -> int:
     grid = Grid.uniform(-args.L, args.L, args.n)
     prob = CollisionProblem(grid, PowerKernel(args.gamma), np.exp(-2 * grid.points**2), args.dt, beta=args.beta)
     print(prob)
-    for method, opts in [("conic", {}), ("sqp", {}), ("newton", {})]:
-        res = solve_collision(prob, method=method, **opts)
+    from .collision.nlp import nlp_available
+
+    methods = ["conic", "sqp", "newton"] + (["nlp"] if nlp_available() else [])
+    for method in methods:
+        res = solve_collision(prob, method=method)
         print(f"  {res!r}\n    {res.message}")
+    if "nlp" not in methods:
+        print('  nlp: not installed (pip install "jko_cvx[nlp]")')
     return 0
 
 

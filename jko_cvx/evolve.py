@@ -9,14 +9,17 @@ blow-up detection and run directories go through :func:`jko_cvx.simulate.simulat
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from numbers import Real
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .collision import CollisionProblem, CollisionResult, solve_collision
+from .collision.checks import check_bool
 from .grid import Grid
 from .kernels import PowerKernel
+from .scene_limits import STEPS_ENV, Limits
 from .time_order import collision_step_order2
 
 __all__ = ["FixedGridRun", "evolve_fixed_grid"]
@@ -92,14 +95,9 @@ def evolve_fixed_grid(
     progress : bool, default False
         Show a tqdm progress bar.
     """
-    if not (np.isfinite(t_end) and t_end > 0):
-        raise ValueError(f"t_end must be a finite number > 0, got {t_end!r}")
-    if time_order not in (1, 2) or isinstance(time_order, bool):
-        raise ValueError(f"time_order must be 1 or 2, got {time_order!r}")
-    f = np.asarray(f0, dtype=float)
-    # Validate everything (grid, f0, dt, ...) once, before the loop.
-    CollisionProblem(grid, kernel, f, dt, strength, beta, fisher)
-    n_steps = int(np.ceil(t_end / dt - 1e-9))
+    f, n_steps = _check_evolve_args(grid, kernel, f0, dt, t_end, strength, beta, fisher, time_order)
+    check_bool("stop_on_failure", stop_on_failure)
+    check_bool("progress", progress)
     times, snaps, results = [0.0], [f.copy()], []
     t = 0.0
     steps = range(n_steps)
@@ -127,3 +125,31 @@ def evolve_fixed_grid(
         times.append(t)
         snaps.append(f.copy())
     return FixedGridRun(grid, np.array(times), np.array(snaps), results, completed)
+
+
+def _check_evolve_args(grid, kernel, f0, dt, t_end, strength, beta, fisher, time_order) -> tuple[NDArray, int]:
+    """The checked initial density and the step count; every error names the argument, before any step."""
+    if isinstance(t_end, (bool, np.bool_)) or not isinstance(t_end, Real) or not (np.isfinite(t_end) and t_end > 0):
+        raise ValueError(f"t_end must be a finite number > 0, got {t_end!r}")
+    if time_order not in (1, 2) or isinstance(time_order, bool):
+        raise ValueError(f"time_order must be 1 or 2, got {time_order!r}")
+    try:
+        f = np.asarray(f0, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise TypeError(f"f0 must be an array of real numbers, got {type(f0).__name__}") from exc
+    if isinstance(grid, Grid) and f.shape != (grid.n,):
+        raise ValueError(f"f0 must have shape ({grid.n},) (one value per grid point), got {f.shape}")
+    # Validate everything (grid, f0, dt, ...) once, before the loop; the problem's own
+    # checks call the density f_star, which is f0 here.
+    try:
+        CollisionProblem(grid, kernel, f, dt, strength, beta, fisher)
+    except (TypeError, ValueError) as exc:
+        raise type(exc)(str(exc).replace("f_star", "f0")) from None
+    n_steps = float(np.ceil(t_end / dt - 1e-9))
+    limit = Limits.from_env().max_steps
+    if n_steps > limit:
+        raise ValueError(
+            f"dt = {dt!r} with t_end = {t_end!r} needs about {n_steps:.3g} steps, above the limit of {limit:.3g}; "
+            f"raise it with the environment variable {STEPS_ENV} if that is intended"
+        )
+    return f, int(n_steps)

@@ -39,6 +39,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from numbers import Integral, Real
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -221,8 +222,10 @@ def evolve_finite_volume(
         ("cfl", cfl, lambda x: 0 < x <= _POSITIVITY_CFL, f"in (0, {_POSITIVITY_CFL}]"),
         ("theta", theta, lambda x: 1 <= x <= 2, "in [1, 2]"),
     ):
-        if not ok(val):
+        if isinstance(val, (bool, np.bool_)) or not isinstance(val, Real) or not ok(val):
             raise ValueError(f"{name} must be {rng}, got {val!r}")
+    if isinstance(max_steps, (bool, np.bool_)) or not isinstance(max_steps, Integral) or max_steps < 1:
+        raise ValueError(f"max_steps must be an integer >= 1, got {max_steps!r}")
     velocity = _Velocity(cells, kernel, float(strength))
     dv = cells.dv
     t, times, rejected = 0.0, [0.0], 0

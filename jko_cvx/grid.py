@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from numbers import Real
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -23,6 +24,18 @@ from numpy.typing import ArrayLike, NDArray
 __all__ = ["Grid", "PeriodicGrid"]
 
 _PERIODIC_IMAGES = 3  # periodic images on each side for PCHIP's four-point stencils
+
+
+def _is_real(x: object) -> bool:
+    """A real number (Python or NumPy), not a bool or a string that float() would parse."""
+    return isinstance(x, Real) and not isinstance(x, (bool, np.bool_))
+
+
+def _check_count(name: str, n: object, minimum: int = 3) -> int:
+    """``n`` as an int ``>= minimum`` (an integral float such as 5.0 passes), else ``ValueError`` naming it."""
+    if not (_is_real(n) and float(n).is_integer() and n >= minimum):
+        raise ValueError(f"{name} must be an integer >= {minimum}, got {n!r}")
+    return int(n)
 
 
 @dataclass(frozen=True, eq=False)
@@ -91,13 +104,11 @@ class Grid:
         ValueError
             If ``a >= b``, either end is not finite, or ``n < 3``.
         """
-        if not (np.isfinite(a) and np.isfinite(b)):
+        if not (_is_real(a) and _is_real(b) and np.isfinite(a) and np.isfinite(b)):
             raise ValueError(f"a and b must be finite, got a={a!r}, b={b!r}")
         if not a < b:
             raise ValueError(f"a must be smaller than b, got a={a!r}, b={b!r}")
-        if int(n) != n or n < 3:
-            raise ValueError(f"n must be an integer >= 3, got {n!r}")
-        return cls(np.linspace(a, b, int(n)))
+        return cls(np.linspace(a, b, _check_count("n", n)))
 
     @property
     def n(self) -> int:
@@ -171,10 +182,9 @@ class PeriodicGrid:
     @classmethod
     def uniform(cls, half_width: float, n: int) -> PeriodicGrid:
         """``n`` cell-centred points on ``[-L, L)``: :math:`x_i = -L + (i + 1/2)\\,2L/n`."""
-        if not (np.isfinite(half_width) and half_width > 0):
+        if not (_is_real(half_width) and np.isfinite(half_width) and half_width > 0):
             raise ValueError(f"half_width must be a finite number > 0, got {half_width!r}")
-        if int(n) != n or n < 3:
-            raise ValueError(f"n must be an integer >= 3, got {n!r}")
+        n = _check_count("n", n)
         dx = 2 * half_width / n
         return cls(-half_width + (np.arange(n) + 0.5) * dx, 2 * half_width)
 

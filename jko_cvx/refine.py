@@ -47,6 +47,7 @@ e.g. ``OneBumpMap(L=2, r=1.5, delta=0.5)`` cannot be built.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from numbers import Real
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -347,7 +348,10 @@ def remap(
     coarse side of a map adds energy, which ``prop:properties`` forbids once the collision
     dissipates less than the interpolation adds (``jko-cvx reproduce property_budget``).
     """
+    if not (isinstance(old, Grid) and isinstance(new, Grid)):
+        raise TypeError(f"old and new must be jko_cvx.Grid, got {type(old).__name__} and {type(new).__name__}")
     f = np.moveaxis(np.asarray(f, dtype=float), axis, -1)
+    check_line_density(f, floor)
     if f.shape[-1] != old.n:
         raise ValueError(f"f must have length {old.n} along axis {axis}, got shape {f.shape}")
     if new.points[0] < old.points[0] - 1e-12 * old.length or new.points[-1] > old.points[-1] + 1e-12 * old.length:
@@ -363,6 +367,19 @@ def remap(
     momentum = f @ (old.points * old.h) if conserve_momentum else None
     g, _ = restore_moments(g, new.h, new.points, f @ old.h, momentum)
     return np.moveaxis(g, -1, axis)
+
+
+def check_line_density(f: NDArray[np.float64], floor: float) -> None:
+    """``ValueError`` naming ``f`` or ``floor`` unless f is finite and floor a finite number >= 0.
+
+    PCHIP would refuse a NaN from inside SciPy, and a negative floor would let negative
+    densities through the mass restoration (shared by :func:`remap` and
+    :func:`~jko_cvx.transport.transport_step`).
+    """
+    if isinstance(floor, (bool, np.bool_)) or not isinstance(floor, Real) or not (np.isfinite(floor) and floor >= 0):
+        raise ValueError(f"floor must be a finite number >= 0, got {floor!r}")
+    if not np.all(np.isfinite(f)):
+        raise ValueError("f must be finite (found NaN or inf)")
 
 
 def periodic_map_grid(mu, n: int, period: float):

@@ -33,6 +33,7 @@ import numpy as np
 import pandas as pd
 
 from .collision import CollisionProblem, Status, solve_collision
+from .collision.checks import check_bool
 from .grid import Grid, PeriodicGrid
 from .interrupts import InterruptGuard, RunInterrupted
 from .kernels import PowerKernel
@@ -255,6 +256,12 @@ def simulate(
         SIGINT / SIGTERM arrived (only with ``out``, from the main thread); the checkpoint holds
         the last accepted step.
     """
+    if not isinstance(scene, Scene):
+        raise TypeError(
+            f"scene must be a jko_cvx.scene.Scene (from jko_cvx.scene.load_scene(path)), got {type(scene).__name__}"
+        )
+    for name, flag in (("resume", resume), ("overwrite", overwrite), ("progress", progress)):
+        check_bool(name, flag)
     if out is None and (resume or overwrite):
         raise ValueError("resume and overwrite need a run directory: pass out=")
     # a Scene built in code (dataclasses.replace) bypasses the loader: check its size here too,

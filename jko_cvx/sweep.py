@@ -194,18 +194,18 @@ def run_sweep(
         The point's parameters followed by its results, plus ``cached`` (True where the
         result was read from the cache rather than computed in this call).
     """
-    points = [dict(p) for p in points]
     if not callable(func):
         raise TypeError(f"func must be callable, got {type(func).__name__}")
+    points = _checked_points(points)
     if isinstance(executor, str) and executor not in ("process", "serial", "dask"):
         raise ValueError(f"executor must be 'process', 'serial', 'dask' or an Executor, got {executor!r}")
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
         raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
     if not isinstance(fresh, bool):
         raise TypeError(f"fresh must be a bool, got {fresh!r}")
+    keys = [point_key(func, p) for p in points]
     cache = Path(cache_dir)
     cache.mkdir(parents=True, exist_ok=True)
-    keys = [point_key(func, p) for p in points]
     results = {} if fresh else _read_cache(cache, dict(zip(keys, points, strict=True)))
     cached = set(results)
     todo = {k: p for k, p in zip(keys, points, strict=True) if k not in results}
@@ -239,6 +239,20 @@ def run_sweep(
             bar.close()
     rows = [{**p, **results[k], "cached": k in cached} for k, p in zip(keys, points, strict=True)]
     return pd.DataFrame(rows)
+
+
+def _checked_points(points: Iterable[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """The points as dicts; ``TypeError`` naming the first that is not a mapping or not JSON."""
+    out = []
+    for i, p in enumerate(points):
+        if not isinstance(p, Mapping):
+            raise TypeError(f"points must be an iterable of mappings (dicts of parameters), got points[{i}] = {p!r}")
+        try:
+            _canonical(dict(p))
+        except (TypeError, ValueError) as exc:
+            raise TypeError(f"points[{i}] = {p!r} is not JSON-serialisable ({exc}): a cache key needs JSON") from None
+        out.append(dict(p))
+    return out
 
 
 def _open_executor(stack: ExitStack, executor, scheduler: str | None, workers: int | None) -> Executor:

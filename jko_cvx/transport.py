@@ -28,6 +28,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .conservation import restore_moments
 from .grid import PeriodicGrid
+from .refine import check_line_density
 
 __all__ = ["transport_step"]
 
@@ -63,8 +64,11 @@ def transport_step(
     ndarray, shape (Nx, Nv)
         The transported density; each column has the mass of the corresponding column of ``f``.
     """
+    if not isinstance(xgrid, PeriodicGrid):
+        raise TypeError(f"xgrid must be a jko_cvx.grid.PeriodicGrid, got {type(xgrid).__name__}")
     f = np.asarray(f, dtype=float)
     v = np.asarray(v, dtype=float)
+    check_line_density(f, floor)
     if f.ndim != 2 or f.shape != (xgrid.n, v.size):
         raise ValueError(f"f must have shape (Nx, Nv) = ({xgrid.n}, {v.size}), got {f.shape}")
     if not np.isfinite(dt):

@@ -174,12 +174,25 @@ class ConicOptions:
             max_passes=check_int("max_passes", options["max_passes"]),
             dc_tol=check_unit("dc_tol", dc_tol),
             kkt_tol=check_unit("kkt_tol", options["kkt_tol"]),
-            solver_options=check_options_dict("solver_options", options["solver_options"]),
+            solver_options=_no_file_options(check_options_dict("solver_options", options["solver_options"])),
             check_convexity=check_bool("check_convexity", options["check_convexity"]),
             verbose=check_bool("verbose", options["verbose"]),
             time_limit=float(limit),
             accept_inaccurate=check_bool("accept_inaccurate", options["accept_inaccurate"]),
         )
+
+
+def _no_file_options(options: dict[str, Any]) -> dict[str, Any]:
+    """``options`` unless one of them names a file the solver would write (``ValueError`` naming it).
+
+    A collision step writes nothing: SCS's ``write_data_filename`` / ``log_csv_filename``,
+    MOSEK's ``save_file``, Gurobi's ``LogFile`` and the like (any key containing "file")
+    are refused.  Scenes pass a stricter allow-list (:mod:`jko_cvx.scene_options`).
+    """
+    bad = sorted(k for k in options if "file" in k.lower())
+    if bad:
+        raise ValueError(f"solver_options {bad} would make the solver write files; the collision step writes none")
+    return options
 
 
 @dataclass
