@@ -8,7 +8,12 @@ Two estimates, both cheap arithmetic on the scene:
 * **memory** (bytes): ``8 (4 B N_v^2 + 40 B N_v + S B N_v)`` with ``B = N_x`` (1 when
   homogeneous): the dense N_v x N_v blocks of the energy and of the (batched) Newton
   Hessians and their factors, about forty work arrays of the density's size, and the
-  ``S`` snapshots a run keeps (``steps / output.every`` plus ``output.times``).
+  ``S`` snapshots a run keeps (``steps / output.every`` plus ``output.times``).  For
+  gamma = 1, 2 and 3 Newton forms no dense Hessian (banded, rank one, or the exact
+  banded-plus-rank-two solve of :mod:`jko_cvx.collision.structured`), so the dense part is
+  the energy matrix and one factor per thread, ``8 (4 N_v^2)``: measured 0.57 GiB at
+  1025 x 1025, gamma = 3 (``studies/results/bench_scale.md``), where the per-slice count
+  gave 32 GiB.
 
 The limits are :data:`DEFAULT_MAX_STEPS` steps and :data:`DEFAULT_MAX_GIB` GiB, raised
 (or lowered) with the environment variables ``JKO_CVX_MAX_STEPS`` and ``JKO_CVX_MAX_GIB``
@@ -88,7 +93,7 @@ def estimate_size(scene: Scene) -> SizeEstimate:
     snapshots = min(steps + 1, steps / scene.every + 2) + len(scene.snapshot_times)
     return SizeEstimate(
         steps=float(steps),
-        dense_bytes=8 * 4 * B * N * N,
+        dense_bytes=8 * 4 * (1.0 if scene.gamma in (1.0, 2.0, 3.0) else B) * N * N,
         work_bytes=8 * 40 * B * N,
         snapshot_bytes=8 * snapshots * B * N,
     )

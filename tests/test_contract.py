@@ -191,3 +191,14 @@ def test_an_inaccurate_solver_status_is_judged_by_the_certificate(monkeypatch):
     assert judged.kkt_residual <= 1e-6 and prob.is_local_minimiser(judged.f, judged.m)
     assert solve_collision(prob, "conic", accept_inaccurate=False).status is Status.INACCURATE
     assert solve_collision(prob, "conic", kkt_tol=1e-30).status is Status.INACCURATE
+
+
+def test_the_starting_point_keeps_the_memory_order_of_f_star():
+    """transport_step hands the collision a Fortran-ordered batch; a C-ordered copy of it rounds the
+    gradient's sums differently (5.6e-17 after one step), which the blow-up of tab:g2bu amplified to
+    1.5e-3 in max f (studies/results/reproduce_unchanged.md).  The start keeps f*'s layout."""
+    grid = Grid.uniform(-2.0, 2.0, 21)
+    f = np.asfortranarray(np.exp(-2 * (grid.points[None, :] - np.linspace(-0.5, 0.5, 4)[:, None]) ** 2))
+    prob = CollisionProblem(grid, PowerKernel(1.5), f, 0.01)
+    f0, _ = prob.initial_point()
+    assert prob.f_star.flags.f_contiguous and f0.flags.f_contiguous and np.array_equal(f0, prob.f_star)

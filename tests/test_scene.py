@@ -430,3 +430,15 @@ def test_initial_density_of_the_base_scene_is_positive():
     s = scene_from_dict(BASE)
     f0 = s.initial_density(s.xgrid(), s.vgrid())
     assert f0.shape == (19, 23) and np.all(f0 > 0)
+
+
+def test_memory_estimate_counts_dense_hessians_only_where_newton_forms_them():
+    """gamma = 3 uses the structured O(N) Newton solve (no per-slice dense Hessian): the 1025 x 1025 step of
+    studies/results/bench_scale.md (0.57 GiB measured) passes the default limit; gamma = 3/2 still counts
+    one dense Hessian per slice and is refused."""
+    from jko_cvx.scene import shipped_scene
+
+    big = {"v.n": 1025, "x.n": 1025}
+    assert shipped_scene("inhom_gamma3_lambda4", big).v_n == 1025
+    with pytest.raises(SceneError, match="JKO_CVX_MAX_GIB"):
+        shipped_scene("inhom_gamma1p5_before", big)

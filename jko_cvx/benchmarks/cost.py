@@ -33,7 +33,7 @@ from ..collision.conic import clear_model_cache
 from ..grid import Grid
 from ..kernels import PowerKernel
 
-__all__ = ["cost_growth", "fit_exponent"]
+__all__ = ["cost_growth", "fit_exponent", "median_time"]
 
 
 def fit_exponent(n: np.ndarray, seconds: np.ndarray, n_min: int = 121) -> float:
@@ -45,7 +45,8 @@ def fit_exponent(n: np.ndarray, seconds: np.ndarray, n_min: int = 121) -> float:
     return float(np.polyfit(np.log(n[keep]), np.log(seconds[keep]), 1)[0])
 
 
-def _median_time(func: Callable[[], Any], repeats: int) -> tuple[float, Any]:
+def median_time(func: Callable[[], Any], repeats: int) -> tuple[float, Any]:
+    """The median wall time of ``repeats`` calls of ``func`` (seconds) and the last call's result."""
     times, out = [], None
     for _ in range(repeats):
         t0 = time.perf_counter()
@@ -71,7 +72,7 @@ def _step_rows(quick: bool, repeats: int) -> list[dict[str, Any]]:
                     clear_model_cache()
                     first = solve_collision(prob, method)
                     compile_s = float(first.info.get("compile_seconds", np.nan))
-                secs, res = _median_time(lambda m=method, p=prob: solve_collision(p, m), repeats)
+                secs, res = median_time(lambda m=method, p=prob: solve_collision(p, m), repeats)
                 rows.append(
                     {
                         "gamma": gamma,
@@ -107,9 +108,9 @@ def _batch_rows(quick: bool, repeats: int) -> list[dict[str, Any]]:
     rows = []
     for b in (15, 31, 61) if quick else (15, 31, 61, 121, 241):
         batch = _inhom_slices(b)
-        t_batch, res = _median_time(lambda p=batch: solve_collision(p, "newton", tol=1e-8), repeats)
+        t_batch, res = median_time(lambda p=batch: solve_collision(p, "newton", tol=1e-8), repeats)
         singles = [batch.slice(i) for i in range(b)]
-        t_loop, _ = _median_time(lambda s=singles: [solve_collision(p, "newton", tol=1e-8) for p in s], repeats)
+        t_loop, _ = median_time(lambda s=singles: [solve_collision(p, "newton", tol=1e-8) for p in s], repeats)
         rows.append(
             {
                 "B": b,

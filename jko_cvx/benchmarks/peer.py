@@ -37,9 +37,7 @@ N = 241; gamma = 3, N = 121, beta = 100), with the cost of each order at equal e
 
 from __future__ import annotations
 
-import statistics
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
@@ -56,6 +54,7 @@ from ..exact import GaussianMixture, exact_gamma1, exact_gamma2
 from ..finite_volume import Cells, evolve_finite_volume
 from ..grid import Grid
 from ..kernels import PowerKernel
+from .cost import median_time
 from .figures import finish_figure, pareto_front, pyplot
 
 __all__ = ["CASES", "Case", "errors", "work_precision_peer"]
@@ -169,20 +168,11 @@ def errors(key: str, kind: str, points: NDArray[np.float64], values: NDArray[np.
     return {"l1": l1, "l1_cells": l1_cells, "w2": w2}
 
 
-def _timed(func: Callable[[], Any], repeats: int) -> tuple[float, Any]:
-    times, out = [], None
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        out = func()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times), out
-
-
 def _peer_point(key: str, n: int, repeats: int) -> dict[str, Any]:
     case = CASES[key]
     cells = Cells(case.lo, case.hi, n)
     f0 = cells.averages(case.f0.cdf)
-    secs, run = _timed(lambda: evolve_finite_volume(cells, PowerKernel(case.gamma), f0, case.t_end), repeats)
+    secs, run = median_time(lambda: evolve_finite_volume(cells, PowerKernel(case.gamma), f0, case.t_end), repeats)
     return {"n": n, "dt": np.nan, "steps": run.steps, "seconds": secs, **errors(key, "cells", cells.edges, run.f)}
 
 
@@ -203,7 +193,7 @@ def _jko_point(key: str, method: str, order: int, n: int, dt: float, repeats: in
             beta=beta, method=method, time_order=order, **_JKO_OPTIONS[method],
         )  # fmt: skip
 
-    secs, run = _timed(go, repeats)
+    secs, run = median_time(go, repeats)
     row = {"n": n, "dt": dt, "steps": len(run.results), "seconds": secs}
     if not run.completed:
         return {**row, "l1": np.nan, "l1_cells": np.nan, "w2": np.nan, "failed": run.statuses[-1]}
@@ -232,7 +222,7 @@ def _refine_point(key: str, n: int, dt: float, repeats: int) -> dict[str, Any]:
             "output": {"every": 10**9, "checkpoint_every": 10**9},
         }
     )  # fmt: skip
-    secs, run = _timed(lambda: simulate(scene), repeats)
+    secs, run = median_time(lambda: simulate(scene), repeats)
     row = {"n": n, "dt": dt, "steps": len(run.diagnostics) - 1, "seconds": secs}
     if run.blowup or run.t < case.t_end * (1 - 1e-12):
         return {**row, "l1": np.nan, "l1_cells": np.nan, "w2": np.nan, "failed": run.verdict["reason"]}

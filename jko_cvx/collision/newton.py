@@ -52,12 +52,14 @@ from numpy.typing import NDArray
 from scipy.linalg import lapack
 
 from ..kernels import FluxBlock
+from ..threads import blas_limited  # h15
 from .certify import certify
 from .checks import check_bool, check_choice, check_int, check_unit
 from .explicit import explicit_step
 from .linalg import divergence, divergence_adjoint
 from .problem import CollisionProblem, TermParts, add_pentadiagonal
 from .result import CollisionResult, Status
+from .structured import dense_kernel_direction  # h15
 from .terms import FISHER_TERMS, band_coefficients, reduced_bands, wasserstein_derivatives, wasserstein_value
 
 __all__ = ["NewtonOptions", "NewtonState", "solve_newton"]
@@ -227,8 +229,9 @@ def _direction(problem: CollisionProblem, bands, g: NDArray) -> tuple[NDArray, N
     if fb.kind in ("diagonal", "rank1"):
         x, pd = _structured_direction(fb, scale, bands, rhs)
     else:
-        H = add_pentadiagonal(scale * fb.dense, *bands)
-        x, pd = _newton_direction(H, rhs)
+        # h15: dense kernels go through jko_cvx.collision.structured (exact O(N) solve for
+        # gamma = 3, certified CG otherwise, the per-slice Cholesky as fallback; threaded).
+        x, pd = dense_kernel_direction(problem.energy, scale, bands, rhs, _PD_TOL)
     valid = pd.copy()
     if not pd.all():
         bad = np.nonzero(~pd)[0]
@@ -721,6 +724,7 @@ def _single(res: CollisionResult) -> CollisionResult:
     )
 
 
+@blas_limited  # h15: BLAS threads per jko_cvx.threads
 def solve_newton(
     problem: CollisionProblem,
     *,

@@ -353,7 +353,7 @@ class CollisionProblem:
 
     def initial_point(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """The feasible starting point ``(f_star, 0)``."""
-        return self.f_star.copy(), np.zeros((*self.f_star.shape[:-1], self.n - 1))
+        return self.f_star.copy(order="K"), np.zeros((*self.f_star.shape[:-1], self.n - 1))
 
     # ------------------------------------------------------------ objective
     def _edges(self, f: NDArray[np.float64]) -> tuple[NDArray, NDArray, NDArray]:

@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from ..threads import blas_limits
 from .conic import solve_conic
 from .newton import solve_newton
 from .nlp import solve_nlp
@@ -76,9 +77,10 @@ def solve_collision(problem: CollisionProblem, method: str = "conic", **options:
     unknown = sorted(set(options) - set(allowed))
     if unknown:
         raise TypeError(f"unknown option(s) {unknown} for method={method!r}; allowed: {allowed}")
-    if problem.batched and not getattr(func, "batched", False):
-        return _solve_slices(problem, func, method, options)
-    return func(problem, **options)
+    with blas_limits():  # h15: BLAS threads per jko_cvx.threads (default 1; slices run in threads)
+        if problem.batched and not getattr(func, "batched", False):
+            return _solve_slices(problem, func, method, options)
+        return func(problem, **options)
 
 
 def _solve_slices(

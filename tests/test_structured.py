@@ -1,0 +1,162 @@
+"""Structured Newton directions for dense kernels (jko_cvx.collision.structured) against dense linear algebra."""
+
+import numpy as np
+import pytest
+
+from jko_cvx import CollisionProblem, Grid, PowerKernel, Status
+from jko_cvx.collision import structured
+from jko_cvx.collision.linalg import divergence
+from jko_cvx.collision.newton import _PD_TOL, _fused, _newton_direction, solve_newton
+from jko_cvx.collision.problem import add_pentadiagonal
+
+
+def _exact_block_gamma3(grid: Grid) -> np.ndarray:
+    """E_kl = -2 int_k int_l |s - t| over the cells [v_k, v_k+1] (independent of kernels.py)."""
+    dv = grid.dv
+    c = 0.5 * (grid.points[:-1] + grid.points[1:])
+    A = np.outer(dv, dv) * np.abs(c[:, None] - c[None, :])
+    A[np.diag_indices_from(A)] = dv**3 / 3
+    return -2 * A
+
+
+def _random_grid(rng, n: int) -> Grid:
+    """A non-uniform grid: spacings spread over a decade and a half, like the refined ones."""
+    return Grid(np.concatenate([[-4.0], -4.0 + np.cumsum(rng.uniform(0.03, 1.0, n - 1))]))
+
+
+def _random_bands(rng, b: int, n1: int, scale: float = 1.0) -> tuple:
+    """Positive definite pentadiagonal bands with diagonals spread over six decades."""
+    diag = scale * 10.0 ** rng.uniform(0, 6, (b, n1))
+    off1 = rng.uniform(-0.3, 0.3, (b, n1 - 1)) * np.sqrt(diag[:, :-1] * diag[:, 1:])
+    off2 = rng.uniform(-0.1, 0.1, (b, n1 - 2)) * np.sqrt(diag[:, :-2] * diag[:, 2:])
+    return diag, off1, off2
+
+
+def _dense_shifted(E: np.ndarray, scale: float, bands: tuple, i: int) -> np.ndarray:
+    H = add_pentadiagonal(scale * E, *(band[i] for band in bands))
+    return H + _PD_TOL * np.diag(np.diag(H))
+
+
+def test_block_formula_matches_flux_block():
+    """The closed form of the gamma = 3 energy block used by the O(N) solver is kernels.py's block."""
+    grid = _random_grid(np.random.default_rng(0), 60)
+    E = PowerKernel(3.0).energy_operator(grid).flux_block()
+    assert np.allclose(_exact_block_gamma3(grid), E, rtol=1e-10, atol=1e-12 * np.abs(E).max())
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_semiseparable_solve_matches_dense_solve(seed):
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(20, 90))
+    grid = _random_grid(rng, n)
+    scale = float(10.0 ** rng.uniform(-3, 1))
+    b = 5
+    bands = _random_bands(rng, b, n - 1)
+    rhs = rng.standard_normal((b, n - 1, 2))
+    x, pd, decided = np.zeros(rhs.shape), np.zeros(b, bool), np.zeros(b, bool)
+    structured.Semiseparable3(grid).solve(scale, bands, rhs, _PD_TOL, (x, pd, decided), 0, b)
+    E = _exact_block_gamma3(grid)
+    for i in range(b):
+        Hs = _dense_shifted(E, scale, bands, i)
+        assert decided[i]
+        assert pd[i] == (np.linalg.eigvalsh(Hs).min() > 0)
+        if pd[i]:
+            ref = np.linalg.solve(Hs, rhs[i])
+            assert np.abs(x[i] - ref).max() <= 1e-10 * np.abs(ref).max()
+
+
+def test_semiseparable_detects_indefinite_hessians():
+    """Weak bands and a strong energy: H_s loses definiteness along the flux mean; the inertia test sees it."""
+    rng = np.random.default_rng(7)
+    grid = _random_grid(rng, 40)
+    E = _exact_block_gamma3(grid)
+    b = 12
+    t = 10.0 ** np.linspace(-2, 4, b)[:, None]
+    bands = (t * rng.uniform(1, 2, (b, 39)), 0.1 * t * rng.uniform(-1, 1, (b, 38)), np.zeros((b, 37)))
+    x, pd, decided = np.zeros((b, 39, 1)), np.zeros(b, bool), np.zeros(b, bool)
+    structured.Semiseparable3(grid).solve(1.0, bands, np.ones((b, 39, 1)), _PD_TOL, (x, pd, decided), 0, b)
+    truth = np.array([np.linalg.eigvalsh(_dense_shifted(E, 1.0, bands, i)).min() > 0 for i in range(b)])
+    assert decided.all()
+    assert truth.any() and not truth.all()  # the family crosses the boundary
+    assert np.array_equal(pd, truth)
+
+
+def _inhom_batch(n: int, gamma: float, slices: int = 6) -> CollisionProblem:
+    """Slices of the two-bump datum (vacuum tails down to 1e-80) at dt = 0.02, log Fisher beta = 1000."""
+    v = np.linspace(-4, 4, n)
+    x = np.linspace(-3, 3, slices)[:, None]
+    f = np.exp(-6 * (v - 1.5) ** 2 - 6 * (x - 2) ** 2) + np.exp(-6 * (v + 1.5) ** 2 - 6 * (x + 2) ** 2)
+    return CollisionProblem(
+        Grid(v), PowerKernel(gamma), np.maximum(f, 1e-300), 0.02, 2.0, 1000.0, "log", conserve_momentum=True
+    )
+
+
+@pytest.mark.parametrize("gamma, n", [(3.0, 121), (1.5, 321)])
+def test_directions_match_the_dense_cholesky(gamma, n):
+    """Realistic bands (vacuum tails, condition numbers ~1e40): same pd, same direction to rounding."""
+    P = _inhom_batch(n, gamma)
+    B = P.f_star.shape[0]
+    for m in (np.zeros((B, n - 1)), solve_newton(P, max_iter=2).m):  # the start and an iterate
+        f = P.f_star - divergence(m) / P.grid.h
+        g, bands, _ = _fused(P, f, m, False)
+        rhs = np.stack([-g, np.broadcast_to(P.grid.dv, g.shape)], axis=-1)
+        scale = 2 * P.energy_coef
+        ref, pd_ref = _newton_direction(add_pentadiagonal(scale * P.energy.flux_block(), *bands), rhs)
+        x, pd = structured.dense_kernel_direction(P.energy, scale, bands, rhs, _PD_TOL)
+        assert np.array_equal(pd, pd_ref) and pd.all()
+        assert np.abs(x - ref).max() <= 1e-10 * np.abs(ref).max()
+
+
+def test_threaded_dense_path_is_bitwise_the_old_one():
+    P = _inhom_batch(61, 1.5)
+    m = np.zeros((P.f_star.shape[0], 60))
+    g, bands, _ = _fused(P, P.f_star, m, False)
+    rhs = -g[..., None]
+    scale = 2 * P.energy_coef
+    ref, pd_ref = _newton_direction(add_pentadiagonal(scale * P.energy.flux_block(), *bands), rhs)
+    x, pd = structured.dense_direction(P.energy.flux_block(), scale, bands, rhs, _PD_TOL)
+    assert np.array_equal(x, ref) and np.array_equal(pd, pd_ref)
+
+
+def test_certificate_falls_back_to_the_dense_verdict():
+    """gamma = 3/2 with weak bands: uncertified slices get the dense Cholesky's verdict, certified ones CG."""
+    rng = np.random.default_rng(3)
+    grid = _random_grid(rng, 330)
+    energy = PowerKernel(1.5).energy_operator(grid)
+    E = energy.flux_block()
+    b = 6
+    bands = _random_bands(rng, b, 329, scale=1e-4)
+    bands = (bands[0] * 10.0 ** np.linspace(0, 5, b)[:, None], *bands[1:])
+    rhs = rng.standard_normal((b, 329, 1))
+    x, pd = structured.dense_kernel_direction(energy, 1.0, bands, rhs, _PD_TOL)
+    truth = np.array([np.linalg.eigvalsh(_dense_shifted(E, 1.0, bands, i)).min() > 0 for i in range(b)])
+    assert truth.any() and not truth.all()
+    assert np.array_equal(pd, truth)
+    for i in np.flatnonzero(pd):
+        ref = np.linalg.solve(_dense_shifted(E, 1.0, bands, i), rhs[i])
+        assert np.abs(x[i] - ref).max() <= 1e-10 * np.abs(ref).max()
+
+
+@pytest.mark.parametrize("gamma, n", [(3.0, 121), (1.5, 321)])
+def test_newton_gives_the_dense_paths_results(gamma, n, monkeypatch):
+    P = _inhom_batch(n, gamma, slices=4)
+    monkeypatch.setenv(structured.LINALG_ENV, "dense")
+    ref = solve_newton(P, tol=1e-9)
+    monkeypatch.setenv(structured.LINALG_ENV, "auto")
+    res = solve_newton(P, tol=1e-9)
+    assert list(res.status) == list(ref.status) and all(s is Status.CONVERGED for s in res.status)
+    assert np.abs(res.f - ref.f).max() <= 1e-9 * np.abs(ref.f).max()
+
+
+def test_nonconvex_steps_stay_nonconvex():
+    """gamma = 3/2, N = 301 (the certified-CG path), concentrated data and a long step."""
+    g = Grid.uniform(-3.0, 3.0, 301)
+    F = np.stack([np.exp(-(g.points**2) / 0.18) + 1e-3, 0.2 * np.exp(-2 * g.points**2)])
+    res = solve_newton(CollisionProblem(g, PowerKernel(1.5), F, 10.0))
+    assert all(s is Status.NONCONVEX for s in res.status)
+
+
+def test_linalg_mode_setting_is_checked(monkeypatch):
+    monkeypatch.setenv(structured.LINALG_ENV, "fast")
+    with pytest.raises(ValueError, match="JKO_CVX_NEWTON_LINALG must be one of"):
+        structured.linalg_mode()
