@@ -462,6 +462,11 @@ SURVIVOR_NOTES: dict[str, str] = {
     "(1e-12, 1e-3] and Armijo refused none of them, so the mutant takes the same steps.  Where it would differ "
     "J could rise once; the final point is still judged by the KKT residual and the second-order test "
     "(certify), so no wrong point is certified",
+    "structured-no-gershgorin": "hard to catch: without the Gershgorin certificate a slice whose banded part G "
+    "is positive definite but H_s is not reaches preconditioned CG, and the verdict goes wrong only if CG then "
+    "converges to 1e-13 in 60 iterations without meeting negative curvature; even with a right-hand side "
+    "planted in the positive eigenspace of G^-1/2 H_s G^-T/2 (gamma = 3/2, N - 1 = 329) rounding brought the "
+    "negative mode in, CG failed and the dense Cholesky decided, correctly (tried 2026-12-01, test not kept)",
     "testing-no-cfl-cap": "harmless (test support, not package code): without the cap the random agreement "
     "family's dt is up to 250x the explicit CFL limit (the cap binds on 196 of 200 draws), a harder family; "
     "every solver still converges and agrees, so the tests pass because the package is right",
@@ -475,14 +480,17 @@ FIRST_RUNS: dict[str, str] = {
     "then pointed at the OSQP subproblem; that bug is now sqp-osqp-q-sign and sqp-qp-rhs-sign is back on the "
     "banded QP, moved verbatim to explicit.py)",
     "hold-out": "15 of 23 caught (2026-12-01 17:38)",
-    "round 2": "35 of 48 caught (2026-12-01 17:56-18:09; its rows are in mutation_round2_first_run.csv)",
+    "round 2": "39 of 53 caught (the first 48 at 2026-12-01 17:56-18:09, rows in mutation_round2_first_run.csv: "
+    "35; the 5 for structured.py and threads.py, merged later, at 18:17: 4)",
 }
 # How the rows of the shipped mutation.csv were produced (shown in mutation.md).
 RUN_LOG = (
     "2026-12-01 17:51-18:09: full run of the 79 mutations of the first list with their snippets updated "
     "after the refactors; 17:56-18:09: round 2's 48, first run (concurrently, separate output); 18:12: --update rerun "
     "of 39 after merging main (mutations of every module main changed, the two snippets it made stale) "
-    "and after the tests for the round-2 survivors were added"
+    "and after the tests for the round-2 survivors were added; 18:17: --update rerun of 29 after merging main "
+    "again (structured Newton solves, threads; the mutations of every module it changed or whose tests it "
+    "changed, and five new ones for structured.py and threads.py, first run)"
 )
 UNMUTATED_WHY = "re-exports only: a broken import there fails every test at collection"
 # Mutations that survived a run and were caught after a test was added (kept visible: the first

@@ -154,3 +154,4 @@ def test_the_osqp_subproblem_gives_the_banded_sqp_iterates():
     osqp = solve_collision(prob, method="sqp", qp="osqp")
     assert banded.success and osqp.success
     assert np.abs(osqp.f - banded.f).max() < 1e-6 * banded.f.max()
+
