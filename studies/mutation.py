@@ -521,7 +521,8 @@ FOLLOW_UPS: dict[str, str] = {
 
 
 def _copy_tree(dest: Path) -> None:
-    ignore = shutil.ignore_patterns(".git", "__pycache__", "*.pyc", "runs", "results", ".pytest_cache", ".ruff_cache")
+    # studies/results is copied: test_quoted_numbers and others read the shipped result files
+    ignore = shutil.ignore_patterns(".git", "__pycache__", "*.pyc", "runs", "cache", ".pytest_cache", ".ruff_cache")
     for name in ("jko_cvx", "tests", "studies", "pyproject.toml"):
         src = ROOT / name
         if src.is_dir():
