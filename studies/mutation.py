@@ -523,7 +523,7 @@ FOLLOW_UPS: dict[str, str] = {
 def _copy_tree(dest: Path) -> None:
     # studies/results is copied: test_quoted_numbers and others read the shipped result files
     ignore = shutil.ignore_patterns(".git", "__pycache__", "*.pyc", "runs", "cache", ".pytest_cache", ".ruff_cache")
-    for name in ("jko_cvx", "tests", "studies", "pyproject.toml"):
+    for name in ("jko_cvx", "tests", "studies", "pyproject.toml", "README.md"):
         src = ROOT / name
         if src.is_dir():
             shutil.copytree(src, dest / name, ignore=ignore)
