@@ -19,6 +19,8 @@ def test_a_trace_reproduces_its_table_entry():
     df = trace_entry("g3", 1e-3 / 4, 0.00125, 1000.0)
     assert df.attrs["T_b"] == blowup_time("g3", 1e-3 / 4, 0.00125, 1000.0)["T_b"]
     assert df.min_dv.iloc[-1] < 1e-3 / 4 <= df.min_dv.iloc[-2]
+    # a record after every step (mutation traces-every-step): t advances by the fixed dt, from 0 to T_b
+    assert df.t.iloc[0] == 0.0 and np.allclose(np.diff(df.t), 0.00125) and df.t.iloc[-1] == df.attrs["T_b"]
 
 
 def test_characteristics_follow_the_papers_closed_forms():
