@@ -267,13 +267,18 @@ CLAIMS: tuple[Claim, ...] = (
         "gk1_records.csv",
         lambda d: (
             *tuple(
-                str(int(d[(d.policy == "halving") & (d.data == "g1") & (d.delta0 == x)].steps_below_dt0.iloc[0]))
+                f"{d[(d.policy == 'halving') & (d.data == 'g1') & (d.delta0 == x)].first_halving_t.iloc[0]:.2f}"
                 for x in (0.05, 0.5)
             ),
-            f"{d[d.policy == 'halving'].smallest_dt.min():.2g}",
+            f"{d[(d.policy == 'halving') & (d.delta0 == 0.05)].smallest_dt.iloc[0]:.2g}",
+            str(int(d[(d.policy == "halving") & (d.delta0 == 0.05)].retries.iloc[0])),
+            str(int(d[(d.policy == "halving") & (d.data == "g1") & (d.delta0 == 0.5)].retries.iloc[0])),
+            str(int(d[d.policy == "halving_reset"].retries.iloc[0])),
         ),
-        "{} (delta0 = 0.05) and {} (delta0 = 0.5) steps below dt0, smallest {}",
-        "gk1_records.csv, halving rows",
+        "first halving at t = {} (delta0 = 0.05) and {} (delta0 = 0.5); the delta0 = 0.05 step falls to {} "
+        "by t = 0.6 ({} failed attempts); delta0 = 0.5 needs {} failed attempts as written and {} with "
+        "`halving_reset`",
+        "gk1_records.csv, halving and halving_reset rows",
     ),
     # gamma = 3
     Claim(
