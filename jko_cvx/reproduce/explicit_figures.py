@@ -27,6 +27,7 @@ import numpy as np
 import pandas as pd
 from scipy.integrate import solve_ivp
 
+from ..benchmarks.figures import pyplot
 from .explicit import M0, RHO0, T, closed_form
 
 __all__ = ["characteristic_eq", "characteristic_eqgamma", "reproduce_explicit_figures"]
@@ -118,11 +119,7 @@ def reproduce_explicit_figures(out: Path, quick: bool = False, **_sweep_opts: An
 
 
 def _figure(t: np.ndarray, trajectories: dict, path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     fig, axes = plt.subplots(1, 5, figsize=(21, 3.8))
     xs, vs = np.linspace(-0.5, 0.5, 201), np.linspace(-8, 8, 241)
     X, V = np.meshgrid(xs, vs, indexing="ij")

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from ..benchmarks.figures import pyplot
 from ..simulate import simulate
 from .blowup_tables import blowup_scene
 
@@ -62,11 +63,7 @@ def reproduce_gk1_final(out: Path, quick: bool = False, **_sweep_opts: Any) -> p
 
 
 def _figure(v, f, t, path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(9, 3.6))
     axes[0].plot(v, f, ".-", ms=3)
     axes[0].set_title(f"fig:gk1_final: f(t = {t:.2f}, v)", fontsize=9)

@@ -17,20 +17,12 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from ..benchmarks.figures import pyplot
 from ..simulate import simulate
 from .g2bu import g2bu_scene
 from .ibu import ibu_scene
 
 __all__ = ["reproduce_g2bu_loglog", "reproduce_g2bu_records", "reproduce_ibu_panels"]
-
-
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
 
 
 def reproduce_ibu_panels(out: Path, quick: bool = False, **_sweep_opts: Any) -> pd.DataFrame:
@@ -58,7 +50,7 @@ def reproduce_ibu_panels(out: Path, quick: bool = False, **_sweep_opts: Any) -> 
         + pd.DataFrame([record]).to_markdown(index=False, floatfmt=".4g")
         + "\n"
     )
-    plt = _plt()
+    plt = pyplot()
     fig, axes = plt.subplots(1, 3, figsize=(12, 3.6))
     axes[0].plot(first["v"], first["f"], ".-", ms=2)
     axes[0].set_title("fig:gk3 (left): f(0, v)", fontsize=9)
@@ -80,7 +72,7 @@ def reproduce_g2bu_loglog(out: Path, quick: bool = False, **_sweep_opts: Any) ->
     out = Path(out)
     df = pd.read_csv(out / "tab_g2bu.csv")
     df = df[df.n_v == df.n_v.min()].sort_values("lambda")
-    plt = _plt()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(5.5, 3.8))
     ax.plot(df["lambda"], df["log ratio at T_b"], "o-", label="ours: log(rho/rho0)/log(m/m0) at T_b")
     ax.plot(df["lambda"], df["infinite-mass ratio 2/(lambda rho0 T)"], "k--", label="infinite mass: 2/(lambda rho0 T)")
@@ -108,7 +100,7 @@ def reproduce_g2bu_records(out: Path, quick: bool = False, **_sweep_opts: Any) -
         f"min dx {d.min_dx.min():.3g}, min dv {d.min_dv.min():.3g}, max f {d.max_f.max():.4g}; "
         f"{time.perf_counter() - t0:.0f} s.\n"
     )
-    plt = _plt()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(5.5, 3.8))
     ax.semilogy(d.t, d.min_dx, label="min dx")
     ax.semilogy(d.t, d.min_dv, label="min dv")
