@@ -15,6 +15,7 @@ from .fisher_width import reproduce_fisher_width
 from .g2bu import reproduce_tab_g2bu
 from .gamma1p5 import reproduce_inhom_gamma1p5
 from .gk1_final import reproduce_gk1_final
+from .grid_convergence import reproduce_grid_convergence
 from .ibu import reproduce_ibu
 from .inhomogeneous import reproduce_inhom_gamma3
 from .mesh_maps import reproduce_mesh_maps
@@ -44,6 +45,7 @@ REPRODUCTIONS = {
     "ibu_panels": reproduce_ibu_panels,
     "g2bu_loglog": reproduce_g2bu_loglog,
     "g2bu_records": reproduce_g2bu_records,
+    "grid_convergence": reproduce_grid_convergence,
 }
 
 __all__ = [
@@ -55,6 +57,7 @@ __all__ = [
     "reproduce_g2bu_records",
     "reproduce_gk1_final",
     "reproduce_gk1_records",
+    "reproduce_grid_convergence",
     "reproduce_ibu",
     "reproduce_ibu_panels",
     "reproduce_inhom_gamma1p5",
