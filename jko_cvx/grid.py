@@ -231,6 +231,47 @@ class PeriodicGrid:
 
         return evaluate
 
+    def pchip_columns(self, values: ArrayLike, queries: ArrayLike) -> NDArray[np.float64]:
+        """Column j of ``values`` interpolated (periodic PCHIP) at column j of ``queries``.
+
+        The same interpolant as :meth:`pchip` for every column, built once for all columns
+        and evaluated with the piecewise-cubic form of SciPy's ``PPoly`` (same operations in
+        the same order, so the result equals the column-by-column :meth:`pchip` bit for bit;
+        tested).  Transport needs it: every v-line has its own foot points, and one
+        interpolant per line cost a third of an inhomogeneous step at 121 x 121.
+
+        Parameters
+        ----------
+        values : array_like, shape (N, L)
+            Values at the grid points, one column per line.
+        queries : array_like, shape (M, L)
+            Query points of each line (any real numbers: wrapped into the period).
+        """
+        from scipy.interpolate import PchipInterpolator
+
+        vals = np.asarray(values, dtype=float)
+        q = np.asarray(queries, dtype=float)
+        if vals.ndim != 2 or vals.shape[0] != self.n or q.ndim != 2 or q.shape[1] != vals.shape[1]:
+            raise ValueError(
+                f"values must have shape (N, L) = ({self.n}, L) and queries (M, L), got {vals.shape} and {q.shape}"
+            )
+        x, P, k = self.points, self.period, _PERIODIC_IMAGES
+        xe = np.concatenate([x[-k:] - P, x, x[:k] + P])
+        ve = np.concatenate([vals[-k:], vals, vals[:k]], axis=0)
+        with np.errstate(over="ignore", divide="ignore"):  # as in pchip: 1/inf = 0 in vacuum tails
+            c = PchipInterpolator(xe, ve, axis=0).c  # (4, len(xe) - 1, L), highest power first
+        lo = self.lower
+        qw = lo + np.mod(q - lo, P)
+        cell = np.clip(np.searchsorted(xe, qw, side="right") - 1, 0, xe.size - 2)
+        s = qw - xe[cell]
+        col = np.broadcast_to(np.arange(vals.shape[1]), q.shape)
+        # PPoly's evaluation order: c3 + c2 s + c1 s^2 + c0 s^3, the powers built by repeated products
+        out = c[3, cell, col] + c[2, cell, col] * s
+        z = s * s
+        out = out + c[1, cell, col] * z
+        z = z * s
+        return out + c[0, cell, col] * z
+
     def vacuum_coordinate(self, lines: ArrayLike, reach: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Per line, the coordinate :math:`\\xi = (x - c) \\bmod P` cut in the line's vacuum.
 
