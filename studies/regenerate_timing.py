@@ -80,7 +80,8 @@ def _report(df: pd.DataFrame, path: Path, quick: bool) -> None:
         "",
         df.to_markdown(index=False, floatfmt=".4g"),
         "",
-        f"**Total wall time {total:.0f} s ({total / 60:.1f} min) over {len(ok)} of the section's {len(REPRODUCTIONS)} entries; "
+        f"**Total wall time {total:.0f} s ({total / 60:.1f} min) over {len(ok)} of the section's "
+        f"{len(REPRODUCTIONS)} entries; "
         f"CPU {ok.cpu_s.sum():.0f} s.**  Goal: {GOAL_S / 60:.0f} min: "
         + ("not met." if total > GOAL_S else "open (entries missing)." if missing else "met.")
         + (f"  Not timed (or failed): {', '.join(missing)}." if missing else ""),
