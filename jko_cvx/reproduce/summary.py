@@ -105,6 +105,30 @@ def _seconds(df) -> tuple[str, ...]:
     return (f"{df.seconds.sum():.0f}",)
 
 
+def _scale_row(d, gamma: float, linalg: str) -> tuple[str, ...]:
+    """A row of README's batched-Newton table: wall (CPU) at N_v = 121, 481, 1025 and the exponents."""
+    rows = d[(d.gamma == gamma) & (d.linalg == linalg)].set_index("N_v")
+    cells = []
+    for n in (121, 481, 1025):
+        if n in rows.index:
+            cells += [_g(rows.median_wall_s[n], 3), _g(rows.median_cpu_s[n], 3)]
+    for col in ("median_wall_s", "median_cpu_s"):
+        cells.append(f"{np.log(rows[col][481] / rows[col][121]) / np.log(481 / 121):.2f}")
+    return tuple(cells)
+
+
+def _scale_step(d) -> tuple[str, ...]:
+    row = d.set_index(["N_x = N_v", "linalg"])
+    s481, s1025 = row.loc[(481, "structured (default)")], row.loc[(1025, "structured (default)")]
+    dense = row.loc[(481, "dense Cholesky")]
+    return (
+        f"{s481.wall_per_step_s:.2f}", f"{s481.cpu_per_step_s:.2f}", f"{dense.wall_per_step_s:.2f}",
+        f"{s1025.wall_per_step_s:.2f}", f"{s1025.cpu_per_step_s:.2f}", f"{s1025.collision_s:.2f}",
+        f"{s1025.refine_s:.2f}", f"{s1025.transport_s:.2f}", f"{s1025.newton_iterations_max:d}",
+        f"{row.peak_rss_gib.max():.2f}",
+    )
+
+
 CLAIMS: tuple[Claim, ...] = (
     # the NAME table: summed run time of the points in each CSV
     Claim(
@@ -517,6 +541,56 @@ CLAIMS: tuple[Claim, ...] = (
         lambda d: (", ".join(f"{x:.2f}" for x in d[d.n_v == 201]["log ratio at T_b"]),),
         "and is {} at T_b",
         "log ratio at T_b, n_v = 201",
+    ),
+    Claim(
+        "scale.newton.gamma3",
+        "../bench_scale_newton.csv",
+        lambda d: _scale_row(d, 3.0, "structured (default)"),
+        "| gamma = 3, structured (default) | {} ({}) | {} ({}) | {} ({}) | {} ({}) |",
+        "medians, wall (CPU), N_v = 121, 481, 1025; exponents log(t481/t121)/log(481/121)",
+        "README.md",
+    ),
+    Claim(
+        "scale.newton.gamma1p5",
+        "../bench_scale_newton.csv",
+        lambda d: _scale_row(d, 1.5, "structured (default)"),
+        "| gamma = 3/2, structured (default) | {} ({}) | {} ({}) | {} ({}) | {} ({}) |",
+        "as scale.newton.gamma3",
+        "README.md",
+    ),
+    Claim(
+        "scale.newton.dense3",
+        "../bench_scale_newton.csv",
+        lambda d: _scale_row(d, 3.0, "dense Cholesky"),
+        "| gamma = 3, dense Cholesky | {} ({}) | {} ({}) | | {} ({}) |",
+        "as scale.newton.gamma3, dense rows",
+        "README.md",
+    ),
+    Claim(
+        "scale.newton.dense1p5",
+        "../bench_scale_newton.csv",
+        lambda d: _scale_row(d, 1.5, "dense Cholesky"),
+        "| gamma = 3/2, dense Cholesky | {} ({}) | {} ({}) | | {} ({}) |",
+        "as scale.newton.gamma3, dense rows",
+        "README.md",
+    ),
+    Claim(
+        "scale.step",
+        "../bench_scale_step.csv",
+        _scale_step,
+        "at 481 x 481 takes {} s wall ({} s CPU; with the dense Cholesky {} s).  At 1025 x 1025 a step takes "
+        "{} s wall ({} s CPU; collision {} s, refinement {} s, transport {} s; the slowest slice needs {} "
+        "Newton iterations), peak memory {} GiB.",
+        "wall and CPU seconds per step, split, max Newton iterations, peak RSS",
+        "README.md",
+    ),
+    Claim(
+        "scale.loaded",
+        "../bench_scale_loaded_step.csv",
+        lambda d: (f"{d.wall_per_step_s.iloc[0]:.2f}",),
+        "the same CPU times but longer wall times: {} s for the 481 x 481 step",
+        "the 481 x 481 structured row of the loaded run",
+        "README.md",
     ),
 )
 
