@@ -1,0 +1,68 @@
+"""The grid-convergence entry (issue 15): its convergence arithmetic, its sweep and its files."""
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from jko_cvx.reproduce import REPRODUCTIONS
+from jko_cvx.reproduce.grid_convergence import (
+    G2BU_N_V,
+    GRIDS,
+    T_END,
+    _points,
+    convergence,
+    reproduce_grid_convergence,
+)
+from jko_cvx.reproduce.paper import TAB_G2BU
+
+
+@pytest.mark.parametrize("p", [0.5, 1.0, 2.0, 3.7])
+def test_convergence_recovers_the_order_of_a_power_law(p):
+    h = np.array([0.1, 0.05, 0.025, 0.0125])
+    result = convergence(list(2.5 - 3.0 * h**p))
+    assert result["order"] == pytest.approx(p, rel=1e-10)
+    assert result["d2"] == pytest.approx(-3.0 * (h[3] ** p - h[2] ** p), rel=1e-12)
+    assert abs(result["d2"]) < abs(result["d1"])
+
+
+def test_convergence_has_no_order_when_the_differences_change_sign_or_vanish():
+    assert np.isnan(convergence([1.0, 1.5, 1.2])["order"])  # oscillating: no asymptotic order
+    assert np.isnan(convergence([1.0, 1.0, 1.0])["order"])  # d2 = 0
+    assert np.isnan(convergence([0.3, float("nan"), 0.2])["order"])
+    with pytest.raises(ValueError, match="at least 3 grids"):
+        convergence([1.0, 2.0])
+
+
+def test_the_full_sweep_covers_every_grid_and_runs_the_finest_last():
+    points = _points(quick=False)
+    g1p5 = [p for p in points if p["study"] == "gamma1p5"]
+    g2 = [p for p in points if p["study"] == "g2bu"]
+    assert {(p["case"], p["n"], p["grid"]) for p in g1p5} == {
+        (c, n, g) for c in ("before", "after") for n in GRIDS for g in ("uniform", "mapped")
+    }
+    assert all(p["t_end"] == T_END for p in g1p5)
+    assert {(p["lam"], p["n_v"]) for p in g2} == {(float(lam), n) for lam in TAB_G2BU for n in G2BU_N_V}
+    assert all(p["n_x"] == 121 for p in g2)
+    # the two finest levels come after every coarser point (a killed sweep keeps the cheap ones)
+    finest = [i for i, p in enumerate(points) if p.get("n") == GRIDS[-1] or p.get("n_v") == G2BU_N_V[-1]]
+    assert finest == list(range(len(points) - len(finest), len(points)))
+    assert "grid_convergence" in REPRODUCTIONS
+
+
+@pytest.mark.slow
+def test_quick_grid_convergence_runs_both_studies_and_keeps_the_invariants(tmp_path):
+    rows = reproduce_grid_convergence(tmp_path, quick=True, executor="serial", progress=False)
+    for name in ("grid_convergence.csv", "grid_convergence_gamma1p5.csv", "grid_convergence_g2bu.csv"):
+        assert (tmp_path / name).exists()
+    assert (tmp_path / "grid_convergence.png").stat().st_size > 0
+    assert (rows["mass drift"] < 1e-12).all() and (rows["momentum drift"] < 1e-12).all()
+    uniform = rows[rows.grid == "uniform"]
+    # no maps on the reference: its spacing stays the uniform 2 L / (n - 1), and the mesh criterion never fires
+    assert np.allclose(uniform["min dv (stop)"], 10.0 / (uniform.n - 1))
+    assert uniform["T_b (paper's criteria)"].isna().all()
+    collapse = rows["t(sigma_v < 0.05)"]
+    assert (collapse.notna() == rows.stop.str.startswith("min spread_v")).all()
+    assert ((rows["t stop"] <= 0.25 + 1e-12) & (collapse.fillna(0) <= rows["t stop"] + 1e-12)).all()
+    g2 = pd.read_csv(tmp_path / "grid_convergence_g2bu.csv")
+    assert g2["lambda"].tolist() == [310]
+    assert {"T_b (N_v = 61)", "T_b (N_v = 81)"} <= set(g2.columns)
