@@ -11,10 +11,13 @@ from .beta_scan import reproduce_tab_bu_beta_scan
 from .blowup_tables import reproduce_tab_bu, reproduce_tab_bu_tb2
 from .explicit import reproduce_explicit
 from .explicit_figures import reproduce_explicit_figures
+from .explicit_sketch import reproduce_explicit2_sketch
 from .fisher_width import reproduce_fisher_width
 from .g2bu import reproduce_tab_g2bu
 from .gamma1p5 import reproduce_inhom_gamma1p5
 from .gk1_final import reproduce_gk1_final
+from .gk2_bu import reproduce_gk2_bu
+from .gk3_panels import reproduce_gk3_panels
 from .grid_convergence import reproduce_grid_convergence
 from .ibu import reproduce_ibu
 from .inhomogeneous import reproduce_inhom_gamma3
@@ -45,18 +48,24 @@ REPRODUCTIONS = {
     "ibu_panels": reproduce_ibu_panels,
     "g2bu_loglog": reproduce_g2bu_loglog,
     "g2bu_records": reproduce_g2bu_records,
+    "gk3_panels": reproduce_gk3_panels,
+    "gk2_bu": reproduce_gk2_bu,
+    "explicit2_sketch": reproduce_explicit2_sketch,
     "grid_convergence": reproduce_grid_convergence,
 }
 
 __all__ = [
     "REPRODUCTIONS",
     "reproduce_explicit",
+    "reproduce_explicit2_sketch",
     "reproduce_explicit_figures",
     "reproduce_fisher_width",
     "reproduce_g2bu_loglog",
     "reproduce_g2bu_records",
     "reproduce_gk1_final",
     "reproduce_gk1_records",
+    "reproduce_gk2_bu",
+    "reproduce_gk3_panels",
     "reproduce_grid_convergence",
     "reproduce_ibu",
     "reproduce_ibu_panels",

@@ -10,8 +10,9 @@
   stays in x < 0 up to T, beside one from above that set, which crosses 0.  The ODE is
   integrated numerically (DOP853) and compared with the paper's closed form
   :math:`X/(T-t) = x/T + \\frac{\\alpha\\rho_0}{m_0}\\frac{(T/(T-t))^{1-\\kappa} - 1}{1-\\kappa}`,
-  :math:`\\kappa = \\tfrac\\lambda2\\rho_0 T`.  (The right panel of ``fig:explicit2`` is a
-  sketch of a broken ``condft``; the level-set check of ``tab_g2bu`` is its numerical form.)
+  :math:`\\kappa = \\tfrac\\lambda2\\rho_0 T`.  (The right panel of ``fig:explicit2``, a
+  sketch of a broken ``condft``, is the ``explicit2_sketch`` entry,
+  :mod:`~jko_cvx.reproduce.explicit_sketch`; the level-set check of ``tab_g2bu`` is its numerical form.)
 * ``fig:explicit3``: a characteristic of ``eqgamma``, :math:`\\dot X = -X/(T-t) + \\alpha C`,
   from :math:`X_0 < 0` with :math:`\\alpha > 0`: it reaches 0 before T, at
   :math:`t_0 = T(1 - e^{-|X_0|/(\\alpha C T)})` by the closed form
