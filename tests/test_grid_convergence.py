@@ -1,5 +1,10 @@
 """The grid-convergence entry (issue 15): its convergence arithmetic, its sweep and its files."""
 
+import json
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -66,3 +71,19 @@ def test_quick_grid_convergence_runs_both_studies_and_keeps_the_invariants(tmp_p
     g2 = pd.read_csv(tmp_path / "grid_convergence_g2bu.csv")
     assert g2["lambda"].tolist() == [310]
     assert {"T_b (N_v = 61)", "T_b (N_v = 81)"} <= set(g2.columns)
+
+    # a stopped sweep: the partial report lists the point it lacks and refuses a tampered entry
+    cache = sorted((tmp_path / "cache" / "grid_convergence").glob("*.json"))
+    lost = json.loads(cache[0].read_text())["point"]
+    cache[0].unlink()
+    script = Path(__file__).resolve().parents[1] / "studies" / "grid_convergence_partial.py"
+    cmd = [sys.executable, str(script), "--cache", str(cache[0].parent), "--provenance", "test", "--quick"]
+    done = subprocess.run([*cmd, "--out", str(tmp_path / "partial")], capture_output=True, text=True, check=True)
+    assert f"{len(cache) - 1} of {len(cache)} points reported, 1 missing" in done.stdout
+    report = (tmp_path / "partial" / "grid_convergence.md").read_text()
+    assert "**Points not run**" in report and ", ".join(f"{k} = {v}" for k, v in lost.items()) in report
+    entry = json.loads(cache[1].read_text())
+    entry["result"]["seconds"] += 1.0
+    cache[1].write_text(json.dumps(entry))
+    refused = subprocess.run([*cmd, "--out", str(tmp_path / "p2")], capture_output=True, text=True, check=False)
+    assert refused.returncode != 0 and "fails its digest" in refused.stderr
