@@ -97,11 +97,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--again", action="store_true", help="time entries already in the CSV again")
     parser.add_argument("--scratch", type=Path, default=None, help="output directory (default: a temporary one)")
+    parser.add_argument("--tag", default="", help="suffix of the result files (a separate timing of some entries)")
     args = parser.parse_args(argv)
     if args.workers < 1:
         parser.error(f"--workers must be >= 1, got {args.workers}")
     entries = args.entries or list(REPRODUCTIONS)
-    stem = "regenerate_timing_quick" if args.quick else "regenerate_timing"
+    stem = "regenerate_timing" + ("_quick" if args.quick else "") + (f"_{args.tag}" if args.tag else "")
     csv = RESULTS / f"{stem}.csv"
     code = code_identity(main)["package_sha256"]
     done = pd.read_csv(csv) if csv.exists() else pd.DataFrame()
