@@ -191,10 +191,18 @@ class OneBumpMap(_OddMap):
         _check_fraction("delta0", delta0)
         _check_fraction("delta", delta)
         r, _ = concentration_set(grid, f, delta0)
+        return cls.from_extent(grid, r, delta)
+
+    @classmethod
+    def from_extent(cls, grid: Grid, r: float, delta: float) -> OneBumpMap:
+        """The map for a set reaching out to ``r`` (its largest positive point) on ``grid``.
+
+        A set wider than its uniform share (r > L delta) gains nothing from refinement: the
+        map is then the identity (uniform grid) at r = L delta.
+        """
+        _check_fraction("delta", delta)
         L = float(grid.points[-1])
-        # A set wider than its uniform share (r > L delta) gains nothing from refinement:
-        # the map is then the identity (uniform grid) at r = L delta.
-        return cls(L=L, r=min(r, L * delta), delta=delta)
+        return cls(L=L, r=min(float(r), L * delta), delta=delta)
 
 
 @dataclass(frozen=True)
@@ -262,6 +270,13 @@ class TwoBumpMap(_OddMap):
     def from_density(cls, grid: Grid, f: ArrayLike, delta0: float, delta: float) -> TwoBumpMap:
         _check_fraction("delta0", delta0)
         r1, r2 = concentration_set(grid, f, delta0, both_ends=True)
+        return cls.from_extent(grid, r1, r2, delta)
+
+    @classmethod
+    def from_extent(cls, grid: Grid, r1: float, r2: float, delta: float) -> TwoBumpMap:
+        """The map for a set spanning ``[r1, r2]`` (grid points, ``0 < r1 <= r2``) on ``grid``,
+        widened or trimmed as described below (and in the module docstring)."""
+        r1, r2 = float(r1), float(r2)
         if r1 == r2:
             # A set resolved by one grid point: take that point's cell (midpoints to its
             # neighbours), which is what the grid can say about the bump's width.
