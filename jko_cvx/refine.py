@@ -325,10 +325,10 @@ def quadrant_set(x: ArrayLike, v: ArrayLike, f_star: ArrayLike, delta0: float):
     from the post-transport, pre-collision density :math:`f^*` (shape (Nx, Nv)).  Returns
     ``((min x, max x), (min v, max v))`` over S, or ``None`` when S is empty -- which it is
     for ``eqn:f0`` at t = 0 (its bumps sit in the quadrants x < 0 < v and v < 0 < x), where
-    the paper does not say what to do.  The time loop (``simulate``) builds its maps from
-    the post-collision f and separate projections instead (max over x for the v-set, max
-    over v for the x-set, each on its positive half-axis); this helper is the paper's rule
-    for a loop that wants it.
+    the paper does not say what to do.  The time loop (``simulate``) uses it with
+    ``refine.concentration_set = "quadrant"`` (an empty set: the uniform grid); by default it
+    builds its maps from the post-collision f and separate projections (max over x for the
+    v-set, max over v for the x-set, each on its positive half-axis).
     """
     _check_fraction("delta0", delta0)
     x, v, f = np.asarray(x, dtype=float), np.asarray(v, dtype=float), np.asarray(f_star, dtype=float)

@@ -1,8 +1,9 @@
 """The time loop: ``simulate(scene)`` (``alg:MR_JKO_ver2`` homogeneous, ``alg:SPMCSL-JKO`` inhomogeneous).
 
 Each step: choose dt (policy), transport in x (inhomogeneous scenes only), collision in v
-(batched over x-slices), retry with a halved dt on solver failure (halving policy), mesh
-refinement in v and x with mass-conserving remapping.  The loop carries one
+(batched over x-slices), retry with a halved dt on solver failure (halving policy; which
+failures halve it: ``time.halve_on``), mesh refinement in v and x with mass-conserving
+remapping (the maps' sets: ``refine.concentration_set``).  The loop carries one
 :class:`~jko_cvx.runstate.RunState`; after each accepted step the trackers
 (:mod:`jko_cvx.trackers`) record the diagnostics, apply the blow-up rules (min dv < eps_v:
 B_v; min dx < eps_x: B_x; min_spread_v < spread_v where the scene sets ``stop.spread_v``:

@@ -14,7 +14,8 @@
     2 eps after a cut), ``"cut"`` (the cut, zeta as Algorithm 1 computes it) or ``"none"``
     (Algorithm 1 as written: no cut; an iterate with f_j <= 0 is NUMERICAL_ERROR).
 
-  Columns: the failed attempts by status, the first failed attempt (t, status), the first
+  Two more rows vary the SQP's I_max (2000, 200; default 20000, the paper states none) under
+  the paper's rules.  Columns: the failed attempts by status, the first failed attempt (t, status), the first
   halving (start of the first accepted step below dt0), retries, the smallest accepted dt,
   how the run ended and T_b.
 * ``paper_variants_concentration.{csv,md}``: ``refine.concentration_set = "projections"``
@@ -53,12 +54,13 @@ VARIANTS = [
     ("any_failure", "none"),
     ("max_iterations", "none"),
 ]
+I_MAX_PROBE = (2000, 200)
 STATUSES = ("MAX_ITERATIONS", "NOT_CERTIFIED", "NONCONVEX", "NUMERICAL_ERROR")
 
 
-def gk1_variant(delta0: float, t_end: float, halve_on: str, safeguard: str) -> dict[str, Any]:
+def gk1_variant(delta0: float, t_end: float, halve_on: str, safeguard: str, max_iter: int = 20000) -> dict[str, Any]:
     """One adaptive g1 record (``records.record_run``) reduced to the columns of the table."""
-    r = record_run("g1", delta0, "halving", t_end, halve_on, safeguard)
+    r = record_run("g1", delta0, "halving", t_end, halve_on, safeguard, None if max_iter == 20000 else max_iter)
     t, dt = r["t"], r["dt"]
     first = r["attempts"][0] if r["attempts"] else None
     return {
@@ -117,7 +119,16 @@ def main(argv: list[str] | None = None) -> None:
     opts = {"executor": "serial", "progress": False}
 
     runs = [(0.5, 0.7)] if args.quick else [(0.5, 0.7), (0.05, 0.6)]
-    points = [{"delta0": d0, "t_end": te, "halve_on": h, "safeguard": s} for d0, te in runs for h, s in VARIANTS]
+    points = [
+        {"delta0": d0, "t_end": te, "halve_on": h, "safeguard": s, "max_iter": 20000}
+        for d0, te in runs
+        for h, s in VARIANTS
+    ]
+    # I_max (not stated in the paper): where the exit flag, and so the first halving, comes
+    points += [
+        {"delta0": 0.5, "t_end": 0.7, "halve_on": "max_iterations", "safeguard": "floor", "max_iter": k}
+        for k in I_MAX_PROBE
+    ]
     t0 = time.perf_counter()
     gk1 = run_sweep(gk1_variant, points, out / "cache" / "paper_variants", desc="paper_variants", **opts)
     gk1 = gk1.drop(columns=["cached"])

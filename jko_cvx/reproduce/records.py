@@ -25,13 +25,20 @@ __all__ = ["record_run", "record_scene", "reproduce_gk1_records"]
 
 
 def record_scene(
-    data: str, delta0: float, policy: str, t_end: float, halve_on: str = "any_failure", safeguard: str = "floor"
+    data: str,
+    delta0: float,
+    policy: str,
+    t_end: float,
+    halve_on: str = "any_failure",
+    safeguard: str = "floor",
+    max_iter: int | None = None,
 ):
     """The gamma = 1 scene of one record: fixed dt (Newton), or the halving policies with the paper's SQP.
 
-    ``halve_on`` (``time.halve_on``) and ``safeguard`` (the SQP's ``safeguard`` option) choose
-    between the package's rules (the defaults) and the paper's algorithms as written; they
-    apply to the halving policies only.
+    ``halve_on`` (``time.halve_on``), ``safeguard`` (the SQP's ``safeguard`` option) and
+    ``max_iter`` (the SQP's I_max; None: its default 20000) choose between the package's
+    rules (the defaults) and the paper's algorithms as written; they apply to the halving
+    policies only.
     """
     variant: dict[str, Any] = {"refine.v.delta0": delta0, "t_end": t_end}
     if policy in ("halving", "halving_reset"):
@@ -46,20 +53,29 @@ def record_scene(
         )
         if halve_on != "any_failure":
             variant["time.halve_on"] = halve_on
-        if safeguard != "floor":
-            variant["collision.options"] = {"safeguard": safeguard}
-    elif (halve_on, safeguard) != ("any_failure", "floor"):
-        raise ValueError("halve_on and safeguard vary the halving runs only (policy 'halving' or 'halving_reset')")
+        options = {k: v for k, v in (("safeguard", safeguard), ("max_iter", max_iter)) if v not in ("floor", None)}
+        if options:
+            variant["collision.options"] = options
+    elif (halve_on, safeguard, max_iter) != ("any_failure", "floor", None):
+        raise ValueError(
+            "halve_on, safeguard and max_iter vary the halving runs only (policy 'halving' or 'halving_reset')"
+        )
     # beta = 1000: the weight the shipped gk1 records were run with
     return blowup_scene(data, 0.0, 0.01, beta=1000.0, overrides=variant)
 
 
 def record_run(
-    data: str, delta0: float, policy: str, t_end: float, halve_on: str = "any_failure", safeguard: str = "floor"
+    data: str,
+    delta0: float,
+    policy: str,
+    t_end: float,
+    halve_on: str = "any_failure",
+    safeguard: str = "floor",
+    max_iter: int | None = None,
 ) -> dict[str, Any]:
     """One sweep point: the records (t, dt, min dv, max f) of a gamma = 1 run, its verdict and
     its failed collision attempts (``failures``: count by status; ``attempts``: each one)."""
-    s = record_scene(data, delta0, policy, t_end, halve_on, safeguard)
+    s = record_scene(data, delta0, policy, t_end, halve_on, safeguard, max_iter)
     t0 = time.perf_counter()
     attempts: list[dict[str, Any]] = []
     run = simulate(s, attempts=attempts)
