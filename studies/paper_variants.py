@@ -20,10 +20,11 @@
   how the run ended and T_b.
 * ``paper_variants_concentration.{csv,md}``: ``refine.concentration_set = "projections"``
   (the package) against ``"quadrant"`` (``alg:SPMCSL-JKO`` step 4; empty set: uniform grid)
-  on the quick forms of ``inhom_gamma3`` (lambda = 4, 61 x 61, to t = 2) and
-  ``inhom_gamma1p5`` (lambda = 10 "before" and lambda = 5 "after", 41 x 41, with the quick
-  form's density stop at sigma_v < 0.05, to t = 0.6): min dv, min dx, max f, the verdict and
-  T_b, and the first time the v-grid is finer than the uniform one.
+  on ``inhom_gamma3`` lambda = 4 (the quick form, 61 x 61 to t = 2, and the shipped scene,
+  121 x 121 to t = 4) and on the quick form of ``inhom_gamma1p5`` (lambda = 10 "before" and
+  lambda = 5 "after", 41 x 41 and 61 x 61, with its density stop at sigma_v < 0.05, to t = 0.6):
+  min dv, min dx, max f, the verdict and T_b, and the first time the v-grid is finer than the
+  uniform one.
 
 ``--quick``: delta0 = 0.5 only, and the gamma = 3 scene only.  Results are cached per point
 (``cache/paper_variants*``, keyed by the package's code) and reused on a rerun.
@@ -78,17 +79,19 @@ def gk1_variant(delta0: float, t_end: float, halve_on: str, safeguard: str, max_
     }
 
 
-def _inhom_scene(case: str, rule: str):
+def _inhom_scene(case: str, n: int, rule: str):
+    """``gamma3_lambda4``: inhom_gamma3's scene on n x n (t = 2 at n = 61, the quick form; t = 4 at
+    121, the shipped one); ``gamma1p5_before`` / ``_after``: the quick form's run on n x n."""
     over = {"refine.concentration_set": rule}
     if case == "gamma3_lambda4":  # inhomogeneous_scene takes no overrides; the rule is a plain field
-        return replace(inhomogeneous_scene(4.0, 61, 2.0), concentration_set=rule)
+        return replace(inhomogeneous_scene(4.0, n, 2.0 if n < 121 else 4.0), concentration_set=rule)
     sub = case.split("_")[1]  # gamma1p5_before / gamma1p5_after
-    return gamma1p5_scene(sub, 41, {**over, "stop.spread_v": COLLAPSE_SPREAD, "t_end": QUICK_T_END, "output.times": []})
+    return gamma1p5_scene(sub, n, {**over, "stop.spread_v": COLLAPSE_SPREAD, "t_end": QUICK_T_END, "output.times": []})
 
 
-def concentration_variant(case: str, rule: str) -> dict[str, Any]:
+def concentration_variant(case: str, n: int, rule: str) -> dict[str, Any]:
     """One quick inhomogeneous run under ``refine.concentration_set = rule``."""
-    scene = _inhom_scene(case, rule)
+    scene = _inhom_scene(case, n, rule)
     t0 = time.perf_counter()
     run = simulate(scene)
     d = run.diagnostics
@@ -141,8 +144,10 @@ def main(argv: list[str] | None = None) -> None:
         + gk1.to_markdown(index=False, floatfmt=".4g")
         + f"\n\nWall time {time.perf_counter() - t0:.1f} s (OPENBLAS_NUM_THREADS=1; cached points count 0).\n"
     )
-    cases = ["gamma3_lambda4"] if args.quick else ["gamma3_lambda4", "gamma1p5_before", "gamma1p5_after"]
-    cpoints = [{"case": c, "rule": r} for c in cases for r in ("projections", "quadrant")]
+    cases = [("gamma3_lambda4", 61)]
+    if not args.quick:
+        cases += [("gamma3_lambda4", 121)] + [(f"gamma1p5_{c}", n) for c in ("before", "after") for n in (41, 61)]
+    cpoints = [{"case": c, "n": n, "rule": r} for c, n in cases for r in ("projections", "quadrant")]
     t0 = time.perf_counter()
     cache = out / "cache" / "paper_variants_conc"
     conc = run_sweep(concentration_variant, cpoints, cache, desc="concentration", **opts)
@@ -150,8 +155,10 @@ def main(argv: list[str] | None = None) -> None:
     conc.to_csv(out / "paper_variants_concentration.csv", index=False)
     (out / "paper_variants_concentration.md").write_text(
         "# Concentration set: projections (default) against the paper's quadrant set (issue 18)\n\n"
-        "Quick forms: inhom_gamma3 lambda = 4 at 61 x 61 to t = 2; inhom_gamma1p5 before (lambda = 10) and "
-        "after (lambda = 5) at 41 x 41 to t = 0.6 with the density stop sigma_v < 0.05.  quadrant: "
+        "inhom_gamma3 lambda = 4 at 61 x 61 to t = 2 (quick form) and 121 x 121 to t = 4 (shipped scene); "
+        "inhom_gamma1p5 before (lambda = 10) and after (lambda = 5) at 41 x 41 and 61 x 61 to t = 0.6 with the "
+        "quick form's density stop sigma_v < 0.05.  Uniform v-spacing: 0.1333 (gamma = 3, 61), 0.06667 (121), "
+        "0.25 (gamma = 3/2, 41), 0.1667 (61).  quadrant: "
         "alg:SPMCSL-JKO step 4 (f* on x > 0, v > 0); an empty set gives the uniform grid.\n\n"
         + conc.to_markdown(index=False, floatfmt=".4g")
         + f"\n\nWall time {time.perf_counter() - t0:.1f} s (OPENBLAS_NUM_THREADS=1; cached points count 0).\n"
