@@ -60,13 +60,21 @@ def _map_params(mu) -> np.ndarray:
     return np.array([mu.r] if isinstance(mu, OneBumpMap) else [mu.r1, mu.r2])
 
 
+UNIFORM_EXTENT = np.zeros(1)
+"""The extent recorded for an empty quadrant set (the uniform grid): r = 0, which no map has (r > 0),
+and non-empty, so a checkpoint (where an empty array means None) reads it back as itself."""
+
+
+def _is_uniform(extent: np.ndarray | None) -> bool:
+    return extent is not None and extent.size == 1 and extent[0] == 0
+
+
 def _moved(spec, old: np.ndarray | None, new: np.ndarray) -> bool:
     """Remesh when the set's extent moved by more than ``spec.tol`` times its width (always if tol = 0).
 
-    An empty extent stands for the uniform grid (an empty quadrant set): from one to the next
-    nothing moves.
+    From one empty quadrant set (:data:`UNIFORM_EXTENT`) to the next nothing moves.
     """
-    if old is not None and old.size == 0 and new.size == 0:
+    if _is_uniform(old) and _is_uniform(new):
         return False
     if old is None or old.size != new.size or spec.tol == 0:
         return True
@@ -118,7 +126,7 @@ def _refine_quadrant(scene: Scene, vgrid: Grid, xgrid: PeriodicGrid, f: np.ndarr
     :math:`S = \\{(x_i, v_j): f^*_{ij} > \\delta_0 \\max f^*, x_i > 0, v_j > 0\\}` from ``f_star``, the
     density entering the collision step on the step's grids, with each axis's own delta0; each
     map from S's extent on its axis.  An empty S (``eqn:f0`` at t = 0; the paper is silent)
-    gives the axis the uniform grid (extent ``[]``).  ``f`` (after the collision) is remapped,
+    gives the axis the uniform grid (extent :data:`UNIFORM_EXTENT`).  ``f`` (after the collision) is remapped,
     v first, then x.  Returns ``(f, vgrid, xgrid, v extent, x extent)``.
     """
     spec_v, spec_x = scene.refine_v, scene.refine_x
@@ -127,7 +135,7 @@ def _refine_quadrant(scene: Scene, vgrid: Grid, xgrid: PeriodicGrid, f: np.ndarr
     if spec_v is not None:
         s = sets["v"]
         mu = None if s is None else _map_from_extent(spec_v, vgrid, *s[1])
-        new = np.empty(0) if mu is None else _map_params(mu)
+        new = UNIFORM_EXTENT if mu is None else _map_params(mu)
         if _moved(spec_v, vp, new):
             grid = scene.vgrid() if mu is None else mu.grid(vgrid.n)
             f = remap(vgrid, f, grid, axis=-1, conserve_momentum=scene.conserve_momentum,
@@ -136,7 +144,7 @@ def _refine_quadrant(scene: Scene, vgrid: Grid, xgrid: PeriodicGrid, f: np.ndarr
     if spec_x is not None:
         s = sets["x"]
         mu = None if s is None else _map_from_extent(spec_x, _x_proxy(scene, xgrid), *s[0])
-        new = np.empty(0) if mu is None else _map_params(mu)
+        new = UNIFORM_EXTENT if mu is None else _map_params(mu)
         if _moved(spec_x, xp, new):
             grid = scene.xgrid() if mu is None else periodic_map_grid(mu, xgrid.n, xgrid.period)
             f = remap_periodic(xgrid, f, grid, axis=0, conserve_moment=scene.conserve_x_moment)
@@ -154,8 +162,8 @@ def initial_state(scene: Scene) -> RunState:
     f = scene.initial_density(xgrid, vgrid)
     v_params = x_params = None  # extent of the set each refined grid was built for
     if scene.concentration_set == "quadrant":
-        uniform = np.empty(0)
-        f, vgrid, xgrid, v_params, x_params = _refine_quadrant(scene, vgrid, xgrid, f, f, uniform, uniform)
+        u = UNIFORM_EXTENT
+        f, vgrid, xgrid, v_params, x_params = _refine_quadrant(scene, vgrid, xgrid, f, f, u, u)
         return RunState(0.0, 0, f, vgrid, xgrid, v_params, x_params, [], Verdict())
     if scene.refine_v is not None:
         f, vgrid, v_params = _refine_v(scene, vgrid, f, None)
