@@ -212,3 +212,8 @@ def test_max_iterations_rule_still_halves_on_the_exit_flag():
     assert not paper.blowup and paper.t == pytest.approx(0.02)
     np.testing.assert_array_equal(paper.diagnostics.dt.to_numpy(), base.diagnostics.dt.to_numpy())
     assert paper.diagnostics.retries.tolist() == base.diagnostics.retries.tolist() == [0, 1, 0]
+
+
+def test_attempts_must_be_a_list_and_is_refused_before_the_run():
+    with pytest.raises(TypeError, match="attempts must be a list"):
+        simulate(_failing(eps_t=0.0099), attempts=())
