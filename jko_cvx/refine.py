@@ -191,10 +191,18 @@ class OneBumpMap(_OddMap):
         _check_fraction("delta0", delta0)
         _check_fraction("delta", delta)
         r, _ = concentration_set(grid, f, delta0)
+        return cls.from_extent(grid, r, delta)
+
+    @classmethod
+    def from_extent(cls, grid: Grid, r: float, delta: float) -> OneBumpMap:
+        """The map for a set reaching out to ``r`` (its largest positive point) on ``grid``.
+
+        A set wider than its uniform share (r > L delta) gains nothing from refinement: the
+        map is then the identity (uniform grid) at r = L delta.
+        """
+        _check_fraction("delta", delta)
         L = float(grid.points[-1])
-        # A set wider than its uniform share (r > L delta) gains nothing from refinement:
-        # the map is then the identity (uniform grid) at r = L delta.
-        return cls(L=L, r=min(r, L * delta), delta=delta)
+        return cls(L=L, r=min(float(r), L * delta), delta=delta)
 
 
 @dataclass(frozen=True)
@@ -262,6 +270,13 @@ class TwoBumpMap(_OddMap):
     def from_density(cls, grid: Grid, f: ArrayLike, delta0: float, delta: float) -> TwoBumpMap:
         _check_fraction("delta0", delta0)
         r1, r2 = concentration_set(grid, f, delta0, both_ends=True)
+        return cls.from_extent(grid, r1, r2, delta)
+
+    @classmethod
+    def from_extent(cls, grid: Grid, r1: float, r2: float, delta: float) -> TwoBumpMap:
+        """The map for a set spanning ``[r1, r2]`` (grid points, ``0 < r1 <= r2``) on ``grid``,
+        widened or trimmed as described below (and in the module docstring)."""
+        r1, r2 = float(r1), float(r2)
         if r1 == r2:
             # A set resolved by one grid point: take that point's cell (midpoints to its
             # neighbours), which is what the grid can say about the bump's width.
@@ -310,10 +325,10 @@ def quadrant_set(x: ArrayLike, v: ArrayLike, f_star: ArrayLike, delta0: float):
     from the post-transport, pre-collision density :math:`f^*` (shape (Nx, Nv)).  Returns
     ``((min x, max x), (min v, max v))`` over S, or ``None`` when S is empty -- which it is
     for ``eqn:f0`` at t = 0 (its bumps sit in the quadrants x < 0 < v and v < 0 < x), where
-    the paper does not say what to do.  The time loop (``simulate``) builds its maps from
-    the post-collision f and separate projections instead (max over x for the v-set, max
-    over v for the x-set, each on its positive half-axis); this helper is the paper's rule
-    for a loop that wants it.
+    the paper does not say what to do.  The time loop (``simulate``) uses it with
+    ``refine.concentration_set = "quadrant"`` (an empty set: the uniform grid); by default it
+    builds its maps from the post-collision f and separate projections (max over x for the
+    v-set, max over v for the x-set, each on its positive half-axis).
     """
     _check_fraction("delta0", delta0)
     x, v, f = np.asarray(x, dtype=float), np.asarray(v, dtype=float), np.asarray(f_star, dtype=float)

@@ -28,7 +28,16 @@ A scene file (the shipped ones are package data, ``jko_cvx/scenes/*.toml``; see
     policy = "fixed"         # "fixed" | "halving" (alg:MR_JKO_ver2 as written) | "halving_reset" | "cfl"
     dt = 0.01
     eps_t = 1e-6             # halving only: the run ends after an accepted step <= eps_t
+    halve_on = "any_failure" # halving only: "any_failure" (any solve the engine does not accept halves
+                             # the step) | "max_iterations" (the paper: only the exit flag e_f, I_max
+                             # reached; any other failure stops the run as a solver failure)
     order = 1                # 2: Richardson-extrapolated collision step (and Strang splitting in x)
+
+    [refine]
+    concentration_set = "projections"  # inhomogeneous only: "projections" (the maps' sets from the
+                             # post-collision f, max over x for v and over v for x) | "quadrant"
+                             # (alg:SPMCSL-JKO step 4: one set from f* on x > 0, v > 0; an
+                             # empty set gives the uniform grid)
 
     [refine.v]               # and [refine.x]; omit for a fixed grid
     bumps = 1                # 1 (mu1) or 2 (mu2)
@@ -80,6 +89,7 @@ from .grid import Grid, PeriodicGrid
 from .scene_limits import Limits, check_limits
 from .scene_options import parse_options
 from .scene_schema import (
+    CONCENTRATION_SETS,
     INITIAL_KINDS,
     CollisionTable,
     OutputTable,
@@ -129,7 +139,25 @@ class RefineSpec:
 
 @dataclass(frozen=True)
 class Scene:
-    """A validated scene (see the module docstring for the TOML layout)."""
+    """A validated scene (see the module docstring for the TOML layout).
+
+    Two switches between the paper's algorithms as written and this package's rule (measured in
+    ``studies/results/reproduce/paper_variants.md``):
+
+    * ``halve_on`` (``time.halve_on``, halving policies): ``"any_failure"`` (default) halves the
+      step after any collision solve the engine does not accept (not certified, non-convex,
+      numerical error, iteration limit); ``"max_iterations"`` follows ``alg:MR_JKO_ver2`` /
+      ``alg:non_uni_JKO``: only the exit flag ``e_f`` (``MAX_ITERATIONS``) halves it, and any
+      other failure stops the run as a solver failure (``e_f``, whatever
+      ``stop.on_solver_failure`` says: an uncertified step is never used as a solution).
+    * ``concentration_set`` (``refine.concentration_set``, inhomogeneous scenes):
+      ``"projections"`` (default) builds the v-map from the post-collision f maximised over x
+      and the x-map from it maximised over v; ``"quadrant"`` follows ``alg:SPMCSL-JKO`` step 4:
+      one set :math:`S = \\{f^* > \\delta_0 \\max f^*, x > 0, v > 0\\}` from the density entering
+      the collision step (:func:`jko_cvx.refine.quadrant_set`), each map from its extent on
+      its axis (with the one-bump map's ``r = max`` rule of :mod:`jko_cvx.refine`); where S is
+      empty (``eqn:f0`` at t = 0; the paper is silent) both refined axes take the uniform grid.
+    """
 
     name: str
     gamma: float
@@ -140,6 +168,7 @@ class Scene:
     dt: float
     policy: str = "fixed"
     eps_t: float = 1e-6
+    halve_on: str = "any_failure"
     time_order: int = 1
     strength: float = 1.0
     x_L: float | None = None
@@ -147,6 +176,7 @@ class Scene:
     conserve_x_moment: bool = True
     refine_v: RefineSpec | None = None
     refine_x: RefineSpec | None = None
+    concentration_set: str = "projections"
     method: str = "newton"
     beta: float = math.inf
     fisher: str | None = "perspective"
@@ -252,6 +282,7 @@ def scene_from_dict(d: Mapping[str, Any], limits: Limits | None = None) -> Scene
         dt=t.dt,
         policy=t.policy,
         eps_t=t.eps_t,
+        halve_on=t.halve_on,
         time_order=t.order,
         strength=top.strength,
         x_L=None if x is None else x.L,
@@ -259,6 +290,7 @@ def scene_from_dict(d: Mapping[str, Any], limits: Limits | None = None) -> Scene
         conserve_x_moment=True if x is None else x.conserve_moment,
         refine_v=refine.get("v"),
         refine_x=refine.get("x"),
+        concentration_set=refine.get("concentration_set", "projections"),
         method=c.method,
         beta=c.beta,
         fisher=None if c.fisher == "none" else c.fisher,
@@ -294,16 +326,31 @@ def _parse_initial(data: Any, has_x: bool) -> dict[str, Any]:
     return {"kind": kind, **{k: (list(val) if isinstance(val, tuple) else val) for k, val in asdict(table).items()}}
 
 
-def _parse_refine(data: Any, has_x: bool) -> dict[str, RefineSpec]:
+def _parse_refine(data: Any, has_x: bool) -> dict[str, Any]:
+    """``{"v": RefineSpec, "x": RefineSpec, "concentration_set": str}``, each where the scene sets it."""
     if data is None:
         return {}
     data = require_table(data, "refine")
-    check_known(data, ("v", "x"), "refine")
+    check_known(data, ("v", "x", "concentration_set"), "refine")
     if "x" in data and not has_x:
         raise SceneError("refine.x needs an [x] grid")
-    specs = {axis: RefineSpec(**asdict(parse_table(RefineTable, data[axis], f"refine.{axis}"))) for axis in data}
+    specs: dict[str, Any] = {
+        axis: RefineSpec(**asdict(parse_table(RefineTable, data[axis], f"refine.{axis}")))
+        for axis in ("v", "x")
+        if axis in data
+    }
     if "x" in specs and specs["x"].conserve_energy:
         raise SceneError("refine.x.conserve_energy must be false: the kinetic energy is a moment in v (refine.v only)")
+    if "concentration_set" in data:
+        rule = Rule("str", choices=CONCENTRATION_SETS)
+        specs["concentration_set"] = rule.parse(data["concentration_set"], "refine.concentration_set")
+        if specs["concentration_set"] == "quadrant" and not has_x:
+            raise SceneError(
+                'refine.concentration_set = "quadrant" is the phase-space set of alg:SPMCSL-JKO and needs an '
+                '[x] grid (a homogeneous scene uses "projections", the set of eqn:Sr)'
+            )
+        if specs["concentration_set"] == "quadrant" and not ("v" in specs or "x" in specs):
+            raise SceneError('refine.concentration_set = "quadrant" needs [refine.v] or [refine.x] (a map to build)')
     return specs
 
 
@@ -323,6 +370,11 @@ def _check_combinations(top, v, x, t, c, s, o) -> None:
         )
     if t.policy in ("halving", "halving_reset") and not t.eps_t < t.dt:
         raise SceneError(f"time.eps_t must be < time.dt = {t.dt:g} (the halving floor), got {t.eps_t:g}")
+    if t.halve_on != "any_failure" and t.policy not in ("halving", "halving_reset"):
+        raise SceneError(
+            f"time.halve_on = {t.halve_on!r} needs time.policy 'halving' or 'halving_reset' "
+            f"(policy {t.policy!r} never halves the step)"
+        )
     if x is None and s.eps_x > 0:
         raise SceneError("stop.eps_x needs an [x] grid (a homogeneous scene has no x-cells)")
     if any(tk > top.t_end for tk in o.times):

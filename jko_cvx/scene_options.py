@@ -44,6 +44,7 @@ METHOD_OPTIONS: dict[str, dict[str, Rule]] = {
         "floor": _ABS,
         "osqp_eps": _TOL,
         "check_convexity": _BOOL,
+        "safeguard": Rule("str", choices=("floor", "cut", "none")),
     },
     "conic": {
         "solver": Rule("str", choices=("CLARABEL", "SCS", "ECOS")),

@@ -19,6 +19,8 @@ from dataclasses import dataclass
 from typing import Any, TypeVar
 
 __all__ = [
+    "CONCENTRATION_SETS",
+    "HALVE_ON",
     "INITIAL_KINDS",
     "CollisionTable",
     "Gamma2Initial",
@@ -269,6 +271,12 @@ class Gamma2Initial(_Table):
     x1: float = key(_POS)
 
 
+HALVE_ON = ("any_failure", "max_iterations")
+"""``time.halve_on``: which failed collision solves halve the step (halving policies; see ``Scene.halve_on``)."""
+
+CONCENTRATION_SETS = ("projections", "quadrant")
+"""``refine.concentration_set``: where the mesh maps' sets come from (see ``Scene.concentration_set``)."""
+
 INITIAL_KINDS: dict[str, type[_Table]] = {
     "gaussians": GaussiansInitial,
     "two_bump_phase": TwoBumpInitial,
@@ -278,12 +286,13 @@ INITIAL_KINDS: dict[str, type[_Table]] = {
 
 @dataclass(frozen=True)
 class TimeTable(_Table):
-    """``[time]``: the step policy, its (first / largest) step and the halving floor."""
+    """``[time]``: the step policy, its (first / largest) step, the halving floor and what halves the step."""
 
     dt: float = key(_POS)
     policy: str = key(Rule("str", choices=("fixed", "halving", "halving_reset", "cfl")), "fixed")
     eps_t: float = key(_POS, 1e-6)
     order: int = key(Rule("int", choices=(1, 2)), 1)
+    halve_on: str = key(Rule("str", choices=HALVE_ON), "any_failure")
 
 
 @dataclass(frozen=True)

@@ -1,8 +1,9 @@
 """The time loop: ``simulate(scene)`` (``alg:MR_JKO_ver2`` homogeneous, ``alg:SPMCSL-JKO`` inhomogeneous).
 
 Each step: choose dt (policy), transport in x (inhomogeneous scenes only), collision in v
-(batched over x-slices), retry with a halved dt on solver failure (halving policy), mesh
-refinement in v and x with mass-conserving remapping.  The loop carries one
+(batched over x-slices), retry with a halved dt on solver failure (halving policy; which
+failures halve it: ``time.halve_on``), mesh refinement in v and x with mass-conserving
+remapping (the maps' sets: ``refine.concentration_set``).  The loop carries one
 :class:`~jko_cvx.runstate.RunState`; after each accepted step the trackers
 (:mod:`jko_cvx.trackers`) record the diagnostics, apply the blow-up rules (min dv < eps_v:
 B_v; min dx < eps_x: B_x; min_spread_v < spread_v where the scene sets ``stop.spread_v``:
@@ -37,7 +38,7 @@ from .collision.checks import check_bool
 from .grid import Grid, PeriodicGrid
 from .interrupts import InterruptGuard, RunInterrupted
 from .kernels import PowerKernel
-from .refine import OneBumpMap, TwoBumpMap, periodic_map_grid, remap, remap_periodic
+from .refine import OneBumpMap, TwoBumpMap, periodic_map_grid, quadrant_set, remap, remap_periodic
 from .run import Run, load_run
 from .rundir import RunDir
 from .runstate import RunState
@@ -46,7 +47,7 @@ from .scene_limits import check_limits
 from .time_order import collision_step_order2, strang_step
 from .trackers import Snapshots, SolverFailure, StepInfo, Tracker, default_trackers
 from .transport import transport_step
-from .verdict import Verdict
+from .verdict import StopReason, Verdict
 
 __all__ = ["Run", "load_run", "simulate", "snapshot_record"]
 
@@ -59,8 +60,22 @@ def _map_params(mu) -> np.ndarray:
     return np.array([mu.r] if isinstance(mu, OneBumpMap) else [mu.r1, mu.r2])
 
 
+UNIFORM_EXTENT = np.zeros(1)
+"""The extent recorded for an empty quadrant set (the uniform grid): r = 0, which no map has (r > 0),
+and non-empty, so a checkpoint (where an empty array means None) reads it back as itself."""
+
+
+def _is_uniform(extent: np.ndarray | None) -> bool:
+    return extent is not None and extent.size == 1 and extent[0] == 0
+
+
 def _moved(spec, old: np.ndarray | None, new: np.ndarray) -> bool:
-    """Remesh when the set's extent moved by more than ``spec.tol`` times its width (always if tol = 0)."""
+    """Remesh when the set's extent moved by more than ``spec.tol`` times its width (always if tol = 0).
+
+    From one empty quadrant set (:data:`UNIFORM_EXTENT`) to the next nothing moves.
+    """
+    if _is_uniform(old) and _is_uniform(new):
+        return False
     if old is None or old.size != new.size or spec.tol == 0:
         return True
     width = new[-1] - (new[0] if new.size == 2 else 0.0)
@@ -84,8 +99,7 @@ def _refine_x(scene: Scene, xgrid: PeriodicGrid, f: np.ndarray, params):
     spec = scene.refine_x
     cls = OneBumpMap if spec.bumps == 1 else TwoBumpMap
     fx = f.max(axis=1)
-    # the maps assume [-L, L]; x-grids are periodic cell-centred grids inside it
-    proxy = Grid(np.concatenate([[-scene.x_L], xgrid.points, [scene.x_L]]))
+    proxy = _x_proxy(scene, xgrid)
     mu = cls.from_density(proxy, np.concatenate([[fx[0]], fx, [fx[-1]]]), spec.delta0, spec.delta)
     new = _map_params(mu)
     if not _moved(spec, params, new):
@@ -94,11 +108,63 @@ def _refine_x(scene: Scene, xgrid: PeriodicGrid, f: np.ndarray, params):
     return remap_periodic(xgrid, f, grid, axis=0, conserve_moment=scene.conserve_x_moment), grid, new
 
 
+def _x_proxy(scene: Scene, xgrid: PeriodicGrid) -> Grid:
+    """The maps assume [-L, L]; x-grids are periodic cell-centred grids inside it."""
+    return Grid(np.concatenate([[-scene.x_L], xgrid.points, [scene.x_L]]))
+
+
+def _map_from_extent(spec, grid: Grid, lo: float, hi: float):
+    """The axis map for a set spanning [lo, hi] on the positive half of ``grid``."""
+    if spec.bumps == 1:
+        return OneBumpMap.from_extent(grid, hi, spec.delta)
+    return TwoBumpMap.from_extent(grid, lo, hi, spec.delta)
+
+
+def _refine_quadrant(scene: Scene, vgrid: Grid, xgrid: PeriodicGrid, f: np.ndarray, f_star: np.ndarray, vp, xp):
+    """``refine.concentration_set = "quadrant"``: both maps from one set (``alg:SPMCSL-JKO`` step 4).
+
+    :math:`S = \\{(x_i, v_j): f^*_{ij} > \\delta_0 \\max f^*, x_i > 0, v_j > 0\\}` from ``f_star``, the
+    density entering the collision step on the step's grids, with each axis's own delta0; each
+    map from S's extent on its axis.  An empty S (``eqn:f0`` at t = 0; the paper is silent)
+    gives the axis the uniform grid (extent :data:`UNIFORM_EXTENT`).  ``f`` (after the collision) is remapped,
+    v first, then x.  Returns ``(f, vgrid, xgrid, v extent, x extent)``.
+    """
+    spec_v, spec_x = scene.refine_v, scene.refine_x
+    sets = {axis: quadrant_set(xgrid.points, vgrid.points, f_star, spec.delta0)
+            for axis, spec in (("v", spec_v), ("x", spec_x)) if spec is not None}  # fmt: skip
+    if spec_v is not None:
+        s = sets["v"]
+        mu = None if s is None else _map_from_extent(spec_v, vgrid, *s[1])
+        new = UNIFORM_EXTENT if mu is None else _map_params(mu)
+        if _moved(spec_v, vp, new):
+            grid = scene.vgrid() if mu is None else mu.grid(vgrid.n)
+            f = remap(vgrid, f, grid, axis=-1, conserve_momentum=scene.conserve_momentum,
+                      conserve_energy=spec_v.conserve_energy)  # fmt: skip
+            vgrid, vp = grid, new
+    if spec_x is not None:
+        s = sets["x"]
+        mu = None if s is None else _map_from_extent(spec_x, _x_proxy(scene, xgrid), *s[0])
+        new = UNIFORM_EXTENT if mu is None else _map_params(mu)
+        if _moved(spec_x, xp, new):
+            grid = scene.xgrid() if mu is None else periodic_map_grid(mu, xgrid.n, xgrid.period)
+            f = remap_periodic(xgrid, f, grid, axis=0, conserve_moment=scene.conserve_x_moment)
+            xgrid, xp = grid, new
+    return f, vgrid, xgrid, vp, xp
+
+
 def initial_state(scene: Scene) -> RunState:
-    """f0 on the scene's grids, refined first where the scene refines (as the algorithms start)."""
+    """f0 on the scene's grids, refined first where the scene refines (as the algorithms start).
+
+    With ``concentration_set = "quadrant"`` the set comes from f0 (no transport yet), and the
+    scene's grids count as uniform-grid maps (an empty set leaves them as they are).
+    """
     vgrid, xgrid = scene.vgrid(), scene.xgrid()
     f = scene.initial_density(xgrid, vgrid)
     v_params = x_params = None  # extent of the set each refined grid was built for
+    if scene.concentration_set == "quadrant":
+        u = UNIFORM_EXTENT
+        f, vgrid, xgrid, v_params, x_params = _refine_quadrant(scene, vgrid, xgrid, f, f, u, u)
+        return RunState(0.0, 0, f, vgrid, xgrid, v_params, x_params, [], Verdict())
     if scene.refine_v is not None:
         f, vgrid, v_params = _refine_v(scene, vgrid, f, None)
     if scene.refine_x is not None:
@@ -113,13 +179,28 @@ class _Outcome:
     ok: bool
     retries: int = 0
     f: np.ndarray | None = None  # the density after the whole step (Strang: after the second half transport)
+    f_star: np.ndarray | None = None  # the density entering the collision step (alg:SPMCSL-JKO's f*)
+    stop: str | None = None  # a failure that ends the run whatever stop.on_solver_failure says (halve_on)
+
+
+def _failed_statuses(res) -> list[str]:
+    """The distinct failure statuses of a collision result's slices, sorted by name."""
+    return sorted({s.name for s in np.ravel(np.atleast_1d(res.status)) if not s.success})
 
 
 class Stepper:
-    """One time step of a scene: dt from the policy, transport, collision, retries, refinement."""
+    """One time step of a scene: dt from the policy, transport, collision, retries, refinement.
 
-    def __init__(self, scene: Scene) -> None:
+    ``attempts`` (a list, optional) receives one record per collision attempt that was not
+    accepted: ``{"t", "dt", "statuses", "then"}`` with ``then`` one of ``"halved"`` (retried at
+    dt/2), ``"stopped"`` (not a halving failure under ``time.halve_on = "max_iterations"``) or
+    ``"given up"`` (the policy has no smaller step).
+    """
+
+    def __init__(self, scene: Scene, attempts: list[dict[str, Any]] | None = None) -> None:
         self.scene = scene
+        self.attempts = attempts
+        self._f_star: np.ndarray | None = None
         self.kernel = PowerKernel(scene.gamma)
         self.policy = scene.step_policy()
         self.opts = dict(scene.options)
@@ -156,11 +237,28 @@ class Stepper:
         retries = 0
         while True:
             f_new, res = self.step(state, dt)
-            ok = self.accepted(res)
-            retry = None if ok else self.policy.retry(dt)
+            if self.accepted(res):
+                return _Outcome(dt, res, True, retries, f_new, self._f_star)
+            statuses = _failed_statuses(res)
+            stop = self._not_halving(statuses)
+            retry = None if stop is not None else self.policy.retry(dt)
+            if self.attempts is not None:
+                then = "stopped" if stop is not None else "given up" if retry is None else "halved"
+                self.attempts.append({"t": state.t, "dt": dt, "statuses": statuses, "then": then})
             if retry is None:
-                return _Outcome(dt, res, ok, retries, f_new)
+                return _Outcome(dt, res, False, retries, f_new, self._f_star, stop)
             dt, retries = retry, retries + 1
+
+    def _not_halving(self, statuses: list[str]) -> str | None:
+        """Under ``time.halve_on = "max_iterations"``: the stop reason for a failure that is not the
+        exit flag e_f (only ``MAX_ITERATIONS`` halves the step in alg:MR_JKO_ver2); else None."""
+        other = [st for st in statuses if st != Status.MAX_ITERATIONS.name]
+        if self.scene.halve_on != "max_iterations" or not other:
+            return None
+        return (
+            f"{StopReason.SOLVER_FAILURE.value} ({', '.join(statuses)}): not the exit flag e_f "
+            "(MAX_ITERATIONS), the only failure that halves the step under time.halve_on = 'max_iterations'"
+        )
 
     def step(self, state: RunState, dt: float) -> tuple[np.ndarray, Any]:
         """Transport and collision over ``dt`` from ``state``: the new density and the collision result.
@@ -182,6 +280,7 @@ class Stepper:
             return CollisionProblem(vg, self.kernel, g, h, sc.strength, sc.beta, sc.fisher, sc.conserve_momentum)
 
         def collide(g: np.ndarray, h: float):
+            self._f_star = g  # alg:SPMCSL-JKO's f*, for refine.concentration_set = "quadrant"
             t0 = time.perf_counter()
             if sc.time_order == 2:
                 res = collision_step_order2(problem, g, h, method=sc.method, **self.opts)
@@ -202,10 +301,13 @@ class Stepper:
         """Advance ``state`` by the solved step: refine, then t and step."""
         t2 = time.perf_counter()
         f, vgrid, xgrid, vp, xp = out.f, state.vgrid, state.xgrid, state.v_params, state.x_params
-        if self.scene.refine_v is not None:
-            f, vgrid, vp = _refine_v(self.scene, vgrid, f, vp)
-        if self.scene.refine_x is not None:
-            f, xgrid, xp = _refine_x(self.scene, xgrid, f, xp)
+        if self.scene.concentration_set == "quadrant":
+            f, vgrid, xgrid, vp, xp = _refine_quadrant(self.scene, vgrid, xgrid, f, out.f_star, vp, xp)
+        else:
+            if self.scene.refine_v is not None:
+                f, vgrid, vp = _refine_v(self.scene, vgrid, f, vp)
+            if self.scene.refine_x is not None:
+                f, xgrid, xp = _refine_x(self.scene, xgrid, f, xp)
         state.seconds["refine"] += time.perf_counter() - t2
         state.f, state.vgrid, state.xgrid, state.v_params, state.x_params = f, vgrid, xgrid, vp, xp
         state.t += out.dt
@@ -218,10 +320,11 @@ def _loop(scene: Scene, stepper: Stepper, state: RunState, trackers: list[Tracke
     failure = SolverFailure(scene.stop_on_solver_failure)
     while not state.done(scene.t_end):
         out = stepper.solve(state)
-        if not out.ok:
-            statuses = sorted({s.name for s in np.ravel(np.atleast_1d(out.res.status)) if not s.success})
-            if failure.record(state, statuses, out.dt):
-                break
+        if out.stop is not None:  # never accepted, whatever stop.on_solver_failure says
+            state.verdict = state.verdict.stopped(StopReason.SOLVER_FAILURE, state.t + out.dt, out.stop)
+            break
+        if not out.ok and failure.record(state, _failed_statuses(out.res), out.dt):
+            break
         with guard.deferred():
             info = stepper.commit(state, out)
             for tr in trackers:
@@ -229,7 +332,12 @@ def _loop(scene: Scene, stepper: Stepper, state: RunState, trackers: list[Tracke
 
 
 def simulate(
-    scene: Scene, out: str | Path | None = None, resume: bool = False, progress: bool = False, overwrite: bool = False
+    scene: Scene,
+    out: str | Path | None = None,
+    resume: bool = False,
+    progress: bool = False,
+    overwrite: bool = False,
+    attempts: list[dict[str, Any]] | None = None,
 ) -> Run:
     """Run a scene; see the module docstring.
 
@@ -244,6 +352,9 @@ def simulate(
         Show a progress bar.
     overwrite : bool
         Replace a run already in ``out`` (otherwise refused).
+    attempts : list, optional
+        Receives one record per collision attempt that was not accepted (time, dt, failure
+        statuses and what followed: see :class:`Stepper`); in memory only.
 
     Raises
     ------
@@ -267,7 +378,9 @@ def simulate(
     # a Scene built in code (dataclasses.replace) bypasses the loader: check its size here too,
     # before anything is written
     check_limits(scene)
-    stepper = Stepper(scene)
+    if attempts is not None and not isinstance(attempts, list):
+        raise TypeError(f"attempts must be a list (it receives the failed attempts), got {type(attempts).__name__}")
+    stepper = Stepper(scene, attempts)
     with RunDir.open(out, scene, resume=resume, overwrite=overwrite) if out is not None else nullcontext() as rd:
         state = rd.state if rd is not None and rd.state is not None else initial_state(scene)
         trackers, snaps = default_trackers(scene, rd, [] if rd is None else rd.snapshots, progress)

@@ -42,6 +42,11 @@ class HalvingStep:
     The algorithm's inner loop has no floor; here a step that fails at a length already
     ``<= eps_t`` is not halved again and counts as a solver failure (``e_f``).
 
+    Which failures reach :meth:`retry` is the scene's ``time.halve_on``
+    (:class:`~jko_cvx.scene.Scene`): every step the engine does not accept (default), or, as
+    the paper, only the exit flag ``e_f`` (``MAX_ITERATIONS``); the stepper
+    (:class:`jko_cvx.simulate.Stepper`) applies it.
+
     With ``reset=True`` (scene policy ``"halving_reset"``, this package's earlier rule) every
     step restarts at ``dt`` and the policy gives up once the halved step would fall to
     ``eps_t`` or below; the run never ends on ``eps_t``.  Measured on ``gk1_records``: see

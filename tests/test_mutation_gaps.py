@@ -57,7 +57,7 @@ def test_gk1_records_run_with_the_policy_they_name(monkeypatch):
     class Built(Exception):
         pass
 
-    def capture(scene):
+    def capture(scene, **kwargs):
         raise Built(scene)
 
     monkeypatch.setattr(records, "simulate", capture)

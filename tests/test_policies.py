@@ -159,3 +159,61 @@ def test_halving_scene_ends_on_eps_t_after_the_step_that_reaches_it():
 def test_a_fixed_step_that_fails_is_not_retried():
     run = simulate(dataclasses.replace(_failing(eps_t=1e-6), policy="fixed", dt=0.02))
     assert run.blowup and run.verdict["e_f"] and run.t == 0.0
+
+
+def _uncertified(halve_on, on_failure=True):
+    """The paper's SQP stopped by a loose zeta test (tol = 1e-3) and judged at kkt_tol = 1e-12:
+    every step is NOT_CERTIFIED (the zeta test passes long before the KKT residual is small),
+    at any dt, so halving cannot cure it."""
+    return scene_from_dict(
+        {
+            "name": "uncertified",
+            "gamma": 1.0,
+            "t_end": 0.04,
+            "v": {"L": 2.0, "n": 21},
+            "initial": {"kind": "gaussians", "amplitudes": [1.0], "rates": [2.0], "centres": [0.0]},
+            "time": {"policy": "halving", "dt": 0.02, "eps_t": 0.004, "halve_on": halve_on},
+            "collision": {"method": "sqp", "beta": 30.0, "options": {"tol": 1e-3, "kkt_tol": 1e-12}},
+            "stop": {"on_solver_failure": on_failure},
+        }
+    )
+
+
+def test_any_failure_halves_an_uncertified_step_down_to_eps_t():
+    """time.halve_on = "any_failure" (default): NOT_CERTIFIED halves 0.02 -> 0.01 -> 0.005 -> 0.0025,
+    which is <= eps_t = 0.004 and still fails: the policy gives up (e_f), T_b the end of that step."""
+    attempts = []
+    run = simulate(_uncertified("any_failure"), attempts=attempts)
+    assert [a["dt"] for a in attempts] == pytest.approx([0.02, 0.01, 0.005, 0.0025])
+    assert [a["then"] for a in attempts] == ["halved", "halved", "halved", "given up"]
+    assert all(a["statuses"] == ["NOT_CERTIFIED"] for a in attempts)
+    v = run.verdict
+    assert v["e_f"] and v.stop is StopReason.SOLVER_FAILURE and v["T_b"] == pytest.approx(0.0025) and run.t == 0.0
+
+
+@pytest.mark.parametrize("on_failure", [True, False])
+def test_max_iterations_rule_stops_on_an_uncertified_step_without_halving(on_failure):
+    """time.halve_on = "max_iterations" (alg:MR_JKO_ver2 with alg:non_uni_JKO's e_f): NOT_CERTIFIED is not
+    the exit flag, so it does not halve the step; it is not accepted either: the run stops as a solver
+    failure on the first attempt, also with stop.on_solver_failure = false."""
+    attempts = []
+    run = simulate(_uncertified("max_iterations", on_failure), attempts=attempts)
+    assert attempts == [{"t": 0.0, "dt": 0.02, "statuses": ["NOT_CERTIFIED"], "then": "stopped"}]
+    v = run.verdict
+    assert v["e_f"] and v["B_v"] and v.stop is StopReason.SOLVER_FAILURE and v["T_b"] == pytest.approx(0.02)
+    assert "NOT_CERTIFIED" in v["reason"] and "halve_on = 'max_iterations'" in v["reason"]
+    assert run.t == 0.0 and len(run.diagnostics) == 1  # nothing accepted
+
+
+def test_max_iterations_rule_still_halves_on_the_exit_flag():
+    """The step that fails with MAX_ITERATIONS is halved under both rules, with the same records."""
+    base = simulate(_failing(eps_t=0.0099))
+    paper = simulate(dataclasses.replace(_failing(eps_t=0.0099), halve_on="max_iterations"))
+    assert not paper.blowup and paper.t == pytest.approx(0.02)
+    np.testing.assert_array_equal(paper.diagnostics.dt.to_numpy(), base.diagnostics.dt.to_numpy())
+    assert paper.diagnostics.retries.tolist() == base.diagnostics.retries.tolist() == [0, 1, 0]
+
+
+def test_attempts_must_be_a_list_and_is_refused_before_the_run():
+    with pytest.raises(TypeError, match="attempts must be a list"):
+        simulate(_failing(eps_t=0.0099), attempts=())

@@ -192,3 +192,113 @@ def test_quadrant_set_is_the_papers_and_empty_for_the_two_bump_phase_datum():
     assert v1 == pytest.approx(2 - half, abs=0.1) and v2 == pytest.approx(2 + half, abs=0.1)
     with pytest.raises(ValueError, match="f_star must have shape"):
         quadrant_set(x, v, g[:, :-1], 0.5)
+
+
+def _phase_scene(c, d, concentration_set, bumps_v=1, t_end=0.1):
+    from jko_cvx.scene import scene_from_dict
+
+    return scene_from_dict(
+        {
+            "name": "quadrant",
+            "gamma": 3.0,
+            "strength": 2.0,
+            "t_end": t_end,
+            "v": {"L": 3.0, "n": 31},
+            "x": {"L": 3.0, "n": 25},
+            "initial": {"kind": "two_bump_phase", "a": 4.0, "b": 4.0, "c": c, "d": d},
+            "time": {"policy": "fixed", "dt": 0.05},
+            "refine": {
+                "concentration_set": concentration_set,
+                "v": {"bumps": bumps_v, "delta0": 0.5, "delta": 0.5},
+                "x": {"bumps": 1, "delta0": 0.5, "delta": 0.5},
+            },
+            "collision": {"method": "newton", "beta": 100.0, "fisher": "log"},
+        }
+    )
+
+
+def _quadrant_extent(x, v, f, delta0):
+    """The paper's set by loops (independent of quadrant_set): extents on each axis."""
+    top = f.max()
+    xs, vs = [], []
+    for i, xi in enumerate(x):
+        for j, vj in enumerate(v):
+            if xi > 0 and vj > 0 and f[i, j] > delta0 * top:
+                xs.append(xi)
+                vs.append(vj)
+    return (min(xs), max(xs)), (min(vs), max(vs))
+
+
+def test_quadrant_rule_on_eqn_f0_at_t0_keeps_the_uniform_grids():
+    """eqn:f0 (bumps at (-c, d), (c, -d)) has no point of its set in x > 0, v > 0: the uniform grids."""
+    from jko_cvx.simulate import initial_state
+
+    scene = _phase_scene(1.0, 1.0, "quadrant")
+    st = initial_state(scene)
+    np.testing.assert_array_equal(st.vgrid.points, scene.vgrid().points)
+    np.testing.assert_array_equal(st.xgrid.points, scene.xgrid().points)
+    np.testing.assert_array_equal(st.f, scene.initial_density(scene.xgrid(), scene.vgrid()))
+    # the projections rule refines the same datum (its v-set is {v > 0 : max_x f > delta0 max f})
+    assert not np.array_equal(initial_state(_phase_scene(1.0, 1.0, "projections")).vgrid.points, st.vgrid.points)
+
+
+@pytest.mark.parametrize("bumps_v", [1, 2])
+def test_quadrant_rule_builds_each_map_from_the_sets_extent_on_its_axis(bumps_v):
+    """c = -1, d = 1 puts a bump at (x, v) = (1, 1): the maps are those of the set's extents (one bump:
+    r = its largest point, capped at L delta; two bumps: [min, max], through TwoBumpMap.from_extent)."""
+    from jko_cvx.simulate import initial_state
+
+    scene = _phase_scene(-1.0, 1.0, "quadrant", bumps_v)
+    x, v = scene.xgrid().points, scene.vgrid().points
+    f0 = scene.initial_density(scene.xgrid(), scene.vgrid())
+    (_, x2), (v1, v2) = _quadrant_extent(x, v, f0, 0.5)
+    st = initial_state(scene)
+    want_v = OneBumpMap(3.0, min(v2, 1.5), 0.5) if bumps_v == 1 else TwoBumpMap.from_extent(scene.vgrid(), v1, v2, 0.5)
+    np.testing.assert_allclose(st.vgrid.points, want_v.grid(31).points, rtol=0, atol=1e-14)
+    want_x = periodic_map_grid(OneBumpMap(3.0, min(x2, 1.5), 0.5), 25, 6.0)
+    np.testing.assert_allclose(st.xgrid.points, want_x.points, rtol=0, atol=1e-14)
+    assert st.f.sum() > 0 and np.all(st.f > 0)
+
+
+def test_quadrant_rule_reads_the_density_entering_the_collision(monkeypatch):
+    """alg:SPMCSL-JKO step 4 takes f*, the density after transport and before the collision: the set
+    is built from exactly transport_step(f^n) (computed here on its own), not from f^{n+1}."""
+    from jko_cvx import simulate as sim
+    from jko_cvx.transport import transport_step
+
+    scene = _phase_scene(-1.0, 1.0, "quadrant", t_end=0.05)
+    st = sim.initial_state(scene)
+    want = transport_step(st.xgrid, st.vgrid.points, st.f, 0.05, conserve_moment=scene.conserve_x_moment)
+    seen = []
+    real = sim.quadrant_set
+    monkeypatch.setattr(sim, "quadrant_set", lambda x, v, f, d0: seen.append(np.array(f)) or real(x, v, f, d0))
+    stepper = sim.Stepper(scene)
+    out = stepper.solve(st)
+    assert out.ok
+    stepper.commit(st, out)
+    assert len(seen) == 2  # one per refined axis
+    for f in seen:
+        np.testing.assert_array_equal(f, want)
+    assert not np.allclose(out.f, want)  # the collision changed it: the test tells them apart
+
+
+def test_quadrant_rule_state_survives_a_checkpoint_and_resumes_bit_for_bit(tmp_path):
+    """The 'uniform grid' extent of an empty quadrant set must read back as itself: a resumed run then
+    takes exactly the steps of the uninterrupted one (no extra remap on the uniform grids)."""
+    from jko_cvx import simulate as sim
+
+    scene = _phase_scene(1.0, 1.0, "quadrant", t_end=0.15)
+    st = sim.initial_state(scene)
+    stepper = sim.Stepper(scene)
+    out = stepper.solve(st)
+    stepper.commit(st, out)  # one step: the set is still empty, the grids uniform
+    st.rows.append({"dt": out.dt})  # the diagnostics row the loop's tracker would add
+    st.save(tmp_path / "ck.npz", {"scene_sha256": "x", "jko_cvx": "y"})
+    back, _ = type(st).load(tmp_path / "ck.npz", scene.xgrid().period)
+    for a, b in ((st.v_params, back.v_params), (st.x_params, back.x_params)):
+        assert a is not None and b is not None
+        np.testing.assert_array_equal(a, b)
+    for s in (st, back):
+        stepper.commit(s, stepper.solve(s))
+    np.testing.assert_array_equal(st.f, back.f)
+    np.testing.assert_array_equal(st.vgrid.points, back.vgrid.points)

@@ -36,8 +36,9 @@ BASE = {
     "v": {"L": 2.5, "n": 23},
     "x": {"L": 3.5, "n": 19, "conserve_moment": False},
     "initial": {"kind": "gaussians", "amplitudes": [1.5], "rates": [2.25], "centres": [0.125]},
-    "time": {"policy": "halving", "dt": 0.05, "eps_t": 1e-4},
+    "time": {"policy": "halving", "dt": 0.05, "eps_t": 1e-4, "halve_on": "max_iterations"},
     "refine": {
+        "concentration_set": "quadrant",
         "v": {"bumps": 2, "delta0": 0.3, "delta": 0.6, "tol": 0.15},
         "x": {"bumps": 1, "delta0": 0.35, "delta": 0.65, "tol": 0.05},
     },
@@ -56,7 +57,8 @@ def test_base_scene_maps_every_key_to_its_field():
     assert (s.name, s.gamma, s.strength, s.t_end) == ("base", 1.25, 0.75, 0.2)
     assert (s.v_L, s.v_n, s.x_L, s.x_n, s.conserve_x_moment) == (2.5, 23, 3.5, 19, False)
     assert s.initial == {"kind": "gaussians", "amplitudes": [1.5], "rates": [2.25], "centres": [0.125]}
-    assert (s.policy, s.dt, s.eps_t) == ("halving", 0.05, 1e-4)
+    assert (s.policy, s.dt, s.eps_t, s.halve_on) == ("halving", 0.05, 1e-4, "max_iterations")
+    assert s.concentration_set == "quadrant"
     assert (s.refine_v.bumps, s.refine_v.delta0, s.refine_v.delta, s.refine_v.tol) == (2, 0.3, 0.6, 0.15)
     assert (s.refine_x.bumps, s.refine_x.delta0, s.refine_x.delta, s.refine_x.tol) == (1, 0.35, 0.65, 0.05)
     assert (s.method, s.beta, s.fisher, s.conserve_momentum) == ("newton", 700.0, "log", False)
@@ -192,13 +194,31 @@ def test_types_are_checked_and_bools_are_real_bools(dotted, value, kind):
         ("collision.method", "Newton"),
         ("collision.fisher", "fisher"),
         ("time.policy", "adaptive"),
+        ("time.halve_on", "e_f"),
+        ("refine.concentration_set", "paper"),
+        ("collision.options.safeguard", "literal"),
         ("initial.kind", "gauss"),
         ("refine.v.bumps", 3),
     ],
 )
 def test_enumerations_are_closed(dotted, value):
+    d = _set("collision.method", "sqp", _set("collision.conserve_momentum", None)) if "safeguard" in dotted else BASE
     with pytest.raises(SceneError, match=re.escape(dotted) + " must be one of"):
-        scene_from_dict(_set(dotted, value))
+        scene_from_dict(_set(dotted, value, d))
+
+
+@pytest.mark.parametrize(
+    "dotted, allowed",
+    [
+        ("time.halve_on", "['any_failure', 'max_iterations']"),
+        ("refine.concentration_set", "['projections', 'quadrant']"),
+    ],
+)
+def test_paper_switches_name_their_allowed_values_and_default_to_the_shipped_rule(dotted, allowed):
+    with pytest.raises(SceneError, match=re.escape(f"{dotted} must be one of {allowed}, got 'paper'")):
+        scene_from_dict(_set(dotted, "paper"))
+    plain = scene_from_dict(_set("refine.concentration_set", None, _set("time.halve_on", None)))
+    assert (plain.halve_on, plain.concentration_set) == ("any_failure", "projections")
 
 
 @pytest.mark.parametrize("name", ["a", "tab_bu_g1", "run-2.v3", "A.B_c-1", "x" * 128])
@@ -226,6 +246,10 @@ def test_names_that_are_not_plain_file_names_are_refused(name):
         ({"initial": {"kind": "gaussians", "amplitudes": [1.0], "rates": [2.0]}}, "initial.centres is required"),
         ({"initial": {"amplitudes": [1.0]}}, "initial.kind is required"),
         ({"gamma": 40.0, "v": {"L": 1e9, "n": 5}}, "gamma = 40 makes the kernel"),
+        ({"time.policy": "fixed", "time.halve_on": "max_iterations"}, r"time\.halve_on = 'max_iterations' needs"),
+        ({"time.policy": "cfl", "time.halve_on": "max_iterations"}, r"time\.halve_on .* never halves"),
+        ({"x": None, "refine.x": None}, r"refine\.concentration_set .*\[x\] grid"),
+        ({"refine.v": None, "refine.x": None}, r"needs \[refine\.v\] or \[refine\.x\]"),
     ],
 )
 def test_inconsistent_combinations_are_refused(changes, match):

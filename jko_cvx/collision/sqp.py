@@ -28,6 +28,19 @@ Additions to the paper, each documented in the result: a positivity safeguard
 the log Fisher form needs), and a final certification by the KKT residual (the
 paper's :math:`\\zeta` test measures step length only; a small step with a large KKT
 residual is reported ``NOT_CERTIFIED``, never as success).
+
+The safeguard is the option ``safeguard`` (:data:`SAFEGUARDS`): ``"floor"`` (default) cuts
+the step and floors :math:`\\zeta` at :math:`2\\epsilon` on a cut step (a step shortened to
+stay positive says nothing about convergence, so it never passes the test); ``"cut"`` cuts
+the step and takes :math:`\\zeta` as Algorithm 1 computes it; ``"none"`` is Algorithm 1 as
+written, without the cut: an iterate with some :math:`f_j \\le 0` has left the domain of
+:math:`J` (the log and perspective Fisher terms, the Wasserstein term), and the solve stops
+there as ``NUMERICAL_ERROR`` (``info["left_domain"]``: the iteration).  Measured on the
+adaptive g1 runs of ``gk1_records``: ``studies/results/reproduce/paper_variants.md``.
+
+The exit flag is Algorithm 1's: :math:`e_f = 1` iff :math:`l = I_{max}`, i.e. iff
+:math:`I_{max}` iterations ran, also when the :math:`\\zeta` test passes on exactly the
+:math:`I_{max}`-th (the loop ends on its counter before the test is read again).
 """
 
 from __future__ import annotations
@@ -46,9 +59,12 @@ from .linalg import divergence
 from .problem import CollisionProblem
 from .result import CollisionResult, Status
 
-__all__ = ["solve_sqp"]
+__all__ = ["SAFEGUARDS", "solve_sqp"]
 
 _FRACTION_TO_BOUNDARY = 0.995
+
+SAFEGUARDS = ("floor", "cut", "none")
+"""The positivity safeguard's variants (``solve_sqp(safeguard=...)``), see the module docstring."""
 
 
 class _OsqpStep:
@@ -113,6 +129,7 @@ def solve_sqp(
     floor: float | None = None,
     osqp_eps: float = 1e-12,
     check_convexity: bool = True,
+    safeguard: str = "floor",
     callback: Any = None,
 ) -> CollisionResult:
     """Solve the collision step with the paper's SQP (Algorithm ``alg:non_uni_JKO``).
@@ -128,7 +145,9 @@ def solve_sqp(
         This method's own stopping tolerance: the threshold :math:`\\epsilon` of the
         :math:`\\zeta` test (relative step length).
     max_iter : int, default 20000
-        :math:`I_{max}`; reaching it sets the exit flag :math:`e_f = 1`.
+        :math:`I_{max}`; running that many iterations sets the exit flag :math:`e_f = 1`
+        (status ``MAX_ITERATIONS``), also when the last one passes the :math:`\\zeta` test
+        (Algorithm 1: ``e_f = 1 if l = I_max``).
     kkt_tol : float, default 1e-6
         Certification threshold (the same for every method, :func:`~jko_cvx.collision.certify.certify`):
         a run that passes the :math:`\\zeta` test is ``CONVERGED`` only if its scaled KKT
@@ -145,6 +164,12 @@ def solve_sqp(
     check_convexity : bool, default True
         Second-order test at a certified point; ``NONCONVEX`` if the reduced Hessian is
         not positive definite (the point is stationary but not a minimiser).
+    safeguard : {"floor", "cut", "none"}, default "floor"
+        The positivity safeguard (not in Algorithm 1): ``"floor"`` cuts the relaxation step
+        at 0.995 of the distance to the boundary :math:`f_j = 0` and floors :math:`\\zeta` at
+        :math:`2\\epsilon` after a cut step; ``"cut"`` cuts without the floor; ``"none"``
+        does not cut (Algorithm 1 as written) and stops as ``NUMERICAL_ERROR`` at the first
+        iterate with some :math:`f_j \\le 0`.
     callback : callable, optional
         Called as ``callback(l, f, m, zeta)`` after each iteration.
 
@@ -152,30 +177,42 @@ def solve_sqp(
     -------
     CollisionResult
         ``info`` holds ``exit_flag`` (:math:`e_f`), ``zeta``, ``safeguard_steps`` (iterations
-        whose relaxation step the positivity safeguard shortened) and ``qp``.
+        whose relaxation step the positivity safeguard shortened), ``safeguard``, ``qp`` and,
+        where an iterate left the domain (``safeguard="none"``), ``left_domain`` (its iteration).
     """
     if floor is None:
         floor = 1e-10 * float(problem.f_star.max())
     _check_sqp_args(problem, step, tol, max_iter, kkt_tol, qp, floor, osqp_eps, check_convexity, callback)
+    check_choice("safeguard", safeguard, SAFEGUARDS)
     step, tol, kkt_tol, floor = float(step), float(tol), float(kkt_tol), float(floor)
     t0 = time.perf_counter()
     qp_step = sqp_step if qp == "banded" else _OsqpStep(problem, floor, osqp_eps, 100000)
-    f, m, zeta, it, safeguarded, status = _iterate(problem, qp_step, step, tol, max_iter, callback)
-    exit_flag = int(it >= max_iter and zeta > tol)
-    if status is None and exit_flag:
+    f, m, zeta, it, safeguarded, status = _iterate(problem, qp_step, step, tol, max_iter, safeguard, callback)
+    left_domain = it if status is Status.NUMERICAL_ERROR and bool(np.any(f <= 0)) else None
+    # Algorithm 1, step 3: e_f = 1 if l = I_max (the loop counter reaches I_max only when
+    # I_max iterations ran, whether or not the last one passed the zeta test)
+    exit_flag = int(status is None and it >= max_iter)
+    if exit_flag:
         status = Status.MAX_ITERATIONS
     # Remove the rounding drift of many feasible updates (rebuild f from m), then clip
     # rounding negatives (~1e-25) and restore the mass exactly.
     f, m = problem.project_feasible(problem.density_from_flux(m))
     cert = certify(problem, f, m, kkt_tol=kkt_tol, check_convexity=check_convexity, claimed=status)
-    info = {"exit_flag": exit_flag, "zeta": float(zeta), "safeguard_steps": safeguarded, "qp": qp, "kkt": cert.kkt}
+    info = {"exit_flag": exit_flag, "zeta": float(zeta), "safeguard_steps": safeguarded, "safeguard": safeguard,
+            "qp": qp, "kkt": cert.kkt}  # fmt: skip
+    if left_domain is not None:
+        info["left_domain"] = left_domain
     return CollisionResult.from_certificate(problem, f, m, cert, "sqp", it, time.perf_counter() - t0, info)
 
 
 def _iterate(
-    problem: CollisionProblem, qp_step: Any, step: float, tol: float, max_iter: int, callback: Any
+    problem: CollisionProblem, qp_step: Any, step: float, tol: float, max_iter: int, safeguard: str, callback: Any
 ) -> tuple[np.ndarray, np.ndarray, float, int, int, Status | None]:
-    """The SQP iterations from ``(f*, 0)``: ``(f, m, zeta, iterations, safeguarded steps, failure status)``."""
+    """The SQP iterations from ``(f*, 0)``: ``(f, m, zeta, iterations, safeguarded steps, failure status)``.
+
+    ``safeguard`` (:data:`SAFEGUARDS`): cut the step (``"floor"``, ``"cut"``) or not (``"none"``:
+    an iterate with some f_j <= 0 ends the loop with ``NUMERICAL_ERROR``).
+    """
     f, m = problem.initial_point()
     zeta, it, safeguarded = 1.0, 0, 0
     with np.errstate(all="ignore"):
@@ -187,19 +224,21 @@ def _iterate(
                 return f, m, zeta, it, safeguarded, Status.NUMERICAL_ERROR
             if not (np.all(np.isfinite(pf)) and np.all(np.isfinite(pm))):
                 return f, m, zeta, it, safeguarded, Status.NUMERICAL_ERROR
-            lam, truncated = _relaxation(f, pf, step)
+            lam, truncated = (step, False) if safeguard == "none" else _relaxation(f, pf, step)
             safeguarded += truncated
             norm_u = np.sqrt(f @ f + m @ m)
             f = f + lam * pf
             m = m + lam * pm
             zeta = lam * np.sqrt(pf @ pf + pm @ pm) / norm_u
-            if truncated:
+            if truncated and safeguard == "floor":
                 # A step cut short by the safeguard says nothing about convergence:
                 # never let it pass the zeta test.
                 zeta = max(zeta, 2 * tol)
             it += 1
             if callback is not None:
                 callback(it, f, m, zeta)
+            if safeguard == "none" and np.any(f <= 0):  # outside the domain of J: no gradient there
+                return f, m, zeta, it, safeguarded, Status.NUMERICAL_ERROR
     return f, m, zeta, it, safeguarded, None
 
 

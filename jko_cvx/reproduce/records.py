@@ -21,11 +21,25 @@ from ..simulate import simulate
 from ..sweep import run_sweep
 from .blowup_tables import blowup_scene
 
-__all__ = ["record_run", "reproduce_gk1_records"]
+__all__ = ["record_run", "record_scene", "reproduce_gk1_records"]
 
 
-def record_run(data: str, delta0: float, policy: str, t_end: float) -> dict[str, Any]:
-    """One sweep point: the records (t, dt, min dv, max f) of a gamma = 1 run."""
+def record_scene(
+    data: str,
+    delta0: float,
+    policy: str,
+    t_end: float,
+    halve_on: str = "any_failure",
+    safeguard: str = "floor",
+    max_iter: int | None = None,
+):
+    """The gamma = 1 scene of one record: fixed dt (Newton), or the halving policies with the paper's SQP.
+
+    ``halve_on`` (``time.halve_on``), ``safeguard`` (the SQP's ``safeguard`` option) and
+    ``max_iter`` (the SQP's I_max; None: its default 20000) choose between the package's
+    rules (the defaults) and the paper's algorithms as written; they apply to the halving
+    policies only.
+    """
     variant: dict[str, Any] = {"refine.v.delta0": delta0, "t_end": t_end}
     if policy in ("halving", "halving_reset"):
         variant.update(
@@ -37,11 +51,39 @@ def record_run(data: str, delta0: float, policy: str, t_end: float) -> dict[str,
                 "stop.on_solver_failure": True,
             }
         )
+        if halve_on != "any_failure":
+            variant["time.halve_on"] = halve_on
+        options = {k: v for k, v in (("safeguard", safeguard), ("max_iter", max_iter)) if v not in ("floor", None)}
+        if options:
+            variant["collision.options"] = options
+    elif (halve_on, safeguard, max_iter) != ("any_failure", "floor", None):
+        raise ValueError(
+            "halve_on, safeguard and max_iter vary the halving runs only (policy 'halving' or 'halving_reset')"
+        )
     # beta = 1000: the weight the shipped gk1 records were run with
-    s = blowup_scene(data, 0.0, 0.01, beta=1000.0, overrides=variant)
+    return blowup_scene(data, 0.0, 0.01, beta=1000.0, overrides=variant)
+
+
+def record_run(
+    data: str,
+    delta0: float,
+    policy: str,
+    t_end: float,
+    halve_on: str = "any_failure",
+    safeguard: str = "floor",
+    max_iter: int | None = None,
+) -> dict[str, Any]:
+    """One sweep point: the records (t, dt, min dv, max f) of a gamma = 1 run, its verdict and
+    its failed collision attempts (``failures``: count by status; ``attempts``: each one)."""
+    s = record_scene(data, delta0, policy, t_end, halve_on, safeguard, max_iter)
     t0 = time.perf_counter()
-    run = simulate(s)
+    attempts: list[dict[str, Any]] = []
+    run = simulate(s, attempts=attempts)
     d = run.diagnostics
+    failures: dict[str, int] = {}
+    for a in attempts:
+        for st in a["statuses"]:
+            failures[st] = failures.get(st, 0) + 1
     return {
         "t": d.t.tolist(),
         "dt": d["dt"].tolist(),
@@ -49,6 +91,9 @@ def record_run(data: str, delta0: float, policy: str, t_end: float) -> dict[str,
         "min_dv": d.min_dv.tolist(),
         "max_f": d.max_f.tolist(),
         "verdict": run.verdict["reason"],
+        "T_b": float(run.verdict["T_b"]) if run.blowup else float("nan"),
+        "failures": failures,
+        "attempts": attempts,
         "seconds": time.perf_counter() - t0,
     }
 

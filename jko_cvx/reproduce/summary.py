@@ -628,3 +628,140 @@ def reproduce_summary(out: Path, quick: bool = False, **_sweep_opts: Any) -> pd.
     lines += [f"| {r['key']} | {r['value']} | `{r['file']}` | {r['how']} | {r['readme']} |" for r in rows]
     (out / "summary.md").write_text("\n".join(lines) + "\n")
     return df
+
+
+# --- issue 18 options (studies/paper_variants.py): appended after the claims above ----------------------
+
+
+def _pv_row(d, delta0: float, halve_on: str, safeguard: str, max_iter: int = 20000):
+    rows = d[(d.delta0 == delta0) & (d.halve_on == halve_on) & (d.safeguard == safeguard) & (d.max_iter == max_iter)]
+    if len(rows) != 1:
+        raise ValueError(f"paper_variants.csv: expected one row for {delta0, halve_on, safeguard, max_iter}")
+    return rows.iloc[0]
+
+
+_RECORD = ("first halving t", "retries", "smallest dt", "steps", "t reached", "failed MAX_ITERATIONS")
+
+
+def _pv_same(d) -> str:
+    """"the same" when the four halve_on x {floor, cut} rows of each delta0 have equal records."""
+    for d0 in (0.5, 0.05):
+        recs = {
+            tuple(_pv_row(d, d0, h, s)[list(_RECORD)].astype(float).round(12).fillna(-1))
+            for h in ("any_failure", "max_iterations")
+            for s in ("floor", "cut")
+        }
+        if len(recs) != 1:
+            return "different"
+    return "the same"
+
+
+def _pv_only_max(d) -> str:
+    """"every" when no floor / cut row failed with another status than MAX_ITERATIONS."""
+    cols = ["failed NOT_CERTIFIED", "failed NONCONVEX", "failed NUMERICAL_ERROR"]
+    other = d[d.safeguard.isin(("floor", "cut"))][cols]
+    return "every" if int(other.to_numpy().sum()) == 0 else "not every"
+
+
+CLAIMS += (
+    Claim(
+        "paper_variants.halve_on",
+        "paper_variants.csv",
+        lambda d: (
+            _pv_only_max(d),
+            *(str(int(_pv_row(d, d0, "any_failure", "floor")["failed MAX_ITERATIONS"])) for d0 in (0.5, 0.05)),
+            _pv_same(d),
+        ),
+        "on the adaptive g1 runs {} failed attempt is MAX_ITERATIONS ({} for delta0 = 0.5, {} for delta0 = 0.05), "
+        "so both rules give {} records",
+        "failed-attempt counts by status; records compared over halve_on x safeguard in {floor, cut}",
+    ),
+    Claim(
+        "paper_variants.key",
+        "paper_variants.csv",
+        lambda d: (
+            _pv_only_max(d),
+            _pv_same(d),
+            *(f"{_pv_row(d, d0, 'any_failure', 'floor')['first halving t']:.2f}" for d0 in (0.5, 0.05)),
+            *(f"{_pv_row(d, d0, 'any_failure', 'none')['first failure t']:.2f}" for d0 in (0.5, 0.05)),
+        ),
+        "{} failed attempt of both runs is the exit flag (MAX_ITERATIONS), and the paper's halving rule "
+        '(`time.halve_on = "max_iterations"`) and the SQP without the zeta floor (`safeguard = "cut"`) give {} '
+        "records (first halving at t = {} and {}); without the cut (`safeguard = \"none\"`, Algorithm 1 as written) "
+        "an iterate leaves f > 0 at t = {} and {}",
+        "default rows, the floor/cut comparison and the safeguard = none rows",
+    ),
+    Claim(
+        "paper_variants.imax",
+        "paper_variants.csv",
+        lambda d: tuple(
+            f"{_pv_row(d, 0.5, 'max_iterations', 'floor', k)[c]:{fmt}}"
+            for k in (2000, 200)
+            for c, fmt in (("first halving t", ".2f"), ("T_b", ".4f"))
+        ),
+        "with I_max = 2000 the first halving comes at t = {} and the run ends on eps_t at T_b = {}, with 200 at "
+        "t = {} and T_b = {}",
+        "max_iter rows (delta0 = 0.5, halve_on = max_iterations)",
+    ),
+    Claim(
+        "paper_variants.none",
+        "paper_variants.csv",
+        lambda d: (
+            _pv_same(d),
+            *(f"{_pv_row(d, d0, 'any_failure', 'none')['first failure t']:.2f}" for d0 in (0.5, 0.05)),
+            *(f"{_pv_row(d, d0, 'max_iterations', 'none')['T_b']:.2f}" for d0 in (0.5, 0.05)),
+            *(f"{_pv_row(d, d0, 'any_failure', 'none')['T_b']:.3f}" for d0 in (0.5, 0.05)),
+        ),
+        '`"cut"` gives {} records as `"floor"` on both adaptive g1 runs; `"none"` leaves the domain at t = {} '
+        "(delta0 = 0.5) and {} (0.05): with the paper's halving rule the run stops there (T_b = {}, {}), with "
+        "`any_failure` the step is halved to eps_t by t = {} and {}",
+        "safeguard = none rows",
+    ),
+)
+
+
+def _pc(d, case: str, n: int, rule: str, col: str, fmt: str) -> str:
+    rows = d[(d.case == case) & (d.n == n) & (d.rule == rule)]
+    if len(rows) != 1:
+        raise ValueError(f"paper_variants_concentration.csv: expected one row for {case, n, rule}")
+    return f"{rows.iloc[0][col]:{fmt}}"
+
+
+def _pc_no_blowup(d) -> str:
+    g3 = d[d.case == "gamma3_lambda4"]
+    return "no blow-up either way" if g3.T_b.isna().all() else "blow-up in some run"
+
+
+def _pc_stop(d) -> str:
+    q = d[(d.rule == "quadrant") & d.case.str.startswith("gamma1p5") & (d.n == 61)]
+    return "the density stop fires" if q.verdict.str.startswith("min spread_v").all() else "another rule fires"
+
+
+def _pc_uniform(d) -> str:
+    """"stay uniform" when no quadrant row of inhom_gamma1p5 ever refined its v-grid."""
+    q = d[(d.rule == "quadrant") & d.case.str.startswith("gamma1p5")]
+    return "stay uniform" if q["first t with a refined v-grid"].isna().all() else "do not stay uniform"
+
+
+CLAIMS += (
+    Claim(
+        "paper_variants.concentration",
+        "paper_variants_concentration.csv",
+        lambda d: (
+            *(_pc(d, "gamma3_lambda4", 121, r, "min dx", ".2g") for r in ("quadrant", "projections")),
+            *(_pc(d, "gamma3_lambda4", 121, r, "min dv", ".3g") for r in ("quadrant", "projections")),
+            *(_pc(d, "gamma3_lambda4", 121, r, "max f (peak)", ".4g") for r in ("quadrant", "projections")),
+            _pc_no_blowup(d),
+            _pc_uniform(d),
+            _pc_stop(d),
+            *(_pc(d, f"gamma1p5_{c}", 61, "quadrant", "T_b", ".2f") for c in ("before", "after")),
+            *(_pc(d, f"gamma1p5_{c}", 61, "projections", "T_b", ".4g") for c in ("before", "after")),
+        ),
+        "inhom_gamma3 lambda = 4 at 121 x 121 to t = 4: min dx {} against {} (the set's x-extent is one bump's, "
+        "not the projection over v), min dv {} against {}, max f {} against {}, {}; "
+        "inhom_gamma1p5 (quick form, 61 x 61): the grids {} to t = 0.6 (the bumps reach x = 0 at t = 1), and "
+        "{} at t = {} (before) and {} (after), where the projections' min dv falls below "
+        "eps_v at t = {} and {}",
+        "quadrant against projections rows",
+    ),
+)

@@ -1,0 +1,83 @@
+"""The SQP against Algorithm 1 (``alg:non_uni_JKO``) as written: its exit flag and its safeguard options.
+
+Algorithm 1 runs ``while l < I_max: if zeta > eps: (QP, relax, zeta) else break; l = l + 1``
+and sets ``e_f = 1 if l = I_max``.  The loop counter only reaches I_max when I_max
+iterations ran, whatever the last zeta: a run whose zeta test passes on exactly the
+I_max-th iteration still ends with ``e_f = 1`` (the test is never reached again).
+"""
+
+import numpy as np
+import pytest
+
+from jko_cvx import CollisionProblem, Grid, PowerKernel, Status, solve_collision
+
+G = Grid.uniform(-2.0, 2.0, 61)
+F_GAUSS = np.exp(-2 * G.points**2)
+F_PEAK = np.exp(-(G.points**2) / (2 * 0.1**2)) + 1e-3
+
+
+def _converged_run():
+    prob = CollisionProblem(G, PowerKernel(1.0), F_GAUSS, 0.01, beta=10.0)
+    free = solve_collision(prob, method="sqp")
+    assert free.status is Status.CONVERGED and free.info["exit_flag"] == 0
+    return prob, int(free.iterations)
+
+
+def test_zeta_test_passing_on_the_last_allowed_iteration_is_the_papers_exit_flag():
+    """Converging on iteration K: I_max = K gives l = I_max, so e_f = 1 (MAX_ITERATIONS), I_max = K + 1 not."""
+    prob, k = _converged_run()
+    at_limit = solve_collision(prob, method="sqp", max_iter=k)
+    assert at_limit.iterations == k and at_limit.info["zeta"] <= 1e-10  # the zeta test passed ...
+    assert at_limit.info["exit_flag"] == 1 and at_limit.status is Status.MAX_ITERATIONS  # ... at l = I_max
+    assert not at_limit.success
+    above = solve_collision(prob, method="sqp", max_iter=k + 1)
+    assert above.iterations == k and above.info["exit_flag"] == 0 and above.status is Status.CONVERGED
+    np.testing.assert_array_equal(above.f, solve_collision(prob, method="sqp").f)
+
+
+def test_the_safeguard_variants_agree_bitwise_where_the_safeguard_is_idle():
+    prob = CollisionProblem(G, PowerKernel(1.0), F_GAUSS, 0.01, beta=10.0)
+    runs = {sg: solve_collision(prob, method="sqp", safeguard=sg) for sg in ("floor", "cut", "none")}
+    assert all(r.info["safeguard_steps"] == 0 and r.status is Status.CONVERGED for r in runs.values())
+    for r in runs.values():
+        np.testing.assert_array_equal(r.f, runs["floor"].f)
+        assert r.iterations == runs["floor"].iterations
+
+
+def _peak():
+    """The peaked datum at dt = 0.3 without Fisher term: non-convex, the relaxation steps get cut."""
+    return CollisionProblem(G, PowerKernel(1.0), F_PEAK, 0.3)
+
+
+def test_without_the_floor_a_cut_step_can_pass_the_zeta_test_and_the_certificate_catches_it():
+    """safeguard="cut": zeta as Algorithm 1 computes it; a short cut step ends the loop before I_max,
+    at a point that is not a certified minimiser (with "floor" the same run goes on to I_max)."""
+    zetas = []
+    res = solve_collision(
+        _peak(), method="sqp", max_iter=300, safeguard="cut", callback=lambda i, f, m, z: zetas.append(z)
+    )
+    assert res.iterations < 300 and res.info["exit_flag"] == 0 and res.info["safeguard_steps"] >= 1
+    assert zetas[-1] <= 1e-10  # the zeta test passed ...
+    assert not res.success and res.status in (Status.NOT_CERTIFIED, Status.NONCONVEX)  # ... the KKT test did not
+    floor = solve_collision(_peak(), method="sqp", max_iter=300, safeguard="floor")
+    assert floor.iterations == 300 and floor.status is Status.MAX_ITERATIONS
+
+
+def test_without_the_safeguard_the_literal_algorithm_leaves_the_domain():
+    """safeguard="none": the first full relaxation step drives some f_j below 0 (seen in the callback,
+    independently of the solver's report), and the solve says so: NUMERICAL_ERROR at that iteration."""
+    seen = []
+    res = solve_collision(
+        _peak(), method="sqp", max_iter=300, safeguard="none", callback=lambda i, f, m, z: seen.append(float(f.min()))
+    )
+    first_negative = next(i for i, fmin in enumerate(seen, start=1) if fmin <= 0)
+    assert res.status is Status.NUMERICAL_ERROR and not res.success
+    assert res.info["left_domain"] == first_negative == res.iterations == len(seen)
+    assert res.info["safeguard"] == "none" and res.info["safeguard_steps"] == 0
+
+
+@pytest.mark.parametrize("bad", ["literal", "", None, 1])
+def test_safeguard_must_be_one_of_the_variants(bad):
+    prob = CollisionProblem(G, PowerKernel(1.0), F_GAUSS, 0.01, beta=10.0)
+    with pytest.raises((ValueError, TypeError), match="safeguard"):
+        solve_collision(prob, method="sqp", safeguard=bad)
