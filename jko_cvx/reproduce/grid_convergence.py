@@ -171,6 +171,7 @@ def _gamma1p5_rows(df: pd.DataFrame) -> pd.DataFrame:
                 "T_b (paper's criteria)": r.T_b,
                 f"t(sigma_v < {COLLAPSE_SPREAD:g})": r.t_collapse,
                 **{f"sigma_v(t={tk:g})": _at(r.t, r.min_spread_v, tk) for tk in _SPREAD_TIMES},
+                "sigma_v (stop)": r.min_spread_v[-1],
                 "max f (stop)": r.max_f[-1],
                 "max rho (stop)": r.max_rho[-1],
                 "min dv (stop)": r.min_dv[-1],
@@ -231,6 +232,12 @@ def _outcome(r: pd.Series, collapse: str) -> str:
     if np.isfinite(r[collapse]):
         return f"collapse in v at t = {r[collapse]:.4g}, {side[r[collapse] < MEETING_TIME]} the bumps meet (t = 1)"
     tb = r["T_b (paper's criteria)"]
+    if np.isfinite(tb) and str(r.stop).startswith("collision solver failed"):
+        # e_f: the paper counts it as blow-up, but it says nothing about the density
+        return (
+            f"the collision solver failed at t = {tb:.4g} ({r.stop}: the paper's e_f indicator), "
+            f"with sigma_v = {r['sigma_v (stop)']:.3g}, before any collapse"
+        )
     if np.isfinite(tb):
         return f"the paper's criterion fired at T_b = {tb:.4g} ({r.stop}), {side[tb < MEETING_TIME]} the bumps meet"
     return f"neither criterion by t = {r['t stop']:.4g} ({r.stop})"
