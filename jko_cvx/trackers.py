@@ -28,12 +28,12 @@ if TYPE_CHECKING:
     from .scene import Scene
 
 __all__ = [
+    "GRID_RESOLUTION",
     "Checkpoints",
     "Diagnostics",
     "EpsT",
     "EpsV",
     "EpsX",
-    "GRID_RESOLUTION",
     "Progress",
     "Snapshots",
     "SolverFailure",
