@@ -105,6 +105,16 @@ def _seconds(df) -> tuple[str, ...]:
     return (f"{df.seconds.sum():.0f}",)
 
 
+def _wall(entry: str, minutes: bool = False) -> Callable[[pd.DataFrame], tuple[str, ...]]:
+    """The measured wall time of ``jko-cvx reproduce ENTRY --fresh`` (``regenerate_timing.csv``)."""
+
+    def get(d: pd.DataFrame) -> tuple[str, ...]:
+        wall = float(d.loc[(d.entry == entry) & (d.returncode == 0), "wall_s"].iloc[0])
+        return (f"{wall / 60:.0f}" if minutes else f"{wall:.0f}",)
+
+    return get
+
+
 def _scale_row(d, gamma: float, linalg: str) -> tuple[str, ...]:
     """A row of README's batched-Newton table: wall (CPU) at N_v = 121, 481, 1025 and the exponents."""
     rows = d[(d.gamma == gamma) & (d.linalg == linalg)].set_index("N_v")
@@ -122,39 +132,20 @@ def _scale_step(d) -> tuple[str, ...]:
     s481, s1025 = row.loc[(481, "structured (default)")], row.loc[(1025, "structured (default)")]
     dense = row.loc[(481, "dense Cholesky")]
     return (
-        f"{s481.wall_per_step_s:.2f}", f"{s481.cpu_per_step_s:.2f}", f"{dense.wall_per_step_s:.2f}",
-        f"{s1025.wall_per_step_s:.2f}", f"{s1025.cpu_per_step_s:.2f}", f"{s1025.collision_s:.2f}",
-        f"{s1025.refine_s:.2f}", f"{s1025.transport_s:.2f}", f"{s1025.newton_iterations_max:d}",
+        f"{s481.wall_per_step_s:.2f}",
+        f"{s481.cpu_per_step_s:.2f}",
+        f"{dense.wall_per_step_s:.2f}",
+        f"{s1025.wall_per_step_s:.2f}",
+        f"{s1025.cpu_per_step_s:.2f}",
+        f"{s1025.collision_s:.2f}",
+        f"{s1025.refine_s:.2f}",
+        f"{s1025.transport_s:.2f}",
+        f"{s1025.newton_iterations_max:d}",
         f"{row.peak_rss_gib.max():.2f}",
     )
 
 
 CLAIMS: tuple[Claim, ...] = (
-    # the NAME table: summed run time of the points in each CSV
-    Claim(
-        "tab_bu.seconds",
-        "tab_bu.csv",
-        _seconds,
-        "| `tab_bu` | Table `tab:bu` (g1-g3, 75 runs) | {} s |",
-        "sum of seconds",
-    ),
-    Claim(
-        "tab_bu_tb2.seconds",
-        "tab_bu_tb2.csv",
-        _seconds,
-        "| `tab_bu_tb2` | Table `tab:bu_tb2` (g4, 16 runs) | {} s |",
-        "sum of seconds",
-    ),
-    Claim("gk1_records.seconds", "gk1_records.csv", _seconds, "`fig:gk1_tb` | {} s |", "sum of seconds"),
-    Claim("inhom_gamma3.seconds", "inhom_gamma3.csv", _seconds, "`fig:gk3_properties` | {} s |", "sum of seconds"),
-    Claim(
-        "inhom_gamma1p5.seconds",
-        "inhom_gamma1p5_resolution.csv",
-        lambda d: (f"{d.seconds.sum() / 60:.0f}",),
-        "uniform reference) | {} min |",
-        "sum of seconds / 60",
-    ),
-    Claim("tab_g2bu.seconds", "tab_g2bu.csv", _seconds, "`fig:gk2_evo_example` | {} s |", "sum of seconds"),
     # tab:bu
     Claim(
         "tab_bu.within",
@@ -435,10 +426,13 @@ CLAIMS: tuple[Claim, ...] = (
     Claim(
         "tab_g2bu.level_sets_nv",
         "tab_g2bu.csv",
-        lambda d: tuple(
-            str(d[(d["lambda"] == 310) & (d.n_v == n)]["split slice-steps"].iloc[0].split(" /")[0]) for n in (201, 401)
-        )
-        + tuple(f"{d[(d['lambda'] == 310) & (d.n_v == n)]['secondary peak'].iloc[0]:.2f}" for n in (201, 401)),
+        lambda d: (
+            tuple(
+                str(d[(d["lambda"] == 310) & (d.n_v == n)]["split slice-steps"].iloc[0].split(" /")[0])
+                for n in (201, 401)
+            )
+            + tuple(f"{d[(d['lambda'] == 310) & (d.n_v == n)]['secondary peak'].iloc[0]:.2f}" for n in (201, 401))
+        ),
         "doubling N_v cuts the split slice-steps for lambda = 310 from {} to {} and the largest second peak "
         "from {} to {}",
         "lambda = 310, n_v = 201 and 401",
@@ -595,6 +589,111 @@ CLAIMS: tuple[Claim, ...] = (
 )
 
 
+_TIMED = {  # entry -> the timing file that measured it (the panel entries came later, with other code)
+    **{
+        e: "../regenerate_timing.csv"
+        for e in (
+            "tab_bu",
+            "tab_bu_tb2",
+            "ibu",
+            "gk1_records",
+            "inhom_gamma3",
+            "explicit",
+            "mesh_maps",
+            "inhom_gamma1p5",
+            "tab_g2bu",
+            "tab_bu_traces",
+            "property_budget",
+            "summary",
+            "tab_bu_beta_scan",
+            "explicit_figures",
+            "gk1_final",
+            "fisher_width",
+            "ibu_panels",
+            "g2bu_loglog",
+            "g2bu_records",
+        )
+    },
+    **{e: "../regenerate_timing_panels.csv" for e in ("gk3_panels", "gk2_bu", "explicit2_sketch")},
+}
+
+
+def _regenerate_total(d: pd.DataFrame) -> tuple[str, ...]:
+    ok = d[d.returncode == 0]
+    loads = pd.concat([ok.load_before, ok.load_after])
+    return (
+        f"{ok.wall_s.sum():.0f}",
+        f"{ok.wall_s.sum() / 60:.0f}",
+        str(len(ok)),
+        f"{ok.cpu_s.sum():.0f}",
+        f"{loads.min():.0f}-{loads.max():.0f}",
+        f"{ok.cpu_s.sum() / 2 / 60:.0f}",
+    )
+
+
+CLAIMS += (
+    Claim(
+        "regenerate.total",
+        "../regenerate_timing.csv",
+        _regenerate_total,
+        "**Regenerating the section took {} s ({} min) of wall time over {} entries, {} s of CPU**, on this "
+        "2-core machine while the grid-convergence sweep ran beside it (1-minute load {}, in the CSV): two idle "
+        "cores need at least half the CPU time, {} min,",
+        "sum of wall_s and cpu_s over the entries that finished; load averages before and after each",
+    ),
+    Claim(
+        "regenerate.inhom_gamma1p5",
+        "../regenerate_timing.csv",
+        lambda d: tuple(f"{d.loc[d.entry == 'inhom_gamma1p5', c].iloc[0]:.0f}" for c in ("wall_s", "cpu_s")),
+        "`inhom_gamma1p5` alone took {} s ({} s CPU)",
+        "its row",
+    ),
+    Claim(
+        "regenerate.crawl",
+        "inhom_gamma1p5_resolution.csv",
+        lambda d: (str(int(d[(d.case == "before") & (d.grid == "121 x 121")].steps.iloc[0])),),
+        "(121 x 121, lambda = 10: {} steps)",
+        "steps of that run",
+    ),
+)
+
+
+def _rounding_sensitivity(before: pd.DataFrame) -> tuple[str, ...]:
+    """T_b of the 121 and 81 mapped runs from the previous code against today's; largest change of a collapse time."""
+    now = pd.read_csv(RESULTS / "inhom_gamma1p5_resolution.csv")
+    tb = {
+        (g, c): float(before[(before.grid == g) & (before.case == c)].T_b.iloc[0])
+        for g in ("121 x 121", "81 x 81")
+        for c in ("before", "after")
+    }
+    tb_now = float(now[(now.grid == "81 x 81") & (now.case == "before")].T_b.iloc[0])
+    collapse = "t(sigma_v < 0.05)"
+    change = float((now[collapse] - before[collapse]).abs().max())
+    return (
+        f"{tb[('121 x 121', 'before')]:.3f}",
+        f"{tb[('121 x 121', 'after')]:.3f}",
+        f"{tb[('81 x 81', 'before')]:.4f}",
+        f"{tb_now:.4f}",
+        f"{change:g}",
+    )
+
+
+CLAIMS += (
+    Claim(
+        "inhom_gamma1p5.rounding",
+        "inhom_gamma1p5_resolution_previous_code.csv",
+        _rounding_sensitivity,
+        "gave {} and {} (and {} against {} on 81 x 81), while every density-collapse time of the sweep changed by {}",
+        "the previous code's resolution table (kept beside today's) against today's",
+    ),
+)
+# the NAME table of studies/README.md: each entry's measured wall time (fresh full form, 2 workers)
+CLAIMS += tuple(
+    Claim(f"wall.{entry}", file, _wall(entry), f"| `{entry}` | {{}} s |", "wall_s of the entry")
+    for entry, file in _TIMED.items()
+)
+
+
 def claim_values(results: Path = RESULTS) -> dict[str, tuple[str, ...]]:
     """Every claim's formatted number(s), computed from the files under ``results``."""
     cache: dict[str, Any] = {}
@@ -644,7 +743,7 @@ _RECORD = ("first halving t", "retries", "smallest dt", "steps", "t reached", "f
 
 
 def _pv_same(d) -> str:
-    """"the same" when the four halve_on x {floor, cut} rows of each delta0 have equal records."""
+    """ "the same" when the four halve_on x {floor, cut} rows of each delta0 have equal records."""
     for d0 in (0.5, 0.05):
         recs = {
             tuple(_pv_row(d, d0, h, s)[list(_RECORD)].astype(float).round(12).fillna(-1))
@@ -657,7 +756,7 @@ def _pv_same(d) -> str:
 
 
 def _pv_only_max(d) -> str:
-    """"every" when no floor / cut row failed with another status than MAX_ITERATIONS."""
+    """ "every" when no floor / cut row failed with another status than MAX_ITERATIONS."""
     cols = ["failed NOT_CERTIFIED", "failed NONCONVEX", "failed NUMERICAL_ERROR"]
     other = d[d.safeguard.isin(("floor", "cut"))][cols]
     return "every" if int(other.to_numpy().sum()) == 0 else "not every"
@@ -687,7 +786,7 @@ CLAIMS += (
         ),
         "{} failed attempt of both runs is the exit flag (MAX_ITERATIONS), and the paper's halving rule "
         '(`time.halve_on = "max_iterations"`) and the SQP without the zeta floor (`safeguard = "cut"`) give {} '
-        "records (first halving at t = {} and {}); without the cut (`safeguard = \"none\"`, Algorithm 1 as written) "
+        'records (first halving at t = {} and {}); without the cut (`safeguard = "none"`, Algorithm 1 as written) '
         "an iterate leaves f > 0 at t = {} and {}",
         "default rows, the floor/cut comparison and the safeguard = none rows",
     ),
@@ -738,7 +837,7 @@ def _pc_stop(d) -> str:
 
 
 def _pc_uniform(d) -> str:
-    """"stay uniform" when no quadrant row of inhom_gamma1p5 ever refined its v-grid."""
+    """ "stay uniform" when no quadrant row of inhom_gamma1p5 ever refined its v-grid."""
     q = d[(d.rule == "quadrant") & d.case.str.startswith("gamma1p5")]
     return "stay uniform" if q["first t with a refined v-grid"].isna().all() else "do not stay uniform"
 
