@@ -39,6 +39,7 @@ import pandas as pd
 from ..benchmarks.figures import finish_figure, pyplot
 from ..simulate import simulate
 from ..sweep import code_identity, run_sweep
+from ..verdict import StopReason
 from .g2bu import g2bu_run
 from .gamma1p5 import COLLAPSE_SPREAD, gamma1p5_scene
 from .paper import TAB_G2BU
@@ -85,8 +86,8 @@ def _gamma1p5(case: str, n: int, grid: str, t_end: float) -> dict[str, Any]:
         "stop": stop.name,
         "reason": run.verdict["reason"],
         # the paper's indicators (B_v, B_x, e_f); the density criterion is reported apart
-        "T_b": float(run.verdict["T_b"]) if stop.blowup and stop.name != "SPREAD_V" else float("nan"),
-        "t_collapse": float(run.verdict["T_b"]) if stop.name == "SPREAD_V" else float("nan"),
+        "T_b": float(run.verdict["T_b"]) if stop.blowup and stop is not StopReason.SPREAD_V else float("nan"),
+        "t_collapse": float(run.verdict["T_b"]) if stop is StopReason.SPREAD_V else float("nan"),
         "t_stop": float(run.t),
         "steps": len(d) - 1,
         "t": d.t.tolist(),
