@@ -342,7 +342,8 @@ def write_report(
         + g2.to_markdown(index=False, floatfmt=".5g")
         + "\n\n## What the paper's conclusions become\n\n"
         + "\n".join(_conclusions(rows, runs[runs.study == "g2bu"]))
-        + f"\n\nSweep wall time {wall:.0f} s; sum of the runs' seconds {runs.seconds.sum():.0f} s "
+        + (f"\n\nSweep wall time {wall:.0f} s; " if np.isfinite(wall) else "\n\n")
+        + f"sum of the runs' seconds {runs.seconds.sum():.0f} s "
         f"(points from the cache count their original seconds).  Code: {provenance}.\n"
     )
     _figure(runs, out / "grid_convergence.png")
