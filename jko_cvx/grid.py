@@ -214,22 +214,30 @@ class PeriodicGrid:
         PCHIP's four-point stencils); the returned callable wraps any query point into
         the period first.  Shared by transport and periodic remapping.
         """
+        interp = self._extended_pchip(np.moveaxis(np.asarray(values, dtype=float), axis, -1))
+
+        def evaluate(q: ArrayLike) -> NDArray[np.float64]:
+            return interp(self._wrap(q))
+
+        return evaluate
+
+    def _extended_pchip(self, vals: NDArray[np.float64]):
+        """SciPy's PCHIP of ``vals`` (along the last axis) on the points extended by three periodic
+        images on each side (enough for PCHIP's four-point stencils)."""
         from scipy.interpolate import PchipInterpolator
 
-        vals = np.moveaxis(np.asarray(values, dtype=float), axis, -1)
         x, P, k = self.points, self.period, _PERIODIC_IMAGES
         xe = np.concatenate([x[-k:] - P, x, x[:k] + P])
         ve = np.concatenate([vals[..., -k:], vals, vals[..., :k]], axis=-1)
         # scipy's weighted harmonic mean of the slopes divides by slopes that underflow in
         # vacuum tails; the overflow gives 1/inf = 0, the correct limit (a flat derivative).
         with np.errstate(over="ignore", divide="ignore"):
-            interp = PchipInterpolator(xe, ve, axis=-1)
+            return PchipInterpolator(xe, ve, axis=-1)
+
+    def _wrap(self, q: ArrayLike) -> NDArray[np.float64]:
+        """Query points wrapped into the period [lower, lower + P)."""
         lo = self.lower
-
-        def evaluate(q: ArrayLike) -> NDArray[np.float64]:
-            return interp(lo + np.mod(np.asarray(q, dtype=float) - lo, P))
-
-        return evaluate
+        return lo + np.mod(np.asarray(q, dtype=float) - lo, self.period)
 
     def pchip_columns(self, values: ArrayLike, queries: ArrayLike) -> NDArray[np.float64]:
         """Column j of ``values`` interpolated (periodic PCHIP) at column j of ``queries``.
@@ -247,21 +255,15 @@ class PeriodicGrid:
         queries : array_like, shape (M, L)
             Query points of each line (any real numbers: wrapped into the period).
         """
-        from scipy.interpolate import PchipInterpolator
-
         vals = np.asarray(values, dtype=float)
         q = np.asarray(queries, dtype=float)
         if vals.ndim != 2 or vals.shape[0] != self.n or q.ndim != 2 or q.shape[1] != vals.shape[1]:
             raise ValueError(
                 f"values must have shape (N, L) = ({self.n}, L) and queries (M, L), got {vals.shape} and {q.shape}"
             )
-        x, P, k = self.points, self.period, _PERIODIC_IMAGES
-        xe = np.concatenate([x[-k:] - P, x, x[:k] + P])
-        ve = np.concatenate([vals[-k:], vals, vals[:k]], axis=0)
-        with np.errstate(over="ignore", divide="ignore"):  # as in pchip: 1/inf = 0 in vacuum tails
-            c = PchipInterpolator(xe, ve, axis=0).c  # (4, len(xe) - 1, L), highest power first
-        lo = self.lower
-        qw = lo + np.mod(q - lo, P)
+        interp = self._extended_pchip(vals.T)
+        xe, c = interp.x, interp.c  # c: (4, len(xe) - 1, L), highest power first
+        qw = self._wrap(q)
         cell = np.clip(np.searchsorted(xe, qw, side="right") - 1, 0, xe.size - 2)
         s = qw - xe[cell]
         col = np.broadcast_to(np.arange(vals.shape[1]), q.shape)
