@@ -45,7 +45,7 @@ from typing import Any
 
 import pandas as pd
 
-__all__ = ["StaleCacheWarning", "code_identity", "point_key", "run_sweep"]
+__all__ = ["StaleCacheWarning", "cached_entries", "code_identity", "point_key", "run_sweep"]
 
 
 class StaleCacheWarning(UserWarning):
@@ -125,6 +125,27 @@ def _read_entry(path: Path, key: str, point: Mapping[str, Any]) -> dict | None:
         return entry["result"]
     warnings.warn(f"sweep cache entry {path} {problem}; recomputing the point", StaleCacheWarning, stacklevel=4)
     return None
+
+
+def cached_entries(cache_dir: str | Path) -> list[tuple[dict, dict]]:
+    """Every (point, result) in ``cache_dir``, whatever code wrote it, each entry's digest checked.
+
+    For reports built from a stopped sweep's cache (``studies/grid_convergence_partial.py``),
+    which must state the code the entries came from themselves: the key, which covers the
+    code, is not compared here.  Raises ``ValueError`` naming an entry that does not parse
+    or fails its digest (edited or truncated) rather than leaving it out.
+    """
+    entries = []
+    for path in sorted(Path(cache_dir).glob("*.json")):
+        try:
+            entry = json.loads(path.read_text())
+            body = {k: entry[k] for k in ("key", "point", "result")}
+        except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError) as exc:
+            raise ValueError(f"cache entry {path} does not parse ({type(exc).__name__}: {exc})") from None
+        if entry.get("digest") != _sha(_canonical(body)):
+            raise ValueError(f"cache entry {path} fails its digest: refusing to report from it")
+        entries.append((body["point"], body["result"]))
+    return entries
 
 
 def _write_atomic(path: Path, text: str) -> None:

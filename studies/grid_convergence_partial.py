@@ -17,29 +17,22 @@ command writes the report.
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 from pathlib import Path
 
 import pandas as pd
 
 from jko_cvx.reproduce.grid_convergence import _points, write_report
+from jko_cvx.sweep import cached_entries
 
 
-def _canonical(obj) -> str:
-    return json.dumps(obj, sort_keys=True, default=float)
+def _canonical(point: dict) -> str:
+    return json.dumps(point, sort_keys=True, default=float)
 
 
 def read_points(cache: Path) -> dict[str, dict]:
-    """Every cache entry whose digest holds, by the canonical JSON of its point."""
-    found = {}
-    for path in sorted(cache.glob("*.json")):
-        entry = json.loads(path.read_text())
-        body = {k: entry[k] for k in ("key", "point", "result")}
-        if entry.get("digest") != hashlib.sha256(_canonical(body).encode()).hexdigest():
-            raise ValueError(f"cache entry {path} fails its digest: refusing to report from it")
-        found[_canonical(body["point"])] = {**body["point"], **body["result"]}
-    return found
+    """Every cache entry (digest checked by :func:`jko_cvx.sweep.cached_entries`), by its point's JSON."""
+    return {_canonical(point): {**point, **result} for point, result in cached_entries(cache)}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from jko_cvx.reproduce.blowup_tables import blowup_time
-from jko_cvx.sweep import point_key, run_sweep
+from jko_cvx.sweep import cached_entries, point_key, run_sweep
 
 POINTS = [{"data": d, "eps_v": 1e-3, "dt": dt} for d in ("g1", "g3") for dt in (0.02, 0.01)]
 COLUMNS = ["data", "eps_v", "dt", "T_b", "steps", "failed_steps"]
@@ -154,3 +154,18 @@ def test_fresh_recomputes_every_point(tmp_path):
     assert not again.cached.any() and list(again.y) == [2.0, 4.0]
     with pytest.raises(TypeError, match="fresh must be a bool"):
         run_sweep(mod.double, [{"a": 1.0}], tmp_path / "c", "serial", progress=False, fresh="yes")
+
+
+def test_cached_entries_returns_every_point_and_refuses_a_damaged_entry(tmp_path):
+    mod = _point_module(tmp_path, "pts_entries", "2")
+    run_sweep(mod.double, [{"a": 1.0}, {"a": 3.0}], tmp_path / "c", "serial", progress=False)
+    assert sorted((p["a"], r["y"]) for p, r in cached_entries(tmp_path / "c")) == [(1.0, 2.0), (3.0, 6.0)]
+    path = sorted((tmp_path / "c").glob("*.json"))[0]
+    entry = json.loads(path.read_text())
+    entry["result"]["y"] += 1.0
+    path.write_text(json.dumps(entry))
+    with pytest.raises(ValueError, match="fails its digest"):
+        cached_entries(tmp_path / "c")
+    path.write_text("{not json")
+    with pytest.raises(ValueError, match="does not parse"):
+        cached_entries(tmp_path / "c")
