@@ -16,8 +16,7 @@ from pathlib import Path
 import numpy as np
 
 import jko_cvx.simulate as simulate_module
-from jko_cvx.reproduce.gamma1p5 import COLLAPSE_SPREAD, gamma1p5_scene
-from jko_cvx.reproduce.grid_convergence import T_END
+from jko_cvx.reproduce.grid_convergence import study_scene
 
 OUT = Path(__file__).parent / "results" / "grid_convergence_failure.json"
 
@@ -51,19 +50,7 @@ def main() -> None:
 
     simulate_module.solve_collision = watched
     try:
-        scene = gamma1p5_scene(
-            "after",
-            481,
-            {
-                "refine": None,
-                "stop.eps_v": 0.0,
-                "stop.eps_x": 0.0,
-                "stop.spread_v": COLLAPSE_SPREAD,
-                "t_end": T_END,
-                "output.times": None,
-                "output.every": 10**9,
-            },
-        )
+        scene = study_scene("after", 481, "uniform")
         run = simulate_module.simulate(scene)
     finally:
         simulate_module.solve_collision = solve

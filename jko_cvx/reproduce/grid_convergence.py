@@ -37,6 +37,7 @@ import numpy as np
 import pandas as pd
 
 from ..benchmarks.figures import finish_figure, pyplot
+from ..scene import Scene
 from ..simulate import simulate
 from ..sweep import code_identity, run_sweep
 from ..verdict import StopReason
@@ -51,6 +52,8 @@ __all__ = [
     "convergence",
     "grid_point",
     "reproduce_grid_convergence",
+    "study_scene",
+    "write_report",
 ]
 
 GRIDS = (121, 241, 481)
@@ -67,8 +70,8 @@ _CASES = {"before": 10.0, "after": 5.0}  # lambda of each parameter set
 _SPREAD_TIMES = (0.1, 0.2, 0.3)
 
 
-def _gamma1p5(case: str, n: int, grid: str, t_end: float) -> dict[str, Any]:
-    """One gamma = 3/2 run (mapped or uniform n x n) to the first of T_b, the collapse and t_end."""
+def study_scene(case: str, n: int, grid: str, t_end: float = T_END) -> Scene:
+    """The scene of one gamma = 3/2 point: mapped or uniform n x n, stopped at the collapse or t_end."""
     if grid not in ("mapped", "uniform"):
         raise ValueError(f"grid must be 'mapped' or 'uniform', got {grid!r}")
     overrides: dict[str, Any] = {
@@ -79,7 +82,12 @@ def _gamma1p5(case: str, n: int, grid: str, t_end: float) -> dict[str, Any]:
     }
     if grid == "uniform":  # no maps and no mesh criterion: the map-free reference
         overrides.update({"refine": None, "stop.eps_v": 0.0, "stop.eps_x": 0.0})
-    run = simulate(gamma1p5_scene(case, n, overrides))
+    return gamma1p5_scene(case, n, overrides)
+
+
+def _gamma1p5(case: str, n: int, grid: str, t_end: float) -> dict[str, Any]:
+    """One gamma = 3/2 run (mapped or uniform n x n) to the first of T_b, the collapse and t_end."""
+    run = simulate(study_scene(case, n, grid, t_end))
     d = run.diagnostics
     stop = run.verdict.stop
     return {
