@@ -377,10 +377,10 @@ def remap(
     g = np.maximum(g, floor)
     if conserve_energy:
         moments = [f @ (old.points**p * old.h) for p in (0, 1, 2)]
-        g, _ = restore_three_moments(g, new.h, new.points, *moments)
+        g, _ = restore_three_moments(g, new.h, new.points, *moments, floor=floor)
         return np.moveaxis(g, -1, axis)
     momentum = f @ (old.points * old.h) if conserve_momentum else None
-    g, _ = restore_moments(g, new.h, new.points, f @ old.h, momentum)
+    g, _ = restore_moments(g, new.h, new.points, f @ old.h, momentum, floor=floor)
     return np.moveaxis(g, -1, axis)
 
 
@@ -430,5 +430,5 @@ def remap_periodic(
     cut = (old.points - xi_old)[..., :1]  # the cut point itself (xi = 0 there)
     xi_new = np.mod(new.points - cut, new.period)
     moment = np.sum(f * (xi_old * old.h), axis=-1)
-    g, _ = restore_moments(g, new.h, xi_new, f @ old.h, moment)
+    g, _ = restore_moments(g, new.h, xi_new, f @ old.h, moment, floor=floor)
     return np.moveaxis(g, -1, axis)

@@ -91,6 +91,31 @@ def test_restore_moments_is_exact_positive_and_refuses_unreachable_targets():
     assert not ok and abs(g @ h - mass) <= 1e-15 * mass
 
 
+@pytest.mark.parametrize("width", [0.3, 0.08, 0.03])
+def test_restore_moments_above_a_floor_keeps_the_floor_and_both_moments(width):
+    """With ``floor`` the tilt moves only f - floor: every value stays >= floor (the whole-row tilt
+    sent the far tail of a narrow bump to exp(-beta span) times the floor), mass and first
+    moment are still exact, and a row whose excess cannot carry the target falls back to the
+    whole-row tilt (still exact, reported reached)."""
+    grid = Grid.uniform(-3.0, 3.0, 121)
+    v, h = grid.points, grid.h
+    floor = 1e-10
+    f = np.maximum(np.exp(-((v - 0.2) ** 2) / (2 * width**2)) * (1 + 0.05 * np.sin(40 * v)), 0) + floor
+    mass, mom = f @ h, f @ (v * h) + 0.02 * width * (f @ h)  # shift the mean by 2 % of the width
+    whole, ok_whole = restore_moments(f, h, v, mass, mom)
+    above, ok = restore_moments(f, h, v, mass, mom, floor=floor)
+    assert ok and ok_whole
+    assert above.min() >= floor * (1 - 1e-15)
+    assert abs(above @ h - mass) <= 1e-15 * mass and abs(above @ (v * h) - mom) <= 1e-14 * mass
+    assert np.abs(above - whole).max() <= 1e-3 * f.max()  # the same correction where the mass is
+    # the excess (one point above the floor) cannot move its mean: the whole-row tilt does it
+    spike = np.full_like(v, floor)
+    spike[60] = 1.0
+    m, p = spike @ h, spike @ (v * h) + 0.01 * (spike @ h)
+    g, ok = restore_moments(spike, h, v, m, p, floor=floor)
+    assert ok and abs(g @ h - m) <= 1e-15 * m and abs(g @ (v * h) - p) <= 1e-14 * m
+
+
 def test_velocity_remap_restores_momentum_only_when_asked():
     old = Grid.uniform(-4.0, 4.0, 81)
     new = Grid(4 * np.sinh(2 * np.linspace(-1, 1, 81)) / np.sinh(2))

@@ -54,7 +54,7 @@ from .certify import certify
 from .checks import check_bool, check_int, check_unit
 from .explicit import explicit_step
 from .linalg import divergence
-from .problem import CollisionProblem
+from .problem import CollisionProblem, KKTResidual
 from .result import CollisionResult, Status
 
 __all__ = ["IPOPT_STATUS", "NlpModel", "nlp_available", "solve_nlp"]
@@ -289,8 +289,23 @@ def _run_ipopt(model: NlpModel, f0: NDArray, m0: NDArray, options: dict[str, Any
     }
 
 
-def _final_point(problem: CollisionProblem, f_raw: NDArray, claimed: Status) -> tuple[NDArray, NDArray, Status]:
-    """IPOPT's point projected onto the constraint (IPOPT meets linear constraints only to its tolerance).
+def _final_point(
+    problem: CollisionProblem, f_raw: NDArray, m_raw: NDArray, claimed: Status
+) -> tuple[NDArray, NDArray, Status, KKTResidual]:
+    """IPOPT's point made feasible (IPOPT meets linear constraints only to its tolerance), with its residual.
+
+    Two feasible points are built from IPOPT's ``(f, m)`` and the one with the smaller KKT
+    residual is kept:
+
+    - f projected (:meth:`CollisionProblem.project_feasible`: clipped, moments restored)
+      and m rebuilt from it, :math:`m_k = -\\sum_{j\\le k} h_j (f_j - f^*_j)`.  When the
+      step barely moves the slice (a floor-level or near-equilibrium slice), that sum
+      cancels: m keeps only IPOPT's relative accuracy times :math:`|f|/|f - f^*|`
+      (measured: m off by 3.5e-8 relative and a KKT residual of 1.6e-8 at a point within
+      5e-16 of Newton's, whose residual is 1e-14);
+    - m kept (with ``conserve_momentum``, projected onto :math:`\\sum_k m_k \\Delta v_k = 0`)
+      and f rebuilt from it, :math:`f = f^* - Dm/h`, the flux variables Newton works in;
+      used only when that f is positive.
 
     A non-finite point is replaced by ``f*`` and reported ``NUMERICAL_ERROR``.
     """
@@ -299,7 +314,18 @@ def _final_point(problem: CollisionProblem, f_raw: NDArray, claimed: Status) -> 
         if claimed in (Status.CONVERGED, Status.INACCURATE):
             claimed = Status.NUMERICAL_ERROR
     f, m = problem.project_feasible(f_raw)
-    return f, m, claimed
+    kkt = problem.kkt_residual(f, m)
+    m_raw = np.asarray(m_raw, dtype=float)
+    if m_raw.shape == m.shape and np.all(np.isfinite(m_raw)):
+        if problem.conserve_momentum:
+            dv = problem.grid.dv
+            m_raw = m_raw - (m_raw @ dv) / (dv @ dv) * dv
+        f_m = problem.density_from_flux(m_raw)
+        if f_m.min() > 0:
+            kkt_m = problem.kkt_residual(f_m, m_raw)
+            if kkt_m.total < kkt.total:
+                return f_m, m_raw, claimed, kkt_m
+    return f, m, claimed, kkt
 
 
 def solve_nlp(
@@ -369,8 +395,9 @@ def solve_nlp(
         run.update(canonicalize_seconds=0.0, build_seconds=0.0, solver_seconds=0.0)
         status = Status.SOLVER_ERROR
     build = (time_model if built_now else 0.0) + run["build_seconds"]  # model, then oracles (first solve)
-    f, m, claimed = _final_point(problem, unit * run["f"], status)
-    kkt = problem.kkt_residual(f, m)
+    f, m, claimed, kkt = _final_point(
+        problem, unit * run["f"], unit * run.get("m", np.full(problem.n - 1, np.nan)), status
+    )
     cert = certify(problem, f, m, kkt_tol=kkt_tol, check_convexity=check_convexity, claimed=claimed, kkt=kkt)
     return CollisionResult.from_certificate(
         problem,

@@ -775,7 +775,7 @@ def _gc_failure_detail(text: str) -> tuple[str, ...]:
 
     fail = json.loads(text)["failed solves"][-1]
     if not fail["largest certified kkt_residual"] < 1e-8:  # the prose says "every other is below 1e-8"
-        raise ValueError("grid_convergence_failure.json: a certified slice above 1e-8")
+        raise ValueError("grid_convergence_failure_before_fix.json: a certified slice above 1e-8")
     return (
         f"{fail['kkt_residual'][0]:.1e}",
         str(fail["iterations"][0]),
@@ -811,7 +811,7 @@ CLAIMS += (
     ),
     Claim(
         "grid_convergence.failure_detail",
-        "../grid_convergence_failure.json",
+        "../grid_convergence_failure_before_fix.json",
         _gc_failure_detail,
         "one slice ends at KKT residual {} after {} Newton iterations while every other is below 1e-8, and its "
         "f* reaches {}",
