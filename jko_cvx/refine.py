@@ -356,7 +356,8 @@ def remap(
     with the trapezoidal quadrature of each grid, so the mass is conserved to rounding.
     With ``conserve_momentum`` (a velocity axis) the first moment
     :math:`\\sum_j v_j h_j f_j` of each line is restored too, by the smallest relative
-    correction :math:`\\alpha + \\beta (v - \\bar v)` (:func:`jko_cvx.conservation.restore_moments`).
+    correction :math:`\\alpha + \\beta (v - \\bar v)` (:func:`jko_cvx.conservation.restore_moments`,
+    an exponential tilt of the mass above ``floor``).
     With ``conserve_energy`` (implies the momentum) the second moment :math:`\\sum_j v_j^2 h_j f_j`
     is restored as well, by the quadratic tilt of
     :func:`jko_cvx.conservation.restore_three_moments` (not in the paper): PCHIP on the
@@ -411,7 +412,8 @@ def remap_periodic(
     """:func:`remap` for periodic grids (``PeriodicGrid``): periodic PCHIP, floor, per-line mass.
 
     With ``conserve_moment`` the first moment :math:`\\sum_i x_i h_i f_i` of each line is
-    restored too (by the exponential tilt of :func:`jko_cvx.conservation.restore_moments`).
+    restored too (by the exponential tilt of :func:`jko_cvx.conservation.restore_moments`, of
+    the mass above ``floor``).
     A change of grid moves no mass, so the exact remap keeps every moment; PCHIP on the
     coarse side of a mapped grid does not.  The moment is taken in the coordinate
     :math:`\\xi = (x - c) \\bmod P` cut in the line's vacuum

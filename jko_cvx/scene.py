@@ -11,6 +11,9 @@ A scene file (the shipped ones are package data, ``jko_cvx/scenes/*.toml``; see
     [v]                      # velocity grid [-L, L], n points
     L = 2.0
     n = 121
+    floor_every_step = false # true: eqn:mass_conserv_v on the v-grid after every step that did not
+                             # remap it (floor 1e-10, each slice's mass and momentum restored), as the
+                             # paper's every-step remap does; for fixed-grid (map-free) references
 
     [x]                      # optional: omit for a homogeneous scene (no x-grid, no transport)
     L = 4.0
@@ -174,6 +177,7 @@ class Scene:
     x_L: float | None = None
     x_n: int | None = None
     conserve_x_moment: bool = True
+    v_floor_every_step: bool = False
     refine_v: RefineSpec | None = None
     refine_x: RefineSpec | None = None
     concentration_set: str = "projections"
@@ -288,6 +292,7 @@ def scene_from_dict(d: Mapping[str, Any], limits: Limits | None = None) -> Scene
         x_L=None if x is None else x.L,
         x_n=None if x is None else x.n,
         conserve_x_moment=True if x is None else x.conserve_moment,
+        v_floor_every_step=v.floor_every_step,
         refine_v=refine.get("v"),
         refine_x=refine.get("x"),
         concentration_set=refine.get("concentration_set", "projections"),

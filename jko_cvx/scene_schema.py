@@ -223,6 +223,7 @@ class VTable(_Table):
 
     L: float = key(_POS)
     n: int = key(_NPTS)
+    floor_every_step: bool = key(_BOOL, False)
 
 
 @dataclass(frozen=True)

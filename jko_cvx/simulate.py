@@ -95,6 +95,20 @@ def _refine_v(scene: Scene, vgrid: Grid, f: np.ndarray, params):
     return f, grid, new
 
 
+def _floor_v(scene: Scene, vgrid: Grid, f: np.ndarray) -> np.ndarray:
+    """``v.floor_every_step``: ``eqn:mass_conserv_v`` on the unchanged v-grid.
+
+    :math:`f \\leftarrow \\max(f, 10^{-10})\\, M/M'` per x-slice (with the slice's momentum,
+    and energy where ``refine.v.conserve_energy``, restored as the v-remap restores them):
+    the remap of the paper's algorithm onto a grid that did not move.  Without it a fixed
+    v-grid keeps whatever the collision leaves at the edges: on the uniform 481 x 481
+    gamma = 3/2 grid the edge lines in v drained to 1e-17, and Newton could not certify the
+    slices that carried them (``studies/results/grid_convergence_failure*.json``).
+    """
+    energy = scene.refine_v is not None and scene.refine_v.conserve_energy
+    return remap(vgrid, f, vgrid, axis=-1, conserve_momentum=scene.conserve_momentum, conserve_energy=energy)
+
+
 def _refine_x(scene: Scene, xgrid: PeriodicGrid, f: np.ndarray, params):
     spec = scene.refine_x
     cls = OneBumpMap if spec.bumps == 1 else TwoBumpMap
@@ -308,6 +322,8 @@ class Stepper:
                 f, vgrid, vp = _refine_v(self.scene, vgrid, f, vp)
             if self.scene.refine_x is not None:
                 f, xgrid, xp = _refine_x(self.scene, xgrid, f, xp)
+        if self.scene.v_floor_every_step and vgrid is state.vgrid:
+            f = _floor_v(self.scene, vgrid, f)
         state.seconds["refine"] += time.perf_counter() - t2
         state.f, state.vgrid, state.xgrid, state.v_params, state.x_params = f, vgrid, xgrid, vp, xp
         state.t += out.dt

@@ -13,7 +13,8 @@ v-line rigidly by :math:`v_j \\Delta t`, so its first x-moment grows by exactly
 :math:`v_j \\Delta t\\, M_j`.  PCHIP does not keep that: a bump resolved by two points per
 standard deviation (61 points on [-5, 5]) moved at 90 % of its speed (0.672 instead of
 0.75 by t = 0.3; 0.740 on 121 points).  The step restores the moment by the exponential
-tilt of :func:`jko_cvx.conservation.restore_moments`, in the coordinate
+tilt of :func:`jko_cvx.conservation.restore_moments` (of the mass above the floor: the floor
+stays exact), in the coordinate
 :math:`\\xi = (x - c_j) \\bmod P` cut in the line's vacuum at :math:`c_j`; lines whose
 mass could cross that cut within the step (:math:`|v_j| \\Delta t \\max f > 10^{-10} M_j`,
 the maximum over the points within :math:`\\max_j |v_j| \\Delta t` and a cell of the cut,

@@ -6,17 +6,25 @@ solves watched: for every solve with an uncertified slice it records the slice, 
 its KKT residual (and the largest residual of the certified slices), Newton's iterations and
 the range of f* (the density entering the collision step).  Writes
 ``studies/results/grid_convergence_failure.json`` with the code that ran it (package hash,
-git commit) and the collapse time when the run gets there.
+git commit) and the collapse time when the run gets there; ``--no-floor`` runs the reference
+as the shipped sweep did (``v.floor_every_step = false``) and writes
+``grid_convergence_failure_no_floor.json``, with where in v each failed slice's f* is smallest
+and that v-line's mass.
 
 The record of the frozen code of the shipped sweep (commit fd12f88: the run stopped at
-t = 0.389, one slice's f* at 4.8e-18 after the x-moment's tilt) is kept as
-``grid_convergence_failure_before_fix.json``; since the tilt moves only the mass above the
-floor (:func:`jko_cvx.conservation.restore_moments`) this script records the same point's
-run on today's code.  About 5-10 minutes on one core.
+t = 0.389, one slice's f* at 4.8e-18) is kept as ``grid_convergence_failure_before_fix.json``.
+Its cause, found by rerunning: on a fixed v-grid nothing re-applies the floor of the paper's
+every-step v-remap, so the collision drains the edge lines in v (mass 1e-14 per line, f*
+~1e-17 after the transport's per-line mass rescaling), and Newton cannot certify a slice
+whose f* spans 17 orders of magnitude.  The uniform reference now keeps that floor
+(``v.floor_every_step``); this script records the same point's run on today's code.
+About 5-10 minutes on one core.
 """
 
 from __future__ import annotations
 
+import argparse
+import dataclasses
 import json
 import subprocess
 from pathlib import Path
@@ -28,12 +36,28 @@ from jko_cvx.reproduce.gamma1p5 import COLLAPSE_SPREAD
 from jko_cvx.reproduce.grid_convergence import study_scene
 from jko_cvx.sweep import code_identity
 
-OUT = Path(__file__).parent / "results" / "grid_convergence_failure.json"
+RESULTS = Path(__file__).parent / "results"
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument(
+        "--no-floor",
+        action="store_true",
+        help="the reference as the shipped sweep ran it (v.floor_every_step = false): the failure's cause",
+    )
+    args = parser.parse_args(argv)
+    out = RESULTS / ("grid_convergence_failure_no_floor.json" if args.no_floor else "grid_convergence_failure.json")
+
+    # the code that runs, taken before the run (a file edited meanwhile must not change the record)
+    def git(*args: str) -> str:
+        return subprocess.run(["git", *args], capture_output=True, text=True, cwd=Path(__file__).parent).stdout.strip()
+
+    code = {**code_identity(main), "git_commit": git("rev-parse", "HEAD") or None}
+    code["jko_cvx_modified"] = bool(git("status", "--porcelain", "jko_cvx"))
     solve = simulate_module.solve_collision
     failures: list[dict] = []
+    x_weights: list[np.ndarray] = []
 
     def watched(problem, method="conic", **opts):
         res = solve(problem, method=method, **opts)
@@ -43,6 +67,7 @@ def main() -> None:
             kkt = np.atleast_1d(res.kkt_residual)
             good = np.setdiff1d(np.arange(status.size), bad)
             f_star = np.atleast_2d(problem.f_star)
+            line_mass = x_weights[0] @ f_star
             failures.append(
                 {
                     "slices": bad,
@@ -51,6 +76,10 @@ def main() -> None:
                     "largest certified kkt_residual": float(kkt[good].max()) if good.size else None,
                     "iterations": np.atleast_1d(res.iterations)[bad].tolist(),
                     "f_star min": f_star[bad].min(axis=-1).tolist(),
+                    # where in v, and the mass of that v-line over x (h_x @ f*): a drained edge line
+                    "f_star argmin v index": f_star[bad].argmin(axis=-1).tolist(),
+                    "v points": f_star.shape[-1],
+                    "v-line mass at that index": [float(line_mass[j]) for j in f_star[bad].argmin(axis=-1)],
                     "f_star max": f_star[bad].max(axis=-1).tolist(),
                     "f_star min over all slices": float(f_star.min()),
                     "options": {k: str(v) for k, v in opts.items()},
@@ -61,13 +90,15 @@ def main() -> None:
     simulate_module.solve_collision = watched
     try:
         scene = study_scene("after", 481, "uniform")
+        if args.no_floor:
+            scene = dataclasses.replace(scene, v_floor_every_step=False)
+        x_weights.append(scene.xgrid().h)  # a fixed uniform x-grid: the same weights every step
         run = simulate_module.simulate(scene)
     finally:
         simulate_module.solve_collision = solve
     d = run.diagnostics
     below = d.t[d.min_spread_v < COLLAPSE_SPREAD]
-    commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, cwd=Path(__file__).parent)
-    OUT.write_text(
+    out.write_text(
         json.dumps(
             {
                 "verdict": run.verdict["reason"],
@@ -75,13 +106,14 @@ def main() -> None:
                 "steps": len(d) - 1,
                 "sigma_v at the stop": float(d.min_spread_v.iloc[-1]),
                 "collapse t (sigma_v < 0.05)": float(below.iloc[0]) if len(below) else None,
+                "v.floor_every_step": scene.v_floor_every_step,
                 "failed solves": failures,
-                "code": {**code_identity(main), "git_commit": commit.stdout.strip() or None},
+                "code": code,
             },
             indent=1,
         )
     )
-    print(OUT.read_text())
+    print(out.read_text())
 
 
 if __name__ == "__main__":

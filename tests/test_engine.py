@@ -60,6 +60,8 @@ def _with(**changes):
         ({"output": {"times": [0.05, 0.2]}}, r"output.times must be a list of numbers in \[0, t_end = 0.1\]"),
         ({"output": {"times": 0.05}}, "output.times must be a list"),
         ({"x": {"L": 4.0, "n": 11, "conserve_moment": 1}}, "x.conserve_moment must be of type bool"),
+        ({"v": {"L": 2.0, "n": 41, "floor_every_step": "yes"}}, "v.floor_every_step must be of type bool"),
+        ({"v": {"L": 2.0, "n": 41, "floor_each_step": True}}, "did you mean 'v.floor_every_step'"),
         ({"stop": {"spread_v": -0.1}}, "stop.spread_v must be a finite number >= 0"),
     ],
 )

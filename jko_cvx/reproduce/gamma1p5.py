@@ -118,7 +118,11 @@ def gamma1p5_run(case: str, n: int, collapse_stop: bool = False) -> dict[str, An
 
 
 def gamma1p5_uniform(case: str, n_x: int, n_v: int, t_end: float) -> dict[str, Any]:
-    """One sweep point: the case on fixed uniform n_x x n_v grids (no maps, no eps stop) to t_end."""
+    """One sweep point: the case on fixed uniform n_x x n_v grids (no maps, no eps stop) to t_end.
+
+    With ``v.floor_every_step``: the 1e-10 floor of ``eqn:mass_conserv_v`` after every step, as
+    the mapped runs' every-step remap applies it (without it the edge lines in v drain).
+    """
     t0 = time.perf_counter()
     scene = gamma1p5_scene(
         case,
@@ -126,6 +130,7 @@ def gamma1p5_uniform(case: str, n_x: int, n_v: int, t_end: float) -> dict[str, A
             "x.n": n_x,
             "v.n": n_v,
             "refine": None,
+            "v.floor_every_step": True,  # the floor of the mapped runs' every-step v-remap
             "stop.eps_v": 0.0,
             "stop.eps_x": 0.0,
             "t_end": t_end,
