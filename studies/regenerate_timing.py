@@ -1,8 +1,10 @@
 """How long regenerating the paper's numerical section takes (issue 15, item 5).
 
 Runs ``jko-cvx reproduce NAME --fresh`` for every entry of
-:data:`jko_cvx.reproduce.REPRODUCTIONS` (full forms unless ``--quick``), one after another,
-each in its own process, into a scratch directory (the shipped results are not touched),
+:data:`jko_cvx.reproduce.REPRODUCTIONS` (full forms unless ``--quick``), one after another
+(``summary`` last: it reads the others' files), each in its own process, into
+``SCRATCH/reproduce`` (the shipped results are not touched; the study scripts' files that
+the summary reads from ``..`` are copied into ``SCRATCH``),
 and records per entry the wall time, the CPU time of the process and its pool workers
 (``RUSAGE_CHILDREN``), the exit status and the 1-minute load average before and after.
 ``--fresh`` ignores every sweep cache: the times are those of a first regeneration.
@@ -22,6 +24,7 @@ from __future__ import annotations
 import argparse
 import os
 import resource
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -64,6 +67,24 @@ def time_entry(name: str, out: Path, workers: int, quick: bool) -> dict:
         "workers": workers,
         "finished": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"),
     }
+
+
+def _copy_claim_sources(scratch: Path) -> None:
+    """The files the summary's claims read that no timed entry wrote, copied as shipped.
+
+    Study scripts' outputs (``../x``: timings, failure records), the grid-convergence report
+    (built from a sweep cache by ``studies/grid_convergence_partial.py``) and kept archives
+    (a previous code's table): the summary of a scratch regeneration reads them as shipped.
+    """
+    from jko_cvx.reproduce.summary import CLAIMS
+
+    shipped = RESULTS / "reproduce"
+    for name in sorted({c.file for c in CLAIMS}):
+        target = (scratch / "reproduce" / name).resolve()
+        source = (shipped / name).resolve()
+        if not target.exists() and source.exists():
+            print(f"  summary reads {name} as shipped", flush=True)
+            shutil.copy2(source, target)
 
 
 def _report(df: pd.DataFrame, path: Path, quick: bool, whole: bool = True) -> None:
@@ -113,11 +134,17 @@ def main(argv: list[str] | None = None) -> int:
         # rows of other code are stale: dropped, never mixed with this code's
         done = done[(done.package_sha256 == code) & ~(args.again & done.entry.isin(entries))]
     scratch = args.scratch or Path(tempfile.mkdtemp(prefix="jko_cvx_regenerate_"))
+    out = scratch / "reproduce"  # laid out like studies/results: the summary reads ../ files
+    out.mkdir(parents=True, exist_ok=True)
+    # the summary computes its numbers from every other entry's files: it runs last
+    entries = [e for e in entries if e != "summary"] + (["summary"] if "summary" in entries else [])
     for name in entries:
         if len(done) and ((done.entry == name) & (done.returncode == 0)).any():
             continue
         print(f"{name} ...", flush=True)
-        row = {**time_entry(name, scratch, args.workers, args.quick), "package_sha256": code}
+        if name == "summary":
+            _copy_claim_sources(scratch)
+        row = {**time_entry(name, out, args.workers, args.quick), "package_sha256": code}
         print(f"  {row['wall_s']:.1f} s wall, {row['cpu_s']:.1f} s CPU, exit {row['returncode']}", flush=True)
         done = pd.concat([done[done.entry != name] if len(done) else done, pd.DataFrame([row])], ignore_index=True)
         done.to_csv(csv, index=False)  # after every entry: a killed run loses nothing
