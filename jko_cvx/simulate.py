@@ -53,6 +53,12 @@ __all__ = ["Run", "load_run", "simulate", "snapshot_record"]
 
 ACCEPT_KKT = 1e-8
 """A step is accepted when every slice is certified at this KKT threshold (see :meth:`Stepper.accepted`)."""
+NEWTON_MAX_ITER = 500
+"""Newton's iteration budget in a run (``NewtonOptions`` defaults to 100 for one solve).  The
+populated log-Fisher slices of a run need 100-111 iterations at times (inhom_gamma3 lambda = 4
+on 61 x 61 near t = 0.8: damped by the positivity of the tails, then steady full steps), and
+a failure should mean a step out of reach, not a short budget (as for the SQP's I_max);
+stalls end earlier anyway, on Newton's jam and rounding-floor rules."""
 
 
 def _map_params(mu) -> np.ndarray:
@@ -224,6 +230,7 @@ class Stepper:
             # the drift comes from the step itself, not from the tolerance (measured on
             # inhom_gamma3_lambda4: tol 1e-11 costs 50 % more and only lowers it 3e-9 -> 6e-10).
             self.opts.setdefault("tol", ACCEPT_KKT)
+            self.opts.setdefault("max_iter", NEWTON_MAX_ITER)
         if scene.method in ("conic", "nlp"):
             # one certificate for the engine: a step is a success only at the engine's threshold
             # (their own default kkt_tol, 1e-6, suits a single-step check, not a run).  The paper's
