@@ -22,8 +22,9 @@ turns negative in the floor-level tails of concentrated slices, where
 
 Callers that floor f (the paper's :math:`10^{-10}`) pass the floor: the tilt then moves
 only :math:`f - \\varphi`, so the floor stays exact.  A tilt of the whole row multiplies
-the tails of a concentrated row by :math:`e^{\\beta (v - \\max v)}` (measured: 4.8e-18
-after an x-transport step; 5e-118 after an energy-restoring v-remap of a narrow slice).
+the tails of a concentrated row by :math:`e^{\\beta (v - \\max v)}` (measured: 1.2e-14 after
+an x-transport step of a bump narrower than a cell; 5e-118 after an energy-restoring
+v-remap of a narrow slice; ``tests/test_floors_and_ends.py``, ``tests/test_refine.py``).
 """
 
 from __future__ import annotations
@@ -55,11 +56,11 @@ def restore_moments(
 
     with :math:`\\alpha, \\beta` meeting the targets less the floor's own mass and moment.
     Tilting the whole row multiplies its floor-level tails by :math:`e^{\\beta (v_j - \\max v)}`,
-    which for a bump narrower than a cell is far below the floor (measured: 4.8e-18 against
-    1e-10 after an x-transport step on the uniform 481 x 481 grid of ``grid_convergence``, and
-    Newton then could not certify that slice).  The floor carries no moment error worth
-    moving; the interpolated bump does.  Rows whose excess cannot reach the targets (no
-    excess mass, or the target mean outside the excess's support) take the whole-row tilt.
+    which for a bump narrower than a cell is far below the floor (measured: 1.2e-14 against
+    1e-10 after one x-transport step of a Gaussian of width 0.05 on 121 points over 10).
+    The floor carries no moment error worth moving; the interpolated bump does.  Rows whose
+    excess cannot reach the targets (no excess mass, or the target mean outside the
+    excess's support) take the whole-row tilt.
 
     Parameters
     ----------

@@ -657,7 +657,7 @@ CLAIMS += (
         "../regenerate_timing.csv",
         _regenerate_total,
         "**Regenerating the section took {} s ({} min) of wall time over {} entries, {} s of CPU**, on this "
-        "2-core machine with nothing else running (1-minute load {}, in the CSV): two idle "
+        "2-core machine (1-minute load {}, in the CSV): two idle "
         "cores need at least half the CPU time, {} min,",
         "sum of wall_s and cpu_s over the entries that finished; load averages before and after each",
     ),
