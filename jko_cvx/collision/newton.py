@@ -314,14 +314,6 @@ def _boundary_step(f: NDArray, pf: NDArray) -> NDArray[np.float64]:
     return np.minimum(1.0, _FRACTION_TO_BOUNDARY * ratio.min(axis=-1))
 
 
-def _on_momentum_plane(problem: CollisionProblem, m: NDArray) -> NDArray:
-    """Euclidean projection of fluxes onto ``sum_k m_k dv_k = 0`` (identity without the constraint)."""
-    if not problem.conserve_momentum:
-        return m
-    a = problem.grid.dv
-    return m - np.multiply.outer((m @ a) / (a @ a), a) if m.ndim > 1 else m - a * ((m @ a) / (a @ a))
-
-
 def _objective_interior(problem: CollisionProblem, f: NDArray, m: NDArray) -> NDArray:
     """:math:`J(f, m)` for strictly positive f (line-search trial points), without domain guards."""
     x, y = f[..., :-1], f[..., 1:]
@@ -435,7 +427,7 @@ def _explicit_start(P: CollisionProblem, F_star: NDArray, m: NDArray, use: NDArr
     pf, pm = explicit_step(P)
     ratio = np.where(pf < 0, -F_star / np.where(pf < 0, pf, -1.0), np.inf).min(axis=-1)
     alpha = np.minimum(1.0, 0.5 * ratio)
-    cand = _on_momentum_plane(P, alpha[:, None] * pm)
+    cand = P.on_momentum_plane(alpha[:, None] * pm)
     fc = F_star - divergence(cand) / P.grid.h
     better = (
         use
@@ -454,7 +446,7 @@ def _start(P: CollisionProblem, m0: NDArray | None, opts: NewtonOptions) -> tupl
     m = np.zeros((B, n - 1))
     warm = np.zeros(B, dtype=bool)
     if m0 is not None:
-        M0 = _on_momentum_plane(P, np.broadcast_to(m0, (B, n - 1)))
+        M0 = P.on_momentum_plane(np.broadcast_to(m0, (B, n - 1)))
         warm = np.all(F_star - divergence(M0) / h > 0, axis=-1) & np.all(np.isfinite(M0), axis=-1)
         m[warm] = M0[warm]
     status = np.full(B, None, dtype=object)

@@ -317,9 +317,7 @@ def _final_point(
     kkt = problem.kkt_residual(f, m)
     m_raw = np.asarray(m_raw, dtype=float)
     if m_raw.shape == m.shape and np.all(np.isfinite(m_raw)):
-        if problem.conserve_momentum:
-            dv = problem.grid.dv
-            m_raw = m_raw - (m_raw @ dv) / (dv @ dv) * dv
+        m_raw = problem.on_momentum_plane(m_raw)
         f_m = problem.density_from_flux(m_raw)
         if f_m.min() > 0:
             kkt_m = problem.kkt_residual(f_m, m_raw)

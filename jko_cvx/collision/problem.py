@@ -331,6 +331,15 @@ class CollisionProblem:
         """:math:`f = f^* - (Dm)/h`: the density that makes ``m`` feasible."""
         return self.f_star - divergence(m) / self.grid.h
 
+    def on_momentum_plane(self, m: ArrayLike) -> NDArray[np.float64]:
+        """Euclidean projection of fluxes onto :math:`\\sum_k m_k \\Delta v_k = 0` (identity without
+        ``conserve_momentum``): the flux of a density with the momentum of ``f_star``."""
+        m = np.asarray(m, dtype=float)
+        if not self.conserve_momentum:
+            return m
+        a = self.grid.dv
+        return m - np.multiply.outer((m @ a) / (a @ a), a) if m.ndim > 1 else m - a * ((m @ a) / (a @ a))
+
     def project_feasible(self, f: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Clip ``f`` at 0, rescale it to the mass of ``f_star`` and rebuild ``m``.
 
