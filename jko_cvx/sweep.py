@@ -90,6 +90,30 @@ def code_identity(func: Callable[..., Any]) -> dict[str, str]:
     }
 
 
+def code_provenance(func: Callable[..., Any]) -> dict[str, Any]:
+    """:func:`code_identity` plus the git commit of the checkout the package sits in and whether
+    its ``jko_cvx`` files differ from that commit (``None`` and ``None`` outside a git checkout).
+
+    For study scripts that record which code produced a result file; take it before the run,
+    so that a file edited meanwhile cannot change the record.
+    """
+    import subprocess
+
+    def git(*args: str) -> str | None:
+        try:
+            done = subprocess.run(["git", *args], capture_output=True, text=True, cwd=Path(__file__).parent)
+        except OSError:
+            return None
+        return done.stdout.strip() if done.returncode == 0 else None
+
+    commit, status = git("rev-parse", "HEAD"), git("status", "--porcelain", ".")
+    return {
+        **code_identity(func),
+        "git_commit": commit or None,
+        "jko_cvx_modified": None if status is None else bool(status),
+    }
+
+
 def _canonical(obj: Any) -> str:
     return json.dumps(obj, sort_keys=True, default=float)
 

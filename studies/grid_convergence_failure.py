@@ -26,7 +26,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -34,7 +33,7 @@ import numpy as np
 import jko_cvx.simulate as simulate_module
 from jko_cvx.reproduce.gamma1p5 import COLLAPSE_SPREAD
 from jko_cvx.reproduce.grid_convergence import study_scene
-from jko_cvx.sweep import code_identity
+from jko_cvx.sweep import code_provenance
 
 RESULTS = Path(__file__).parent / "results"
 
@@ -50,11 +49,7 @@ def main(argv: list[str] | None = None) -> None:
     out = RESULTS / ("grid_convergence_failure_no_floor.json" if args.no_floor else "grid_convergence_failure.json")
 
     # the code that runs, taken before the run (a file edited meanwhile must not change the record)
-    def git(*args: str) -> str:
-        return subprocess.run(["git", *args], capture_output=True, text=True, cwd=Path(__file__).parent).stdout.strip()
-
-    code = {**code_identity(main), "git_commit": git("rev-parse", "HEAD") or None}
-    code["jko_cvx_modified"] = bool(git("status", "--porcelain", "jko_cvx"))
+    code = code_provenance(main)
     solve = simulate_module.solve_collision
     failures: list[dict] = []
     x_weights: list[np.ndarray] = []

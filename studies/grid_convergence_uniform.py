@@ -19,14 +19,13 @@ git commit that ran them).  About 6 minutes on 2 cores.
 from __future__ import annotations
 
 import argparse
-import subprocess
 from pathlib import Path
 
 import pandas as pd
 
 from jko_cvx.reproduce.gamma1p5 import COLLAPSE_SPREAD
 from jko_cvx.reproduce.grid_convergence import _gamma1p5_rows, _points, convergence, grid_point
-from jko_cvx.sweep import code_identity, run_sweep
+from jko_cvx.sweep import code_provenance, run_sweep
 
 RESULTS = Path(__file__).parent / "results" / "reproduce"
 FROZEN = RESULTS / "grid_convergence.csv"
@@ -41,11 +40,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.workers < 1:
         parser.error(f"--workers must be >= 1, got {args.workers}")
 
-    def git(*a: str) -> str:
-        return subprocess.run(["git", *a], capture_output=True, text=True, cwd=Path(__file__).parent).stdout.strip()
-
-    code = code_identity(grid_point)
-    commit, dirty = git("rev-parse", "HEAD"), bool(git("status", "--porcelain", "jko_cvx"))
+    code = code_provenance(grid_point)
     points = [p for p in _points(quick=False) if p["study"] == "gamma1p5" and p["grid"] == "uniform"]
     runs = run_sweep(grid_point, points, args.cache, workers=args.workers, desc="uniform references")
     today = _gamma1p5_rows(runs)  # the rows carry their point's keys
@@ -59,8 +54,8 @@ def main(argv: list[str] | None = None) -> int:
     lines = [
         "# grid_convergence: the uniform references on today's code",
         "",
-        f"Code: package sha256 {code['package_sha256'][:16]}..., git commit {commit[:12]}"
-        + (" (jko_cvx modified)" if dirty else "")
+        f"Code: package sha256 {code['package_sha256'][:16]}..., git commit {(code['git_commit'] or 'unknown')[:12]}"
+        + (" (jko_cvx modified)" if code["jko_cvx_modified"] else "")
         + "; the frozen columns are the shipped report's (commit fd12f88, no v-floor on the fixed grid).",
         "",
         table.to_markdown(index=False, floatfmt=".4g"),

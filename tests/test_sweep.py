@@ -169,3 +169,22 @@ def test_cached_entries_returns_every_point_and_refuses_a_damaged_entry(tmp_path
     path.write_text("{not json")
     with pytest.raises(ValueError, match="does not parse"):
         cached_entries(tmp_path / "c")
+
+
+def test_code_provenance_adds_the_checkouts_commit_to_the_code_identity():
+    import re
+    import subprocess
+    from pathlib import Path
+
+    from jko_cvx.sweep import code_identity, code_provenance
+
+    prov = code_provenance(code_identity)
+    assert {k: prov[k] for k in code_identity(code_identity)} == code_identity(code_identity)
+    root = Path(__file__).resolve().parents[1]
+    head = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, cwd=root)
+    if head.returncode == 0:  # a git checkout (CI's clone is one)
+        assert prov["git_commit"] == head.stdout.strip() and re.fullmatch(r"[0-9a-f]{40}", prov["git_commit"])
+        dirty = subprocess.run(["git", "status", "--porcelain", "jko_cvx"], capture_output=True, text=True, cwd=root)
+        assert prov["jko_cvx_modified"] == bool(dirty.stdout.strip())
+    else:
+        assert prov["git_commit"] is None
