@@ -1,5 +1,6 @@
 """The grid-convergence entry (issue 15): its convergence arithmetic, its sweep and its files."""
 
+import hashlib
 import json
 import subprocess
 import sys
@@ -74,19 +75,53 @@ def test_quick_grid_convergence_runs_both_studies_and_keeps_the_invariants(tmp_p
 
     # a stopped sweep: the partial report lists the point it lacks and refuses a tampered entry
     cache = sorted((tmp_path / "cache" / "grid_convergence").glob("*.json"))
-    lost = json.loads(cache[0].read_text())["point"]
+    lost_entry = json.loads(cache[0].read_text())
+    lost = lost_entry["point"]
     cache[0].unlink()
+    # the lost point's result as another code would have cached it (another key, a valid digest):
+    # it must not be reported as this code's result
+    foreign = {"key": "0" * 32, "point": lost, "result": {**lost_entry["result"], "seconds": 0.5}}
+    foreign["digest"] = hashlib.sha256(json.dumps(foreign, sort_keys=True, default=float).encode()).hexdigest()
+    (cache[0].parent / f"{'0' * 32}.json").write_text(json.dumps(foreign))
     script = Path(__file__).resolve().parents[1] / "studies" / "grid_convergence_partial.py"
-    cmd = [sys.executable, str(script), "--cache", str(cache[0].parent), "--provenance", "test", "--quick"]
+    cmd = [
+        sys.executable,
+        str(script),
+        "--cache",
+        str(cache[0].parent),
+        "--note",
+        "test",
+        "--quick",
+        "--allow-modified",
+    ]
     done = subprocess.run([*cmd, "--out", str(tmp_path / "partial")], capture_output=True, text=True, check=True)
     assert f"{len(cache) - 1} of {len(cache)} points reported, 1 missing" in done.stdout
+    assert "1 entry of other code or other points ignored" in done.stdout
     report = (tmp_path / "partial" / "grid_convergence.md").read_text()
     assert "**Points not run**" in report and ", ".join(f"{k} = {v}" for k, v in lost.items()) in report
+    assert "package sha256" in report and "test" in report  # the code is recorded, not typed in
     entry = json.loads(cache[1].read_text())
     entry["result"]["seconds"] += 1.0
     cache[1].write_text(json.dumps(entry))
     refused = subprocess.run([*cmd, "--out", str(tmp_path / "p2")], capture_output=True, text=True, check=False)
     assert refused.returncode != 0 and "fails its digest" in refused.stderr
+
+
+def test_partial_report_refuses_a_checkout_whose_code_it_cannot_name(tmp_path, monkeypatch, capsys):
+    """Uncommitted changes to jko_cvx: nothing would say which code computed the points."""
+    import importlib.util
+
+    path = Path(__file__).resolve().parents[1] / "studies" / "grid_convergence_partial.py"
+    spec = importlib.util.spec_from_file_location("grid_convergence_partial", path)
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    prov = {"git_commit": "f" * 40, "jko_cvx_modified": True, "package_version": "0", "package_sha256": "a" * 64}
+    monkeypatch.setattr(script, "code_provenance", lambda func: prov)
+    (tmp_path / "c").mkdir()
+    with pytest.raises(SystemExit):
+        script.main(["--cache", str(tmp_path / "c"), "--out", str(tmp_path / "o")])
+    assert "differs from its commit" in capsys.readouterr().err
+    assert "uncommitted changes" in script.provenance_text(prov, None)
 
 
 def test_the_shipped_report_is_consistent_with_its_runs():
