@@ -55,7 +55,7 @@ from scipy.interpolate import PchipInterpolator
 from scipy.optimize import brentq, minimize_scalar
 
 from .conservation import restore_moments, restore_three_moments
-from .grid import Grid
+from .grid import Grid, PeriodicGrid
 
 __all__ = ["OneBumpMap", "TwoBumpMap", "concentration_set", "quadrant_set", "remap"]
 
@@ -400,14 +400,17 @@ def check_line_density(f: NDArray[np.float64], floor: float) -> None:
 
 def periodic_map_grid(mu, n: int, period: float):
     """A periodic x-grid from a map: cell-centred uniform s, :math:`x_i = \\mu(-1 + (i + 1/2) 2/n)`."""
-    from .grid import PeriodicGrid
-
     s = -1 + (np.arange(int(n)) + 0.5) * 2 / n
     return PeriodicGrid(mu(s), period)
 
 
 def remap_periodic(
-    old, f: ArrayLike, new, floor: float = 1e-10, axis: int = 0, conserve_moment: bool = False
+    old: PeriodicGrid,
+    f: ArrayLike,
+    new: PeriodicGrid,
+    floor: float = 1e-10,
+    axis: int = 0,
+    conserve_moment: bool = False,
 ) -> NDArray[np.float64]:
     """:func:`remap` for periodic grids (``PeriodicGrid``): periodic PCHIP, floor, per-line mass.
 
@@ -421,8 +424,21 @@ def remap_periodic(
     jumps by the period P, lies across no bump.  Measured on ``inhom_gamma1p5_before``
     (121 x 121, both maps, to t = 0.3): without it the remaps moved the right-moving bump's
     centre of mass ahead by 0.164.
+
+    As :func:`remap`, it refuses (before any work, naming the argument) non-finite ``f``, a
+    floor that is not a finite number >= 0, a length other than ``old.n`` along ``axis``,
+    and grids of another type or of different periods.
     """
+    if not (isinstance(old, PeriodicGrid) and isinstance(new, PeriodicGrid)):
+        raise TypeError(
+            f"old and new must be jko_cvx.PeriodicGrid, got {type(old).__name__} and {type(new).__name__}"
+        )
+    if new.period != old.period:
+        raise ValueError(f"new must have the period of old ({old.period!r}), got {new.period!r}")
     f = np.moveaxis(np.asarray(f, dtype=float), axis, -1)
+    check_line_density(f, floor)
+    if f.shape[-1] != old.n:
+        raise ValueError(f"f must have length {old.n} along axis {axis}, got shape {f.shape}")
     g = np.maximum(old.pchip(f, axis=-1)(new.points), floor)
     if not conserve_moment:
         g, _ = restore_moments(g, new.h, new.points, f @ old.h)

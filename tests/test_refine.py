@@ -315,3 +315,34 @@ def test_quadrant_rule_state_survives_a_checkpoint_and_resumes_bit_for_bit(tmp_p
         stepper.commit(s, stepper.solve(s))
     np.testing.assert_array_equal(st.f, back.f)
     np.testing.assert_array_equal(st.vgrid.points, back.vgrid.points)
+
+
+@pytest.mark.parametrize(
+    "bad, match",
+    [
+        ({"f": "nan"}, "f must be finite"),
+        ({"floor": -1e-10}, "floor must be a finite number >= 0"),
+        ({"floor": float("nan")}, "floor must be a finite number >= 0"),
+        ({"f": "short"}, "f must have length 41 along axis 0"),
+        ({"new": "other period"}, "new must have the period of old"),
+        ({"new": "not a grid"}, "old and new must be jko_cvx.PeriodicGrid"),
+    ],
+)
+def test_periodic_remap_refuses_bad_input_before_any_work(bad, match):
+    """As remap: non-finite f, a negative or NaN floor, a wrong length, another period or another
+    grid type is refused, naming the argument (before: NaN went through PCHIP into the result,
+    a negative floor let negative densities through, another period was remapped silently)."""
+    old = PeriodicGrid.uniform(5.0, 41)
+    f = np.exp(-(old.points[:, None] ** 2)) * np.ones((1, 3)) + 1e-10
+    new = PeriodicGrid.uniform(5.0, 41)
+    kwargs = {"floor": bad.get("floor", 1e-10)}
+    if bad.get("f") == "nan":
+        f[3, 1] = np.nan
+    elif bad.get("f") == "short":
+        f = f[:-1]
+    if bad.get("new") == "other period":
+        new = PeriodicGrid(old.points * 1.1, 11.0)
+    elif bad.get("new") == "not a grid":
+        new = Grid(old.points)
+    with pytest.raises((ValueError, TypeError), match=match):
+        remap_periodic(old, f, new, **kwargs)
