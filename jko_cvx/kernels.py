@@ -25,6 +25,7 @@ an exact rank-3 form that is used instead of a dense matrix.
 
 from __future__ import annotations
 
+import math
 import weakref
 from dataclasses import dataclass
 
@@ -35,6 +36,9 @@ from .grid import Grid
 
 __all__ = ["DenseEnergy", "EnergyOperator", "EnergySplit", "LowRankEnergy", "PowerKernel"]
 
+# Largest even integer gamma whose flux block is used in the factored form (beyond it the
+# expansion in powers of v cancels too much to be worth checking).
+_MAX_EVEN_POWER = 8
 # Relative size below which eigenvalues of the projected energy count as zero.
 _EIG_REL_TOL = 1e-12
 
@@ -45,14 +49,42 @@ class FluxBlock:
 
     ``kind`` is ``"diagonal"`` (:math:`\\gamma = 1`: :math:`W'' = 2\\delta`, so the block is
     :math:`-2\\operatorname{diag}(\\Delta v)`), ``"rank1"`` (:math:`\\gamma = 2`: the block is
-    :math:`-\\Delta v \\Delta v^\\top`) or ``"dense"``.  ``diag``, ``u`` and ``dense`` hold the
-    data of each kind (block = ``diag(diag)``, ``-u u'`` or ``dense``).
+    :math:`-\\Delta v \\Delta v^\\top`), ``"lowrank"`` (even integer :math:`\\gamma \\ge 4`: the
+    block is ``basis @ coef @ basis.T``, see :func:`even_power_flux_factors`) or ``"dense"``.
+    ``diag``, ``u``, ``basis`` and ``coef``, and ``dense`` hold the data of each kind (block =
+    ``diag(diag)``, ``-u u'``, ``basis coef basis'`` or ``dense``).
     """
 
     kind: str
     diag: NDArray[np.float64] | None = None
     u: NDArray[np.float64] | None = None
     dense: NDArray[np.float64] | None = None
+    basis: NDArray[np.float64] | None = None
+    coef: NDArray[np.float64] | None = None
+
+
+def even_power_flux_factors(points: NDArray[np.float64], gamma: int) -> tuple[NDArray, NDArray]:
+    """Exact low-rank factors of the flux block for :math:`W(v) = v^\\gamma/\\gamma`, even integer :math:`\\gamma`.
+
+    The flux block is the mixed second difference :math:`E_{kl} = \\Delta_k \\Delta_l W(v_k - v_l)`
+    (:meth:`EnergyOperator.flux_block`).  Expanding
+    :math:`(a - b)^\\gamma/\\gamma = \\sum_p \\binom{\\gamma}{p} a^p (-b)^{\\gamma - p}/\\gamma`, the
+    differences remove the terms in one variable only (p = 0 and p = gamma), so
+
+    .. math::  E = U C U^\\top, \\qquad U_{kp} = v_{k+1}^p - v_k^p,\\quad
+               C_{pq} = [p + q = \\gamma]\\,\\binom{\\gamma}{p} (-1)^{q}/\\gamma,
+
+    p, q = 1, ..., gamma - 1: rank gamma - 1, an anti-diagonal (so invertible) C.  For gamma = 2 this is
+    :math:`-\\Delta v \\Delta v^\\top`; the first column of U is :math:`\\Delta v`, the momentum
+    constraint's normal.  Returns ``(U, C)``.
+    """
+    v = np.asarray(points, dtype=float)
+    powers = np.arange(1, gamma)
+    U = np.diff(v[:, None] ** powers, axis=0)
+    C = np.zeros((gamma - 1, gamma - 1))
+    for i, p in enumerate(powers):
+        C[i, gamma - 2 - i] = math.comb(gamma, int(p)) * (-1) ** (gamma - int(p)) / gamma
+    return U, C
 
 
 @dataclass(frozen=True)
@@ -86,6 +118,11 @@ class EnergySplit:
         return (delta @ self.P_minus.T) @ self.P_minus
 
 
+def _even_power(gamma: float | None) -> bool:
+    """gamma an even integer in [4, _MAX_EVEN_POWER] (gamma = 2 has its own exact operator)."""
+    return gamma is not None and float(gamma).is_integer() and 4 <= gamma <= _MAX_EVEN_POWER and gamma % 2 == 0
+
+
 class EnergyOperator:
     """The matrix :math:`K_{il} = W(v_i - v_l) h_i h_l` in whatever form is cheapest."""
 
@@ -109,7 +146,7 @@ class EnergyOperator:
         raise NotImplementedError
 
     def flux_structure(self) -> FluxBlock:
-        """:meth:`flux_block` in its cheapest exact form (cached): diagonal, rank one or dense."""
+        """:meth:`flux_block` in its cheapest exact form (cached): diagonal, rank one, low rank or dense."""
         cached = getattr(self, "_flux_structure", None)
         if cached is None:
             if isinstance(self, LowRankEnergy):
@@ -119,6 +156,8 @@ class EnergyOperator:
                 # W = |v|: the mixed second difference of |v_i - v_j| vanishes off the
                 # diagonal (W'' = 2 delta) and equals -2 dv_k on it.
                 cached = FluxBlock("diagonal", diag=-2 * self.grid.dv)
+            elif _even_power(getattr(self, "gamma", None)):
+                cached = self._even_power_structure()
             else:
                 E = self.flux_block()
                 d = np.diag(E).copy()
@@ -130,6 +169,23 @@ class EnergyOperator:
                     cached = FluxBlock("dense", dense=E)
             self._flux_structure = cached
         return cached
+
+    def _even_power_structure(self) -> FluxBlock:
+        """The ``"lowrank"`` block of an even integer gamma >= 4, where it reproduces :meth:`flux_block`.
+
+        The factors are exact in exact arithmetic; they are used only where they agree with
+        the dense block to rounding (each dense entry combines four kernel values, each
+        factored entry gamma - 1 products), else the block stays ``"dense"`` (very wide
+        grids, where the expansion cancels).
+        """
+        E = self.flux_block()
+        U, C = even_power_flux_factors(self.grid.points, int(self.gamma))
+        W = self.dense() / np.outer(self.grid.h, self.grid.h)
+        size = np.abs(U).max(axis=0)
+        tol = 8 * np.finfo(float).eps * (np.abs(W).max() + (self.gamma - 1) * (size @ np.abs(C) @ size))
+        if np.abs(U @ C @ U.T - E).max() <= tol:
+            return FluxBlock("lowrank", basis=U, coef=C)
+        return FluxBlock("dense", dense=E)
 
     def flux_block(self) -> NDArray[np.float64]:
         """:math:`T^\\top K T` with :math:`T = -\\operatorname{diag}(1/h) D` (cached): K seen by the fluxes.

@@ -18,8 +18,9 @@ steps, including the initial refinement) and the split into collision, transport
 refinement.
 
 The machine may be shared: the 1-minute load average is recorded with every row.  Run:
-``python studies/bench_scale.py [--repeats 3] [--steps 2]``; writes
-``studies/results/bench_scale_newton.csv``, ``bench_scale_step.csv`` and ``bench_scale.md``.
+``python studies/bench_scale.py [--repeats 3] [--steps 2] [--gammas 3 1.5] [--tag T]``; writes
+``studies/results/bench_scale{T}_newton.csv``, ``bench_scale{T}_step.csv`` and ``bench_scale{T}.md``
+(the shipped gamma = 4 rows, exact low-rank solves: ``--gammas 4 --no-steps --tag _gamma4``).
 """
 
 from __future__ import annotations
@@ -56,9 +57,9 @@ def _restore(old: str | None) -> None:
         os.environ[LINALG_ENV] = old
 
 
-def newton_rows(sizes: list[int], dense_max: int, repeats: int) -> list[dict]:
+def newton_rows(sizes: list[int], dense_max: int, repeats: int, gammas: tuple[float, ...] = (3.0, 1.5)) -> list[dict]:
     rows = []
-    for gamma in (3.0, 1.5):
+    for gamma in gammas:
         for n in sizes:
             problem = inhom_batch(n, gamma)
             for mode in ("auto", "dense"):
@@ -140,19 +141,23 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--sizes", type=int, nargs="+", default=[121, 241, 481, 1025])
     ap.add_argument("--dense-max", type=int, default=481, help="largest N_v run with the dense Cholesky")
     ap.add_argument("--no-steps", dest="time_steps", action="store_false", help="skip part 2")
+    ap.add_argument("--gammas", type=float, nargs="+", default=[3.0, 1.5], help="kernels of part 1")
+    ap.add_argument("--tag", default="", help="suffix of the output files (bench_scale{tag}_newton.csv, ...)")
     args = ap.parse_args(argv)
+    if args.tag and not args.tag.replace("_", "").isalnum():
+        ap.error(f"--tag must be letters, digits and underscores, got {args.tag!r}")
     setting = blas_setting()
-    newton = pd.DataFrame(newton_rows(args.sizes, args.dense_max, args.repeats))
+    newton = pd.DataFrame(newton_rows(args.sizes, args.dense_max, args.repeats, tuple(args.gammas)))
     RESULTS.mkdir(parents=True, exist_ok=True)
-    newton.to_csv(RESULTS / "bench_scale_newton.csv", index=False)
+    newton.to_csv(RESULTS / f"bench_scale{args.tag}_newton.csv", index=False)
     print(newton.to_markdown(index=False, floatfmt=".3g"), flush=True)
     fits = exponents(newton)
     steps = pd.DataFrame()
     if args.time_steps:
         steps = pd.DataFrame(step_rows([(481, "auto"), (1025, "auto"), (481, "dense")], args.steps))
-        steps.to_csv(RESULTS / "bench_scale_step.csv", index=False)
+        steps.to_csv(RESULTS / f"bench_scale{args.tag}_step.csv", index=False)
     text = report(newton, fits, steps, setting)
-    (RESULTS / "bench_scale.md").write_text(text)
+    (RESULTS / f"bench_scale{args.tag}.md").write_text(text)
     print(text)
 
 

@@ -160,3 +160,81 @@ def test_linalg_mode_setting_is_checked(monkeypatch):
     monkeypatch.setenv(structured.LINALG_ENV, "fast")
     with pytest.raises(ValueError, match="JKO_CVX_NEWTON_LINALG must be one of"):
         structured.linalg_mode()
+
+
+def _exact_block_even(grid: Grid, gamma: int) -> np.ndarray:
+    """E_kl = -int_k int_l W''(s - t) for W = v^gamma / gamma, by Gauss-Legendre (independent of kernels.py)."""
+    x, w = np.polynomial.legendre.leggauss(gamma)  # exact for the degree gamma - 2 integrand
+    lo, dv = grid.points[:-1], grid.dv
+    s = lo[:, None] + 0.5 * dv[:, None] * (x + 1)  # (N-1, q) nodes per cell
+    ws = 0.5 * dv[:, None] * w
+    d = s[:, :, None, None] - s[None, None, :, :]
+    return -np.einsum("kq,lr,kqlr->kl", ws, ws, (gamma - 1) * d ** (gamma - 2))
+
+
+@pytest.mark.parametrize("gamma", [4, 6, 8])
+def test_even_power_block_is_low_rank_and_exact(gamma):
+    """Even integer gamma: the flux block is U C U' of rank gamma - 1, as its integral says."""
+    grid = _random_grid(np.random.default_rng(gamma), 50)
+    energy = PowerKernel(float(gamma)).energy_operator(grid)
+    fb = energy.flux_structure()
+    assert fb.kind == "lowrank" and fb.basis.shape == (49, gamma - 1)
+    E = _exact_block_even(grid, gamma)
+    scale = np.abs(E).max()
+    assert np.abs(fb.basis @ fb.coef @ fb.basis.T - E).max() <= 1e-11 * scale
+    assert np.abs(energy.flux_block() - E).max() <= 1e-9 * scale
+
+
+@pytest.mark.parametrize("gamma", [1.5, 3.0, 5.0, 10.0])
+def test_other_gammas_keep_their_block_forms(gamma):
+    grid = _random_grid(np.random.default_rng(1), 30)
+    assert PowerKernel(gamma).energy_operator(grid).flux_structure().kind == "dense"
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_low_rank_solve_matches_dense_solve_and_inertia(seed):
+    """Random bands, weak to strong energy: same positive-definiteness verdict and solution as dense."""
+    rng = np.random.default_rng(10 + seed)
+    gamma = int(rng.choice([4, 6]))
+    n = int(rng.integers(20, 90))
+    grid = _random_grid(rng, n)
+    energy = PowerKernel(float(gamma)).energy_operator(grid)
+    fb = energy.flux_structure()
+    b = 8
+    bands = _random_bands(rng, b, n - 1)
+    E = energy.flux_block()
+    # from a weak energy (definite) to a strong one (indefinite: C has negative eigenvalues)
+    scales = bands[0].min() / np.abs(E).max() * 10.0 ** np.linspace(-3, 5, b)
+    solver = structured.LowRankFlux(fb.basis, fb.coef)
+    truth, got = [], []
+    for i in range(b):
+        rhs = rng.standard_normal((1, n - 1, 2))
+        x, pd, decided = np.zeros(rhs.shape), np.zeros(1, bool), np.zeros(1, bool)
+        one = tuple(band[i : i + 1] for band in bands)
+        solver.solve(scales[i], one, rhs, _PD_TOL, (x, pd, decided), 0, 1)
+        Hs = _dense_shifted(E, scales[i], bands, i)
+        truth.append(np.linalg.eigvalsh(Hs).min() > 0)
+        got.append(bool(pd[0]))
+        assert decided[0]
+        if pd[0]:
+            ref = np.linalg.solve(Hs, rhs[0])
+            assert np.abs(x[0] - ref).max() <= 1e-8 * np.abs(ref).max()
+    assert got == truth and any(truth) and not all(truth)
+
+
+@pytest.mark.parametrize("conserve_momentum", [False, True])
+def test_newton_gives_the_dense_paths_results_for_gamma_4(conserve_momentum, monkeypatch):
+    """Whole solves, log Fisher: the low-rank path (with the momentum-plane reduction where the
+    momentum is conserved) reaches the dense path's points and statuses."""
+    n = 121
+    v = np.linspace(-4, 4, n)
+    f = np.stack([np.exp(-4 * (v - c) ** 2) + 1e-8 for c in (-1.0, 0.0, 1.5)])
+    P = CollisionProblem(Grid(v), PowerKernel(4.0), f, 0.01, 1.0, 1000.0, "log", conserve_momentum)
+    monkeypatch.setenv(structured.LINALG_ENV, "dense")
+    ref = solve_newton(P, tol=1e-10)
+    monkeypatch.setenv(structured.LINALG_ENV, "auto")
+    res = solve_newton(P, tol=1e-10)
+    assert list(res.status) == list(ref.status) and all(s is Status.CONVERGED for s in res.status)
+    assert np.abs(res.f - ref.f).max() <= 1e-9 * np.abs(ref.f).max()
+    if conserve_momentum:
+        assert np.abs(P.momentum_change(res.f)).max() <= 1e-12

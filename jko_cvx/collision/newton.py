@@ -231,7 +231,7 @@ def _direction(problem: CollisionProblem, bands, g: NDArray) -> tuple[NDArray, N
     else:
         # h15: dense kernels go through jko_cvx.collision.structured (exact O(N) solve for
         # gamma = 3, certified CG otherwise, the per-slice Cholesky as fallback; threaded).
-        x, pd = dense_kernel_direction(problem.energy, scale, bands, rhs, _PD_TOL)
+        x, pd = dense_kernel_direction(problem.energy, scale, bands, rhs, _PD_TOL, problem.conserve_momentum)
     valid = pd.copy()
     if not pd.all():
         bad = np.nonzero(~pd)[0]

@@ -44,6 +44,17 @@ solve and the same positive-definiteness verdict without the O(N^3) dense Choles
   inertia formula on the bordered matrix :math:`H_s` is positive definite iff :math:`S` has
   exactly one negative eigenvalue (as :math:`Q` has), i.e. iff :math:`\\det S < 0`.  Where
   :math:`G` is not positive definite the slice goes to the dense Cholesky.
+* **even integer gamma >= 4** (:class:`LowRankFlux`, exact, O(N k^2)).  :math:`W = v^\\gamma/\\gamma`
+  is a polynomial, so :math:`E = U C U^\\top` exactly, :math:`U_{kp} = v_{k+1}^p - v_k^p`,
+  p = 1, ..., gamma - 1, C anti-diagonal (:func:`jko_cvx.kernels.even_power_flux_factors`;
+  the operator uses it up to gamma = 8, where it reproduces the dense block to rounding).
+  With :math:`B` the pentadiagonal part of :math:`H_s` (bands and Jacobi shift), one banded
+  Cholesky of :math:`B` and Woodbury's k x k capacitance
+  :math:`S = (\\sigma C)^{-1} + U^\\top B^{-1} U` give the solve, and Haynsworth's inertia
+  formula the positive definiteness: :math:`H_s \\succ 0` iff :math:`S` has the inertia of
+  :math:`C`.  When Newton projects onto the momentum plane :math:`\\Delta v^\\top m = 0`, the
+  terms pairing the first column (:math:`\\Delta v` itself) with the last drop out: they change
+  neither the constrained step nor the Hessian on the plane.
 * **other gamma** (:class:`Certified`, from N - 1 = 300 fluxes; below that the dense
   Cholesky is faster).  Gershgorin: the off-diagonal part of :math:`\\sigma E`
   is :math:`\\succeq -\\sigma\\operatorname{diag}(R)`, :math:`R_k = \\sum_{l\\ne k}|E_{kl}|`, so
@@ -59,7 +70,7 @@ solve and the same positive-definiteness verdict without the O(N^3) dense Choles
 
 Every path runs under :func:`jko_cvx.threads.blas_limits`, in
 :func:`jko_cvx.threads.map_chunks` threads.  ``JKO_CVX_NEWTON_LINALG`` selects the path:
-``auto`` (default: gamma = 3 exact, other gamma certified CG, dense fallback) or
+``auto`` (default: gamma = 3 and even gamma >= 4 exact, other gamma certified CG, dense fallback) or
 ``dense`` (dense Cholesky for every slice; for comparisons).
 """
 
@@ -72,10 +83,18 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.linalg import lapack
 
-from ..kernels import EnergyOperator
+from ..kernels import EnergyOperator, FluxBlock
 from ..threads import map_chunks
 
-__all__ = ["LINALG_ENV", "Certified", "Semiseparable3", "dense_direction", "dense_kernel_direction", "linalg_mode"]
+__all__ = [
+    "LINALG_ENV",
+    "Certified",
+    "LowRankFlux",
+    "Semiseparable3",
+    "dense_direction",
+    "dense_kernel_direction",
+    "linalg_mode",
+]
 
 LINALG_ENV = "JKO_CVX_NEWTON_LINALG"
 _MODES = ("auto", "dense")
@@ -255,6 +274,69 @@ class Semiseparable3:
             x[lo:hi][good] = Y[good, :, :k] - np.einsum("bni,bij->bnj", Y[good, :, k:], t)
 
 
+class LowRankFlux:
+    """Exact O(N k^2) solve of ``H_s x = r`` when the energy block is ``E = U C U'`` (rank k).
+
+    Even integer gamma >= 4 (:func:`jko_cvx.kernels.even_power_flux_factors`; see the module
+    docstring).  ``H_s = B + sigma U C U'`` with the pentadiagonal ``B``: the bands plus the
+    Jacobi shift ``pd_tol diag(H)``.  One banded Cholesky of ``B`` per slice, back-substitution
+    for the right-hand sides and the k columns of ``U``, and Woodbury's k x k capacitance
+    :math:`S = (\\sigma C)^{-1} + U^\\top B^{-1} U`.  Positive definiteness, exactly: with
+    ``B`` positive definite, Haynsworth's inertia formula on the bordered matrix
+    ``[[B, U], [U', -(sigma C)^-1]]`` gives ``H_s`` positive definite iff ``S`` has the inertia
+    of ``C``.  Where ``B`` is not positive definite the dense path decides.
+
+    Parameters
+    ----------
+    basis, coef : ndarray
+        ``U`` (N-1, k) and the invertible symmetric ``C`` (k, k).
+    """
+
+    CHUNK = 16
+
+    def __init__(self, basis: NDArray, coef: NDArray) -> None:
+        self.U = np.asarray(basis, dtype=float)
+        self.C = np.asarray(coef, dtype=float)
+        self.c_inv = np.linalg.inv(self.C)
+        self.negative = int(np.sum(np.linalg.eigvalsh(self.C) < 0))
+        self.e_diag = np.einsum("ki,ij,kj->k", self.U, self.C, self.U)
+        self._dense: NDArray | None = None
+
+    def dense(self) -> NDArray:
+        """``U C U'`` (cached): the block the dense fallback factorises with it."""
+        if self._dense is None:
+            self._dense = self.U @ self.C @ self.U.T
+        return self._dense
+
+    def solve(self, scale: float, bands: tuple, rhs: NDArray, pd_tol: float, out: tuple, lo: int, hi: int) -> None:
+        """Solve slices ``lo:hi`` into ``out = (x, pd, decided)``; ``decided`` False where B is not PD."""
+        diag, off1, off2 = (band[lo:hi] for band in bands)
+        x, pd, decided = out
+        k = rhs.shape[-1]
+        d = diag + scale * self.e_diag  # diag(H), as the dense path forms it
+        b_diag = diag + pd_tol * d
+        s_inv = self.c_inv / scale
+        decided[lo:hi] = True
+        finite = np.all(d > 0, axis=1) & np.all(np.isfinite(d), axis=1)
+        finite &= np.all(np.isfinite(off1), axis=1) & np.all(np.isfinite(off2), axis=1)
+        for j in np.flatnonzero(finite):
+            c = _pentadiagonal_cholesky(b_diag[j], off1[j], off2[j])
+            if c is None:
+                decided[lo + j] = False
+                continue
+            Y, info = lapack.dpbtrs(c, np.concatenate([rhs[lo + j], self.U], axis=1), lower=1)
+            S = s_inv + self.U.T @ Y[:, k:]
+            S = 0.5 * (S + S.T)
+            if info != 0 or not (np.all(np.isfinite(Y)) and np.all(np.isfinite(S))):
+                decided[lo + j] = False
+                continue
+            eig = np.linalg.eigvalsh(S)
+            if np.any(eig == 0) or int(np.sum(eig < 0)) != self.negative:
+                continue  # indefinite: pd stays False
+            pd[lo + j] = True
+            x[lo + j] = Y[:, :k] - Y[:, k:] @ np.linalg.solve(S, self.U.T @ Y[:, :k])
+
+
 class Certified:
     """Gershgorin-certified positive definiteness and preconditioned CG for a general dense E.
 
@@ -342,34 +424,55 @@ class Certified:
         return X, ok
 
 
-def _solver(energy: EnergyOperator, e_dense: NDArray) -> Semiseparable3 | Certified:
+def _plane_structure(structure: FluxBlock) -> FluxBlock:
+    """The low-rank block without the pairs that involve the momentum constraint's normal.
+
+    The first basis column is :math:`\\Delta v = a`, and in the anti-diagonal ``C`` it pairs
+    only with the last column: their terms are :math:`a w^\\top + w a^\\top`, which change
+    neither the Newton step constrained to :math:`a^\\top m = 0` nor the Hessian on that plane
+    (the gamma = 2 block :math:`-a a^\\top` drops out entirely, see ``newton._direction``).
+    """
+    return FluxBlock("lowrank", basis=structure.basis[:, 1:-1], coef=structure.coef[1:-1, 1:-1])
+
+
+def _solver(energy: EnergyOperator, momentum_plane: bool) -> Semiseparable3 | LowRankFlux | Certified:
     """The structured solver for this energy operator (cached with it: its grid is fixed)."""
-    solver = _CACHE.get(energy)
+    solvers = _CACHE.setdefault(energy, {})
+    structure = energy.flux_structure()
+    plane = momentum_plane and structure.kind == "lowrank" and structure.basis.shape[1] > 2
+    solver = solvers.get(plane)
     if solver is None:
-        if getattr(energy, "gamma", None) == 3.0:
+        if structure.kind == "lowrank":
+            use = _plane_structure(structure) if plane else structure
+            solver = LowRankFlux(use.basis, use.coef)
+        elif getattr(energy, "gamma", None) == 3.0:
             solver = Semiseparable3(energy.grid)
         else:
-            solver = Certified(e_dense)
-        _CACHE[energy] = solver
+            solver = Certified(energy.flux_block())
+        solvers[plane] = solver
     return solver
 
 
 def dense_kernel_direction(
-    energy: EnergyOperator, scale: float, bands: tuple, rhs: NDArray, pd_tol: float
+    energy: EnergyOperator, scale: float, bands: tuple, rhs: NDArray, pd_tol: float, momentum_plane: bool = False
 ) -> tuple[NDArray, NDArray[np.bool_]]:
     """``H_s^-1 rhs`` and per-slice positive definiteness of ``H_s`` for a dense energy block.
 
-    ``H = add_pentadiagonal(scale * energy.flux_block(), *bands)``, ``H_s = H + pd_tol
-    diag(H)``; ``rhs`` has shape ``(B, N-1, k)``.  Same contract as
+    ``H = add_pentadiagonal(scale * E, *bands)``, ``H_s = H + pd_tol diag(H)``, with ``E =
+    energy.flux_block()``; ``rhs`` has shape ``(B, N-1, k)``.  Same contract as
     ``newton._newton_direction(H, rhs)``: where ``pd`` is False the returned rows are not a
     solution.  ``pd`` is decided exactly (a certificate or a factorisation; see the
-    module docstring), whatever the path.
+    module docstring), whatever the path.  ``momentum_plane``: the caller projects onto
+    :math:`\\Delta v^\\top m = 0`, so a low-rank block may drop its terms along that normal
+    (:func:`_plane_structure`; ``E`` is then that block, on the dense fallback too).
     """
-    e_dense = energy.flux_block()
-    exact = getattr(energy, "gamma", None) == 3.0 and e_dense.shape[0] >= 3
+    lowrank = energy.flux_structure().kind == "lowrank"
+    solver = _solver(energy, momentum_plane) if lowrank else None
+    e_dense = solver.dense() if lowrank else energy.flux_block()
+    exact = lowrank or (getattr(energy, "gamma", None) == 3.0 and e_dense.shape[0] >= 3)
     if linalg_mode() == "dense" or scale <= 0 or not (exact or e_dense.shape[0] >= _CG_MIN_N):
         return dense_direction(e_dense, scale, bands, rhs, pd_tol)
-    solver = _solver(energy, e_dense)
+    solver = solver or _solver(energy, momentum_plane)
     B = rhs.shape[0]
     x = np.zeros(rhs.shape)
     pd = np.zeros(B, dtype=bool)

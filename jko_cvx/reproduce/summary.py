@@ -590,6 +590,22 @@ CLAIMS: tuple[Claim, ...] = (
         "README.md",
     ),
     Claim(
+        "scale.newton.gamma4",
+        "../bench_scale_gamma4_newton.csv",
+        lambda d: _scale_row(d, 4.0, "structured (default)"),
+        "| gamma = 4, structured (default) | {} ({}) | {} ({}) | {} ({}) | {} ({}) |",
+        "as scale.newton.gamma3, gamma = 4 (low-rank path)",
+        "README.md",
+    ),
+    Claim(
+        "scale.newton.dense4",
+        "../bench_scale_gamma4_newton.csv",
+        lambda d: _scale_row(d, 4.0, "dense Cholesky"),
+        "| gamma = 4, dense Cholesky | {} ({}) | {} ({}) | | {} ({}) |",
+        "as scale.newton.gamma3, gamma = 4 dense rows",
+        "README.md",
+    ),
+    Claim(
         "scale.step",
         "../bench_scale_step.csv",
         _scale_step,
