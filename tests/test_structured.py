@@ -238,3 +238,26 @@ def test_newton_gives_the_dense_paths_results_for_gamma_4(conserve_momentum, mon
     assert np.abs(res.f - ref.f).max() <= 1e-9 * np.abs(ref.f).max()
     if conserve_momentum:
         assert np.abs(P.momentum_change(res.f)).max() <= 1e-12
+
+
+def test_momentum_plane_reduction_keeps_the_constrained_step():
+    """gamma = 4 with momentum conservation: Newton's direction (on the reduced block) is the
+    step of the KKT system [[H, a], [a', 0]] with the full block, solved densely."""
+    from jko_cvx.collision.newton import _direction
+
+    n = 81
+    v = np.linspace(-3, 3, n)
+    f = np.stack([np.exp(-3 * (v - c) ** 2) + 1e-6 for c in (-0.5, 0.8)])
+    P = CollisionProblem(Grid(v), PowerKernel(4.0), f, 0.01, 1.0, 1000.0, "log", conserve_momentum=True)
+    m = np.zeros((2, n - 1))
+    g, bands, _ = _fused(P, P.f_star, m, False)
+    p, pd, valid = _direction(P, bands, g)
+    assert valid.all() and pd.all()
+    a = P.grid.dv
+    for i in range(2):
+        H = add_pentadiagonal(2 * P.energy_coef * P.energy.flux_block(), *(band[i] for band in bands))
+        H = H + _PD_TOL * np.diag(np.diag(H))
+        K = np.block([[H, a[:, None]], [a[None, :], np.zeros((1, 1))]])
+        ref = np.linalg.solve(K, np.concatenate([-g[i], [0.0]]))[:-1]
+        assert np.abs(p[i] - ref).max() <= 1e-8 * np.abs(ref).max()
+        assert abs(p[i] @ a) <= 1e-12 * np.abs(p[i]).max() * np.abs(a).sum()
