@@ -1,4 +1,4 @@
-"""Why the uniform 481 x 481 gamma = 3/2, lambda = 5 run of ``grid_convergence`` stops on e_f.
+"""Why the uniform 481 x 481 gamma = 3/2, lambda = 5 run of ``grid_convergence`` stopped on e_f (fixed since).
 
 Reruns that point (``jko_cvx.reproduce.grid_convergence``: the ``inhom_gamma1p5_after`` scene on
 a fixed uniform 481 x 481 grid, stopped at sigma_v < 0.05 or t = 0.7) with the collision
@@ -7,12 +7,12 @@ its KKT residual (and the largest residual of the certified slices), Newton's it
 the range of f* (the density entering the collision step).  Writes
 ``studies/results/grid_convergence_failure.json`` with the code that ran it (package hash,
 git commit) and the collapse time when the run gets there; ``--no-floor`` runs the reference
-as the shipped sweep did (``v.floor_every_step = false``) and writes
+as the previous sweep did (``v.floor_every_step = false``) and writes
 ``grid_convergence_failure_no_floor.json``, with where in v each failed slice's f* is smallest
 and that v-line's mass.
 
-The record of the frozen code of the shipped sweep (commit fd12f88: the run stopped at
-t = 0.389, one slice's f* at 4.8e-18) is kept as ``grid_convergence_failure_before_fix.json``.
+The record of the frozen code of the previous sweep (commit fd12f88: the run stopped after
+t = 0.385, one slice's f* at 4.8e-18) is kept as ``grid_convergence_failure_before_fix.json``.
 Its cause, found by rerunning: on a fixed v-grid nothing re-applies the floor of the paper's
 every-step v-remap, so the collision drains the edge lines in v (mass 1e-14 per line, f*
 ~1e-17 after the transport's per-line mass rescaling), and Newton cannot certify a slice

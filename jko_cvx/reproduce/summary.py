@@ -15,6 +15,7 @@ a run that never fires (NaN) counts as a difference.
 
 from __future__ import annotations
 
+import json
 import re
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -748,10 +749,11 @@ def _gc_collapse(d: pd.DataFrame, case: str, grid: str) -> tuple[str, ...]:
     return tuple("-" if n not in rows.index or np.isnan(rows[n]) else f"{rows[n]:.3f}" for n in (121, 241, 481))
 
 
-def _gc_failure(d: pd.DataFrame) -> tuple[str, ...]:
-    r = d[(d.case == "after") & (d.grid == "uniform") & (d.n == 481)].iloc[0]
-    tb, spread = r["T_b (paper's criteria)"], r["sigma_v (stop)"]
-    return (f"{tb:.3f}", f"{spread:.3f}")
+def _gc_certified(d: pd.DataFrame) -> tuple[str, ...]:
+    """The number of gamma = 3/2 runs; refused unless each stopped on the density criterion, no slice failed."""
+    if (d["failed slices"] > 0).any() or not d.stop.str.startswith("min spread_v").all():
+        raise ValueError("grid_convergence.csv: a run with failed slices or another stop than the density collapse")
+    return (str(len(d)),)
 
 
 def _gc_g2bu(d: pd.DataFrame) -> tuple[str, ...]:
@@ -776,16 +778,16 @@ CLAIMS += (
     Claim(
         "grid_convergence.after",
         "grid_convergence.csv",
-        lambda d: (*_gc_collapse(d, "after", "mapped"), *_gc_collapse(d, "after", "uniform")[:2]),
-        "lambda = 5: {}, {}, {} on the mapped grids and {}, {} on the uniform ones",
-        "t(sigma_v < 0.05), n = 121, 241, 481 (mapped), 121, 241 (uniform)",
+        lambda d: (*_gc_collapse(d, "after", "mapped"), *_gc_collapse(d, "after", "uniform")),
+        "lambda = 5: {}, {}, {} on the mapped grids and {}, {}, {} on the uniform ones",
+        "t(sigma_v < 0.05), n = 121, 241, 481",
     ),
     Claim(
-        "grid_convergence.failure",
+        "grid_convergence.certified",
         "grid_convergence.csv",
-        _gc_failure,
-        "stops at t = {} on a collision step that Newton does not certify (sigma_v = {} then)",
-        "the uniform 481 x 481 lambda = 5 run",
+        _gc_certified,
+        "all {} gamma = 3/2 runs reach the density collapse with every collision step certified",
+        "rows of grid_convergence.csv (failed slices 0, stop = the density criterion)",
     ),
     Claim(
         "grid_convergence.g2bu",
@@ -796,6 +798,14 @@ CLAIMS += (
         "T_b columns of grid_convergence_g2bu.csv",
     ),
 )
+
+
+def _gc_wall(text: str) -> tuple[str, ...]:
+    """The sweep's wall time in minutes, from the report's last line."""
+    found = re.search(r"Sweep wall time (\d+) s", text)
+    if found is None:
+        raise ValueError("grid_convergence.md: no sweep wall time (a report built from a stopped sweep)")
+    return (f"{float(found.group(1)) / 60:.0f}",)
 
 
 def _gc_gap(d: pd.DataFrame) -> tuple[str, ...]:
@@ -839,6 +849,14 @@ CLAIMS += (
         "sigma_v(t=0.1) row and its order",
     ),
     Claim(
+        "grid_convergence.wall",
+        "grid_convergence.md",
+        _gc_wall,
+        "The whole sweep ran once on one code, 2 workers, {} min of wall time",
+        "the report's last line, seconds / 60",
+        "README.md",
+    ),
+    Claim(
         "grid_convergence.cost481",
         "grid_convergence.csv",
         lambda d: tuple(
@@ -848,6 +866,13 @@ CLAIMS += (
         "(the mapped 481 x 481 runs: {} min for lambda = 10 and {} min for lambda = 5",
         "seconds / 60 of that run",
         "README.md",
+    ),
+    Claim(
+        "grid_convergence.failure_t",
+        "../grid_convergence_failure_before_fix.json",
+        lambda text: (f"{json.loads(text)['t']:.3f}",),
+        "run stopped after t = {} (its last accepted step) on a collision step that Newton did not certify",
+        "t of the failed run's record",
     ),
     Claim(
         "grid_convergence.failure_detail",
@@ -887,23 +912,6 @@ def _gc_floored(text: str) -> tuple[str, ...]:
     return (f"{run['collapse t (sigma_v < 0.05)']:.3f}", str(run["steps"]))
 
 
-def _gc_order(values: list[float]) -> float:
-    from .grid_convergence import convergence
-
-    return convergence(values)["order"]
-
-
-def _gc_uniform_today(d: pd.DataFrame) -> tuple[str, ...]:
-    """Collapse times of the uniform references on today's code, lambda = 10 then 5, n = 121, 241, 481."""
-    out = []
-    for case in ("before", "after"):
-        rows = d[d.case == case].set_index("n")["t(sigma_v < 0.05)"]
-        out += ["-" if np.isnan(rows[n]) else f"{rows[n]:.3f}" for n in (121, 241, 481)]
-    if (d["failed slices"] > 0).any():
-        raise ValueError("grid_convergence_uniform_today.csv: a reference with failed slices")
-    return tuple(out)
-
-
 CLAIMS += (
     Claim(
         "grid_convergence.no_floor",
@@ -922,17 +930,12 @@ CLAIMS += (
     ),
     Claim(
         "grid_convergence.uniform_order",
-        "grid_convergence_uniform_today.csv",
-        lambda d: (f"{_gc_order(d[d.case == 'after'].sort_values('n')['t(sigma_v < 0.05)'].tolist()):.1f}",),
+        "grid_convergence_gamma1p5.csv",
+        lambda d: (
+            f"{d[(d.case == 'after') & (d.grid == 'uniform') & (d.quantity == 't(sigma_v < 0.05)')].order.iloc[0]:.1f}",
+        ),
         "observed order about {}",
-        "convergence() of the lambda = 5 uniform collapse times",
-    ),
-    Claim(
-        "grid_convergence.uniform_today",
-        "grid_convergence_uniform_today.csv",
-        _gc_uniform_today,
-        "lambda = 10: {}, {}, {}; lambda = 5: {}, {}, {}",
-        "t(sigma_v < 0.05) of the six uniform references on today's code, n = 121, 241, 481",
+        "order of the lambda = 5 uniform collapse times",
     ),
 )
 
