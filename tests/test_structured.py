@@ -137,15 +137,20 @@ def test_certificate_falls_back_to_the_dense_verdict():
         assert np.abs(x[i] - ref).max() <= 1e-10 * np.abs(ref).max()
 
 
-@pytest.mark.parametrize("gamma, n", [(3.0, 121), (1.5, 321)])
-def test_newton_gives_the_dense_paths_results(gamma, n, monkeypatch):
-    P = _inhom_batch(n, gamma, slices=4)
+def _auto_matches_dense(P: CollisionProblem, tol: float, monkeypatch):
+    """Newton with the default (structured) directions against the dense Cholesky: statuses and f."""
     monkeypatch.setenv(structured.LINALG_ENV, "dense")
-    ref = solve_newton(P, tol=1e-9)
+    ref = solve_newton(P, tol=tol)
     monkeypatch.setenv(structured.LINALG_ENV, "auto")
-    res = solve_newton(P, tol=1e-9)
+    res = solve_newton(P, tol=tol)
     assert list(res.status) == list(ref.status) and all(s is Status.CONVERGED for s in res.status)
     assert np.abs(res.f - ref.f).max() <= 1e-9 * np.abs(ref.f).max()
+    return res
+
+
+@pytest.mark.parametrize("gamma, n", [(3.0, 121), (1.5, 321)])
+def test_newton_gives_the_dense_paths_results(gamma, n, monkeypatch):
+    _auto_matches_dense(_inhom_batch(n, gamma, slices=4), 1e-9, monkeypatch)
 
 
 def test_nonconvex_steps_stay_nonconvex():
@@ -230,12 +235,7 @@ def test_newton_gives_the_dense_paths_results_for_gamma_4(conserve_momentum, mon
     v = np.linspace(-4, 4, n)
     f = np.stack([np.exp(-4 * (v - c) ** 2) + 1e-8 for c in (-1.0, 0.0, 1.5)])
     P = CollisionProblem(Grid(v), PowerKernel(4.0), f, 0.01, 1.0, 1000.0, "log", conserve_momentum)
-    monkeypatch.setenv(structured.LINALG_ENV, "dense")
-    ref = solve_newton(P, tol=1e-10)
-    monkeypatch.setenv(structured.LINALG_ENV, "auto")
-    res = solve_newton(P, tol=1e-10)
-    assert list(res.status) == list(ref.status) and all(s is Status.CONVERGED for s in res.status)
-    assert np.abs(res.f - ref.f).max() <= 1e-9 * np.abs(ref.f).max()
+    res = _auto_matches_dense(P, 1e-10, monkeypatch)
     if conserve_momentum:
         assert np.abs(P.momentum_change(res.f)).max() <= 1e-12
 
