@@ -857,6 +857,20 @@ CLAIMS += (
         "README.md",
     ),
     Claim(
+        "inhom_gamma1p5.crawl_steps",
+        "inhom_gamma1p5.csv",
+        lambda d: (str(int(d[(d.case == "before") & (d.n == 121)].steps.iloc[0])),),
+        "(121 x 121, lambda = 10: {} steps)",
+        "steps of the lambda = 10 run on 121 x 121",
+    ),
+    Claim(
+        "grid_convergence.wall_table",
+        "grid_convergence.md",
+        _gc_wall,
+        "| `grid_convergence` | {} min (one sweep, below) |",
+        "as grid_convergence.wall",
+    ),
+    Claim(
         "grid_convergence.cost481",
         "grid_convergence.csv",
         lambda d: tuple(
