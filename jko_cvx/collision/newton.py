@@ -229,8 +229,10 @@ def _direction(problem: CollisionProblem, bands, g: NDArray) -> tuple[NDArray, N
     if fb.kind in ("diagonal", "rank1"):
         x, pd = _structured_direction(fb, scale, bands, rhs)
     else:
-        # h15: dense kernels go through jko_cvx.collision.structured (exact O(N) solve for
-        # gamma = 3, certified CG otherwise, the per-slice Cholesky as fallback; threaded).
+        # h15: dense kernels go through jko_cvx.collision.structured (exact O(N) solves for
+        # gamma = 3 and even gamma >= 4, certified CG otherwise, the per-slice Cholesky as
+        # fallback; threaded).  The momentum-plane flag lets a low-rank block drop its terms
+        # along the constraint's normal (the constrained step is the same).
         x, pd = dense_kernel_direction(problem.energy, scale, bands, rhs, _PD_TOL, problem.conserve_momentum)
     valid = pd.copy()
     if not pd.all():
