@@ -29,13 +29,22 @@ v-remap of a narrow slice; ``tests/test_floors_and_ends.py``, ``tests/test_refin
 
 from __future__ import annotations
 
+from numbers import Real
+
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["restore_moments", "restore_three_moments"]
+__all__ = ["check_floor", "restore_moments", "restore_three_moments"]
 
 _MAX_NEWTON = 60
 _MAX_EXPONENT = 600.0  # bound on |beta (v - vbar)|: keeps the bracket finite
+
+
+def check_floor(floor: float) -> None:
+    """``ValueError`` naming ``floor`` unless it is a finite real number >= 0 (the density floor
+    of the remaps, the transport, the moment restorations and the SQP's positivity safeguard)."""
+    if isinstance(floor, (bool, np.bool_)) or not isinstance(floor, Real) or not (np.isfinite(floor) and floor >= 0):
+        raise ValueError(f"floor must be a finite number >= 0, got {floor!r}")
 
 
 def restore_moments(
@@ -90,8 +99,7 @@ def restore_moments(
         restored there.
     """
     f = np.asarray(f, dtype=float)
-    if not (np.isfinite(floor) and floor >= 0):
-        raise ValueError(f"floor must be a finite number >= 0, got {floor!r}")
+    check_floor(floor)
     m0 = np.asarray(f @ h)
     alpha = np.divide(mass, m0, out=np.ones_like(m0), where=m0 > 0)
     if momentum is None:
@@ -256,8 +264,7 @@ def restore_three_moments(
     """
     f = np.asarray(f, dtype=float)
     v = np.asarray(v, dtype=float)
-    if not (np.isfinite(floor) and floor >= 0):
-        raise ValueError(f"floor must be a finite number >= 0, got {floor!r}")
+    check_floor(floor)
     if floor > 0:
         whole, ok_whole = restore_three_moments(f, h, v, mass, momentum, moment2, max_iter)
         excess_mass = np.asarray(mass - floor * np.sum(h), dtype=float)

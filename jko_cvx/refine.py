@@ -47,14 +47,13 @@ e.g. ``OneBumpMap(L=2, r=1.5, delta=0.5)`` cannot be built.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from numbers import Real
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.interpolate import PchipInterpolator
 from scipy.optimize import brentq, minimize_scalar
 
-from .conservation import restore_moments, restore_three_moments
+from .conservation import check_floor, restore_moments, restore_three_moments
 from .grid import Grid, PeriodicGrid
 
 __all__ = ["OneBumpMap", "TwoBumpMap", "concentration_set", "quadrant_set", "remap"]
@@ -392,8 +391,7 @@ def check_line_density(f: NDArray[np.float64], floor: float) -> None:
     densities through the mass restoration (shared by :func:`remap` and
     :func:`~jko_cvx.transport.transport_step`).
     """
-    if isinstance(floor, (bool, np.bool_)) or not isinstance(floor, Real) or not (np.isfinite(floor) and floor >= 0):
-        raise ValueError(f"floor must be a finite number >= 0, got {floor!r}")
+    check_floor(floor)
     if not np.all(np.isfinite(f)):
         raise ValueError("f must be finite (found NaN or inf)")
 

@@ -338,7 +338,7 @@ class CollisionProblem:
         if not self.conserve_momentum:
             return m
         a = self.grid.dv
-        return m - np.multiply.outer((m @ a) / (a @ a), a) if m.ndim > 1 else m - a * ((m @ a) / (a @ a))
+        return m - np.multiply.outer((m @ a) / (a @ a), a)
 
     def project_feasible(self, f: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Clip ``f`` at 0, rescale it to the mass of ``f_star`` and rebuild ``m``.

@@ -52,6 +52,7 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
+from ..conservation import check_floor
 from .certify import certify
 from .checks import check_bool, check_callable, check_choice, check_int, check_unit
 from .explicit import diagonal_hessian, sqp_step
@@ -267,7 +268,6 @@ def _check_sqp_args(problem, step, tol, max_iter, kkt_tol, qp, floor, osqp_eps, 
     check_unit("osqp_eps", osqp_eps)
     check_int("max_iter (I_max)", max_iter)
     check_choice("qp", qp, ("banded", "osqp"))
-    if isinstance(floor, (bool, np.bool_)) or not isinstance(floor, Real) or not (np.isfinite(floor) and floor >= 0):
-        raise ValueError(f"floor must be a finite number >= 0, got {floor!r}")
+    check_floor(floor)
     check_bool("check_convexity", check_convexity)
     check_callable("callback", callback)
