@@ -118,6 +118,33 @@ def test_threaded_dense_path_is_bitwise_the_old_one():
     assert np.array_equal(x, ref) and np.array_equal(pd, pd_ref)
 
 
+def test_dense_path_is_bitwise_the_old_one_on_hard_rows():
+    """Two right-hand sides, a row subset, rows that fail (negative diagonal, NaN, indefinite), and an
+    energy block that is not bitwise symmetric: the per-slice path reads the lower triangle as
+    ``_newton_direction`` does, and gives the same bits and verdicts."""
+    rng = np.random.default_rng(7)
+    n1, b = 40, 9
+    E = PowerKernel(1.5).energy_operator(_random_grid(rng, n1 + 1)).flux_block()
+    E = E + np.tril(rng.standard_normal(E.shape)) * 1e-13 * np.abs(E).max()  # lower != upper
+    diag, off1, off2 = _random_bands(rng, b, n1, scale=1.0)
+    diag[2, 5] = -1.0  # a non-positive diagonal: skipped before any factorisation
+    diag[3, 0] = np.nan
+    diag[4] *= 1e-9  # weak bands: the energy block makes it indefinite
+    bands = (diag, off1, off2)
+    rhs = rng.standard_normal((b, n1, 2))
+    rows = np.ones(b, dtype=bool)
+    rows[[1, 6]] = False
+    for scale in (0.5, 3.0):
+        H = add_pentadiagonal(scale * E, *bands)
+        ref, pd_ref = _newton_direction(H, rhs)
+        x, pd = structured.dense_direction(E, scale, bands, rhs, _PD_TOL)
+        assert np.array_equal(x, ref) and np.array_equal(pd, pd_ref)
+        assert pd_ref.any() and not pd_ref.all()
+        xr, pdr = structured.dense_direction(E, scale, bands, rhs, _PD_TOL, rows=rows)
+        assert np.array_equal(pdr, pd_ref & rows)
+        assert np.array_equal(xr[rows], ref[rows]) and not xr[~rows].any()
+
+
 def test_certificate_falls_back_to_the_dense_verdict():
     """gamma = 3/2 with weak bands: uncertified slices get the dense Cholesky's verdict, certified ones CG."""
     rng = np.random.default_rng(3)
