@@ -6,7 +6,13 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.linalg import lapack
 
-__all__ = ["divergence", "divergence_adjoint", "solve_sym_tridiagonal"]
+__all__ = [
+    "divergence",
+    "divergence_adjoint",
+    "pentadiagonal_cholesky_batch",
+    "pentadiagonal_solve_batch",
+    "solve_sym_tridiagonal",
+]
 
 
 def solve_sym_tridiagonal(
@@ -79,3 +85,95 @@ def divergence_adjoint(p: NDArray[np.float64]) -> NDArray[np.float64]:
     """:math:`D^\\top p`, i.e. :math:`(D^\\top p)_k = p_k - p_{k+1}` (shape ``(..., N-1)``)."""
     p = np.asarray(p, dtype=float)
     return p[..., :-1] - p[..., 1:]
+
+
+def _pentadiagonal_storage(diag: NDArray, off1: NDArray, off2: NDArray) -> NDArray[np.float64]:
+    """Band storage of a batch: ``A[b].T`` is LAPACK's lower ``(3, n)`` storage of matrix b (Fortran order)."""
+    B, n = diag.shape
+    A = np.zeros((B, n, 3))
+    A[:, :, 0] = diag
+    A[:, :-1, 1] = off1
+    A[:, :-2, 2] = off2
+    return A
+
+
+def _neighbours(bad: NDArray[np.bool_]) -> NDArray[np.bool_]:
+    """``bad`` and the entries next to a bad one (the blocks a chained call may have touched)."""
+    near = bad.copy()
+    near[1:] |= bad[:-1]
+    near[:-1] |= bad[1:]
+    return near
+
+
+def pentadiagonal_cholesky_batch(
+    diag: NDArray[np.float64], off1: NDArray[np.float64], off2: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+    """Banded Cholesky factors of a batch of symmetric pentadiagonal matrices, bitwise those of one
+    LAPACK ``dpbtrf`` call per matrix.
+
+    The B matrices (``diag`` of shape ``(B, n)``, ``off1`` ``(B, n-1)``, ``off2`` ``(B, n-2)``)
+    are factorised as one block-diagonal band matrix: consecutive blocks are chained by the
+    zero entries of the band storage, and LAPACK's unblocked band Cholesky (``dpbtf2``, which
+    ``dpbtrf`` runs for two bands) then only adds exact zeros across a block boundary, so
+    each block's factor is the one its own call would give, for a fraction of the per-call
+    overhead.  Where a block is not positive definite LAPACK stops there; the chain resumes
+    after it.  A non-finite value can cross a boundary (``0 * inf``): a block next to one
+    with a non-finite factor entry is factorised again on its own.
+
+    Returns
+    -------
+    factors : ndarray, shape (B, n, 3)
+        ``factors[b].T`` is the ``(3, n)`` lower band storage of matrix b's factor (as
+        ``lapack.dpbtrf(ab, lower=1)`` returns it); meaningful only where ``ok``.
+    ok : ndarray of bool, shape (B,)
+        ``info == 0`` and a finite last pivot: the test of one call per matrix.
+    """
+    A = _pentadiagonal_storage(diag, off1, off2)
+    B, n, _ = A.shape
+    done = np.zeros(B, dtype=bool)
+    start = 0
+    while start < B and n:
+        chain = A[start:].reshape(-1, 3).T  # a view, Fortran-contiguous (3, (B - start) n)
+        c, info = lapack.dpbtrf(chain, lower=1, overwrite_ab=1)
+        if not np.shares_memory(c, A):
+            chain[...] = c
+        if info < 0:
+            raise RuntimeError(f"LAPACK dpbtrf: illegal argument {-info}")
+        stop = B if info == 0 else start + (info - 1) // n
+        done[start:stop] = True
+        start = stop + 1
+    leaked = _neighbours(~np.all(np.isfinite(A), axis=(1, 2)))
+    for b in np.flatnonzero(leaked & done):
+        own = _pentadiagonal_storage(diag[b : b + 1], off1[b : b + 1], off2[b : b + 1])[0].T
+        c, info = lapack.dpbtrf(own, lower=1)
+        A[b] = c.T
+        done[b] = info == 0
+    ok = done & np.isfinite(A[:, -1, 0]) if n else done
+    return A, ok
+
+
+def pentadiagonal_solve_batch(factors: NDArray[np.float64], rhs: NDArray[np.float64]) -> list[NDArray[np.float64]]:
+    """Solve with a batch of factors of :func:`pentadiagonal_cholesky_batch`, bitwise as one ``dpbtrs`` call each.
+
+    ``factors`` has shape ``(B, n, 3)`` (every one a successful factorisation), ``rhs``
+    ``(B, n, k)``.  One chained ``dpbtrs`` call: the band entries that link consecutive
+    blocks are set to exact zeros (a single matrix's call never reads them), so the
+    substitutions add only exact zeros across a boundary.  Blocks next to one with a
+    non-finite solution (which ``0 * inf`` could carry over) are solved again on their own.
+
+    Returns the B solutions, each a Fortran-ordered ``(n, k)`` array as ``dpbtrs`` returns it.
+    """
+    B, n, k = rhs.shape
+    if B == 0:
+        return []
+    F = factors.copy()
+    F[:, -1, 1] = 0.0
+    F[:, -2:, 2] = 0.0
+    y, info = lapack.dpbtrs(F.reshape(-1, 3).T, rhs.reshape(-1, k), lower=1)
+    if info != 0:
+        raise RuntimeError(f"LAPACK dpbtrs: illegal argument {-info}")
+    out = [np.asfortranarray(y[b * n : (b + 1) * n]) for b in range(B)]
+    bad = np.array([not np.all(np.isfinite(yb)) for yb in out])
+    for b in np.flatnonzero(_neighbours(bad)):
+        out[b], _ = lapack.dpbtrs(factors[b].T, rhs[b], lower=1)
+    return out

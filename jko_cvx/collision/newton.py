@@ -56,7 +56,7 @@ from ..threads import blas_limited  # h15
 from .certify import certify
 from .checks import check_bool, check_choice, check_int, check_unit
 from .explicit import explicit_step
-from .linalg import divergence, divergence_adjoint
+from .linalg import divergence, divergence_adjoint, pentadiagonal_cholesky_batch, pentadiagonal_solve_batch
 from .problem import CollisionProblem, TermParts, add_pentadiagonal
 from .result import CollisionResult, Status
 from .structured import dense_kernel_direction  # h15
@@ -131,24 +131,15 @@ def _fused(
     return g, reduced_bands(problem.grid, xx, yy, xy, wd.h_sm, wd.h_mm), parts
 
 
-def _banded_cholesky(diag, off1, off2) -> tuple[NDArray | None, bool]:
-    """LAPACK banded Cholesky of a symmetric pentadiagonal matrix, with the PD tolerance."""
-    n1 = diag.shape[-1]
-    ab = np.zeros((3, n1))
-    ab[0] = diag * (1 + _PD_TOL)
-    ab[1, :-1] = off1
-    ab[2, :-2] = off2
-    c, info = lapack.dpbtrf(ab, lower=1)
-    return c, info == 0 and bool(np.isfinite(c[0, -1]))
-
-
 def _structured_direction(fb: FluxBlock, scale: float, bands, rhs: NDArray) -> tuple[NDArray, NDArray[np.bool_]]:
     """``H^-1 rhs`` when the energy block is diagonal (gamma = 1) or rank one (gamma = 2).
 
     ``rhs`` has shape ``(B, N-1, k)``.  The reduced Hessian is then pentadiagonal, or
     pentadiagonal minus ``scale * u u'``: a banded Cholesky (O(N)) and, for the rank-one
     case, Sherman-Morrison.  By the matrix determinant lemma ``B - s u u'`` is positive
-    definite iff ``B`` is and ``1 - s u' B^-1 u > 0``.
+    definite iff ``B`` is and ``1 - s u' B^-1 u > 0``.  The factorisations and solves of the
+    batch are chained LAPACK calls (:func:`~jko_cvx.collision.linalg.pentadiagonal_cholesky_batch`),
+    bitwise those of one call per slice; the Sherman-Morrison update stays per slice.
     """
     diag, off1, off2 = bands
     if fb.kind == "diagonal":
@@ -156,17 +147,16 @@ def _structured_direction(fb: FluxBlock, scale: float, bands, rhs: NDArray) -> t
     x = np.zeros_like(rhs)
     pd = np.zeros(rhs.shape[0], dtype=bool)
     k = rhs.shape[-1]
-    for i in range(rhs.shape[0]):
-        if not (np.all(diag[i] > 0) and np.all(np.isfinite(diag[i]))):
-            continue
-        c, ok = _banded_cholesky(diag[i], off1[i], off2[i])
-        if not ok:
-            continue
-        if fb.kind == "diagonal":
-            x[i], _ = lapack.dpbtrs(c, rhs[i], lower=1)
-            pd[i] = True
-            continue
-        y, _ = lapack.dpbtrs(c, np.concatenate([rhs[i], fb.u[:, None]], axis=1), lower=1)
+    rows = np.flatnonzero(np.all(diag > 0, axis=-1) & np.all(np.isfinite(diag), axis=-1))
+    factors, ok = pentadiagonal_cholesky_batch(diag[rows] * (1 + _PD_TOL), off1[rows], off2[rows])
+    rows, factors = rows[ok], factors[ok]
+    if fb.kind == "diagonal":
+        for i, y in zip(rows, pentadiagonal_solve_batch(factors, rhs[rows]), strict=True):
+            x[i] = y
+        pd[rows] = True
+        return x, pd
+    cols = np.concatenate([rhs[rows], np.broadcast_to(fb.u[:, None], (rows.size, fb.u.size, 1))], axis=-1)
+    for i, y in zip(rows, pentadiagonal_solve_batch(factors, cols), strict=True):
         sigma = 1 - scale * (fb.u @ y[:, k])
         if sigma > _PD_TOL:
             x[i] = y[:, :k] + np.outer(y[:, k], scale * (fb.u @ y[:, :k]) / sigma)
