@@ -23,8 +23,9 @@ from numpy.typing import NDArray
 
 from .linalg import divergence, divergence_adjoint, solve_sym_tridiagonal
 from .problem import CollisionProblem
+from .terms import FISHER_TERMS, wasserstein_derivatives
 
-__all__ = ["diagonal_hessian", "explicit_step", "sqp_step"]
+__all__ = ["diagonal_hessian", "explicit_step", "gradient_and_sqp_step", "sqp_step"]
 
 
 def diagonal_hessian(problem: CollisionProblem, f: NDArray, m: NDArray) -> tuple[NDArray, NDArray]:
@@ -53,6 +54,48 @@ def sqp_step(
     pm = solve_sym_tridiagonal(diag, off, rhs)
     pf = -divergence(pm) / h
     return pf, pm
+
+
+def gradient_and_sqp_step(
+    problem: CollisionProblem, f: NDArray, m: NDArray
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """``problem.gradient(f, m)`` and :func:`sqp_step` from it, with the shared terms evaluated once.
+
+    One SQP iteration needs the gradient of J and the diagonal Hessian of F at the same
+    point; both start from the Wasserstein derivatives in :math:`(m, s)`, :math:`s = f_k + f_{k+1}`.
+    Where no edge is empty (s > 0 everywhere: every iterate of the safeguarded SQP) they
+    are computed once, by the same operations as :meth:`CollisionProblem.gradient_parts` and
+    :meth:`CollisionProblem.edge_hessian` (so bitwise the same step); with an empty edge the
+    guarded general path runs.  Returns ``(gf, gm, pf, pm)``.
+    """
+    x, y = f[..., :-1], f[..., 1:]
+    s = x + y
+    if not np.all(s > 0):
+        gf, gm = problem.gradient(f, m)
+        return (gf, gm, *sqp_step(problem, f, m, gf, gm))
+    h = problem.grid.h
+    wd = wasserstein_derivatives(m, s, problem.wass_coef)
+    gfw = np.zeros_like(f)
+    gfw[..., :-1] += wd.g_s
+    gfw[..., 1:] += wd.g_s
+    gff = np.zeros_like(f)
+    hf = np.zeros_like(f)
+    if problem.fisher is None:
+        hf[..., :-1] += wd.h_ss
+        hf[..., 1:] += wd.h_ss
+    else:
+        term = FISHER_TERMS[problem.fisher]
+        gx, gy = term.gradient(x, y, s, problem.fisher_coef)
+        gff[..., :-1] += gx
+        gff[..., 1:] += gy
+        hx, hy, _ = term.hessian(x, y, s, problem.fisher_coef)
+        hf[..., :-1] += wd.h_ss + hx
+        hf[..., 1:] += wd.h_ss + hy
+    gf = gfw + gff + 2 * problem.energy_coef * problem.energy.matvec(f)
+    gm = wd.g_m
+    a = hf / h**2
+    pm = solve_sym_tridiagonal(a[..., :-1] + a[..., 1:] + wd.h_mm, -a[..., 1:-1], -(gm - divergence_adjoint(gf / h)))
+    return gf, gm, -divergence(pm) / h, pm
 
 
 def explicit_step(problem: CollisionProblem) -> tuple[NDArray[np.float64], NDArray[np.float64]]:

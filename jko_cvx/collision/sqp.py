@@ -55,7 +55,7 @@ import scipy.sparse as sp
 from ..conservation import check_floor
 from .certify import certify
 from .checks import check_bool, check_callable, check_choice, check_int, check_unit
-from .explicit import diagonal_hessian, sqp_step
+from .explicit import diagonal_hessian, gradient_and_sqp_step, sqp_step
 from .linalg import divergence
 from .problem import CollisionProblem
 from .result import CollisionResult, Status
@@ -218,11 +218,14 @@ def _iterate(
     zeta, it, safeguarded = 1.0, 0, 0
     with np.errstate(all="ignore"):
         while it < max_iter and zeta > tol:
-            gf, gm = problem.gradient(f, m)
-            try:
-                pf, pm = qp_step(problem, f, m, gf, gm)
-            except FloatingPointError:
-                return f, m, zeta, it, safeguarded, Status.NUMERICAL_ERROR
+            if qp_step is sqp_step:  # the banded QP: gradient and step share their terms
+                gf, gm, pf, pm = gradient_and_sqp_step(problem, f, m)
+            else:
+                gf, gm = problem.gradient(f, m)
+                try:
+                    pf, pm = qp_step(problem, f, m, gf, gm)
+                except FloatingPointError:
+                    return f, m, zeta, it, safeguarded, Status.NUMERICAL_ERROR
             if not (np.all(np.isfinite(pf)) and np.all(np.isfinite(pm))):
                 return f, m, zeta, it, safeguarded, Status.NUMERICAL_ERROR
             lam, truncated = (step, False) if safeguard == "none" else _relaxation(f, pf, step)
