@@ -139,7 +139,14 @@ def _study(args) -> int:
 def _reproduce(args) -> int:
     from .reproduce import REPRODUCTIONS
 
-    return _run_named("reproduce", REPRODUCTIONS[args.name], args, progress_kw={"progress": True, "fresh": args.fresh})
+    entry: str = args.name
+    if entry == "section":
+        from .reproduce.section import reproduce_section
+
+        func = reproduce_section
+    else:
+        func = REPRODUCTIONS[entry]
+    return _run_named("reproduce", func, args, progress_kw={"progress": True, "fresh": args.fresh})
 
 
 def _run_named(command: str, func, args, progress_kw: dict) -> int:
@@ -231,7 +238,11 @@ def main(argv: list[str] | None = None) -> int:
     from .reproduce import REPRODUCTIONS
 
     p_rep = sub.add_parser("reproduce", help="regenerate one of the paper's tables or figures beside its numbers")
-    p_rep.add_argument("name", choices=sorted(REPRODUCTIONS), help="which table or figure")
+    p_rep.add_argument(
+        "name",
+        choices=[*sorted(REPRODUCTIONS), "section"],
+        help="which table or figure; 'section': every entry of the paper's numerical section, on one shared pool",
+    )
     _sweep_arguments(p_rep, "results/reproduce", "process", "a reduced version (under 2 minutes)")
     p_rep.add_argument("--fresh", action="store_true", help="ignore the sweep cache: recompute every point")
     from .benchmarks import STUDIES

@@ -36,16 +36,17 @@ import json
 import os
 import sys
 import tempfile
+import threading
 import warnings
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_completed
-from contextlib import ExitStack
+from contextlib import ExitStack, contextmanager
 from pathlib import Path
 from typing import Any
 
 import pandas as pd
 
-__all__ = ["StaleCacheWarning", "cached_entries", "code_identity", "point_key", "run_sweep"]
+__all__ = ["StaleCacheWarning", "cached_entries", "code_identity", "holding", "point_key", "run_sweep"]
 
 
 class StaleCacheWarning(UserWarning):
@@ -199,6 +200,42 @@ def _call(func: Callable[..., dict], point: dict) -> dict:
     return func(**point)
 
 
+_HELD = threading.local()
+
+
+@contextmanager
+def holding(lock: threading.Lock, on_release: Callable[[], None] | None = None) -> Iterator[None]:
+    """Hold ``lock`` in this block, except while :func:`run_sweep` waits for its points.
+
+    Lets several callers share one pool (``jko-cvx reproduce section``): each runs its own
+    code holding the lock, one at a time, and lets the others run while its points are
+    computed.  ``on_release`` is called each time the lock is let go for a wait.
+    """
+    lock.acquire()
+    _HELD.lock, _HELD.on_release = lock, on_release
+    try:
+        yield
+    finally:
+        _HELD.lock = _HELD.on_release = None
+        lock.release()
+
+
+@contextmanager
+def _lock_released() -> Iterator[None]:
+    """Release the lock of :func:`holding` (if this thread holds one) for the block."""
+    lock = getattr(_HELD, "lock", None)
+    if lock is None:
+        yield
+        return
+    lock.release()
+    if _HELD.on_release is not None:
+        _HELD.on_release()
+    try:
+        yield
+    finally:
+        lock.acquire()
+
+
 def run_sweep(
     func: Callable[..., dict],
     points: Iterable[Mapping[str, Any]],
@@ -277,8 +314,9 @@ def run_sweep(
             with ExitStack() as stack:
                 pool = _open_executor(stack, executor, scheduler, workers)
                 futures: dict[Future, str] = {pool.submit(_call, func, p): k for k, p in todo.items()}
-                for fut in as_completed(futures):
-                    store(futures[fut], fut.result())
+                with _lock_released():  # other holders of a shared pool run meanwhile (holding)
+                    for fut in as_completed(futures):
+                        store(futures[fut], fut.result())
     finally:
         if bar is not None:
             bar.close()

@@ -14,8 +14,13 @@ code hash: a killed run resumes where it stopped (entries already timed with the
 are skipped; ``--again`` times them anew).  The Markdown report sums the entries and
 compares the total with the goal of 20 minutes on 2 cores.
 
-Run: ``python studies/regenerate_timing.py [--workers 2] [--entries a b ...] [--quick]``;
-writes ``studies/results/regenerate_timing{,_quick}.{csv,md}``.  BLAS threads: the package's
+``--section`` times ``jko-cvx reproduce section --fresh`` instead: every entry in one process
+sharing one pool (:mod:`jko_cvx.reproduce.section`), the way to regenerate the whole section;
+it writes ``regenerate_timing_section.{csv,md}`` (per entry: when it started and finished in
+the shared run) beside the entry-by-entry timing.
+
+Run: ``python studies/regenerate_timing.py [--workers 2] [--entries a b ...] [--quick] [--section]``;
+writes ``studies/results/regenerate_timing{,_quick}{,_section}.{csv,md}``.  BLAS threads: the package's
 default (``JKO_CVX_BLAS_THREADS`` = 1 inside every solve); the environment is recorded.
 """
 
@@ -114,6 +119,43 @@ def _report(df: pd.DataFrame, path: Path, quick: bool, whole: bool = True) -> No
     path.write_text("\n".join(lines))
 
 
+def time_section(scratch: Path, workers: int, quick: bool) -> int:
+    """``jko-cvx reproduce section --fresh`` in one process: its own record plus wall, CPU and load."""
+    out = scratch / "reproduce"
+    out.mkdir(parents=True, exist_ok=True)
+    _copy_claim_sources(scratch)  # the summary's inputs that no entry writes (entries overwrite the rest)
+    cmd = [sys.executable, "-m", "jko_cvx.cli", "reproduce", "section", "--fresh", "--out", str(out)]
+    cmd += ["--workers", str(workers)] + (["--quick"] if quick else [])
+    load0, cpu0, t0 = os.getloadavg()[0], _children_cpu(), time.perf_counter()
+    proc = subprocess.run(cmd, check=False)
+    wall, cpu = time.perf_counter() - t0, _children_cpu() - cpu0
+    load1 = os.getloadavg()[0]
+    entries = pd.read_csv(out / "section.csv")
+    stem = "regenerate_timing" + ("_quick" if quick else "") + "_section"
+    entries.to_csv(RESULTS / f"{stem}.csv", index=False)
+    env = {k: os.environ.get(k, "unset") for k in _ENV_KEYS}
+    ok = int((entries.status == "ok").sum())
+    verdict = "not met" if wall > GOAL_S or ok < len(entries) else "met"
+    lines = [
+        f"# Regenerating the numerical section in one run ({'quick' if quick else 'full'} forms)",
+        "",
+        f"`jko-cvx reproduce section --fresh --workers {workers}`: every entry of the section in one process, "
+        f"sharing one pool of {workers} workers (entries start longest first; the summary last), on this "
+        f"2-core machine; thread environment: {', '.join(f'{k}={v}' for k, v in env.items())}; code "
+        f"{code_identity(main)['package_sha256'][:12]}; 1-minute load {load0:.2f} before, {load1:.2f} after; "
+        f"finished {datetime.now(UTC).strftime('%Y-%m-%d %H:%M UTC')}.",
+        "",
+        entries.to_markdown(index=False, floatfmt=".1f"),
+        "",
+        f"**Total wall time {wall:.0f} s ({wall / 60:.1f} min) for {ok} of {len(entries)} entries; CPU "
+        f"{cpu:.0f} s; exit status {proc.returncode}.**  Goal: {GOAL_S / 60:.0f} min: {verdict}.",
+        "",
+    ]
+    (RESULTS / f"{stem}.md").write_text("\n".join(lines))
+    print((RESULTS / f"{stem}.md").read_text())
+    return proc.returncode
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--entries", nargs="+", choices=sorted(REPRODUCTIONS), default=None)
@@ -122,9 +164,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--again", action="store_true", help="time entries already in the CSV again")
     parser.add_argument("--scratch", type=Path, default=None, help="output directory (default: a temporary one)")
     parser.add_argument("--tag", default="", help="suffix of the result files (a separate timing of some entries)")
+    parser.add_argument("--section", action="store_true", help="time `jko-cvx reproduce section` (one run)")
     args = parser.parse_args(argv)
     if args.workers < 1:
         parser.error(f"--workers must be >= 1, got {args.workers}")
+    if args.section:
+        if args.entries or args.again or args.tag:
+            parser.error("--section times the whole section: no --entries, --again or --tag")
+        return time_section(args.scratch or Path(tempfile.mkdtemp(prefix="jko_cvx_section_")), args.workers, args.quick)
     entries = args.entries or list(REPRODUCTIONS)
     stem = "regenerate_timing" + ("_quick" if args.quick else "") + (f"_{args.tag}" if args.tag else "")
     csv = RESULTS / f"{stem}.csv"

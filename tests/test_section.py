@@ -1,0 +1,113 @@
+"""``jko-cvx reproduce section``: the entries share one pool, overlap while they wait, and give the
+results they give one by one; dependents wait, failures are recorded and refused."""
+
+from __future__ import annotations
+
+import threading
+import time
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from jko_cvx.reproduce import REPRODUCTIONS, section
+from jko_cvx.sweep import holding, run_sweep
+
+
+def square_point(x: float, pause: float = 0.0) -> dict:
+    """A sweep point (module level: picklable for the process pool)."""
+    time.sleep(pause)
+    return {"y": x * x + 0.1}
+
+
+def _fake_entry(name: str, pause: float, log: list):
+    def entry(out: Path, quick: bool = False, **sweep_opts) -> pd.DataFrame:
+        log.append((name, "start", time.perf_counter()))
+        points = [{"x": float(i), "pause": pause} for i in range(4)]
+        df = run_sweep(square_point, points, Path(out) / "cache" / name, desc=name, **sweep_opts)
+        df.to_csv(Path(out) / f"{name}.csv", index=False)
+        log.append((name, "end", time.perf_counter()))
+        return df
+
+    return entry
+
+
+def _summary(log: list):
+    def entry(out: Path, quick: bool = False, **sweep_opts) -> pd.DataFrame:
+        log.append(("summary", "start", time.perf_counter()))
+        total = sum(pd.read_csv(Path(out) / f"{n}.csv").y.sum() for n in ("alpha", "beta", "gamma"))
+        (Path(out) / "summary.md").write_text(f"total {total!r}\n")
+        return pd.DataFrame()
+
+    return entry
+
+
+@pytest.fixture
+def fake_section(monkeypatch):
+    log: list = []
+    monkeypatch.setattr(section, "SECTION", ("alpha", "beta", "gamma", "summary"))
+    monkeypatch.setattr(section, "NEEDS", {"gamma": ("alpha",), "summary": ("alpha", "beta", "gamma")})
+    for name, pause in (("alpha", 0.4), ("beta", 0.05), ("gamma", 0.0)):
+        monkeypatch.setitem(REPRODUCTIONS, name, _fake_entry(name, pause, log))
+    monkeypatch.setitem(REPRODUCTIONS, "summary", _summary(log))
+    return log
+
+
+def test_entries_share_the_pool_overlap_and_match_the_serial_run(fake_section, tmp_path):
+    log = fake_section
+    df = section.reproduce_section(tmp_path / "pool", workers=2, progress=False)
+    assert list(df.entry) == ["alpha", "beta", "gamma", "summary"] and (df.status == "ok").all()
+    when = {(name, what): t for name, what, t in log}
+    # beta starts while alpha waits for its points (the lock is let go during the wait) ...
+    assert when["beta", "start"] < when["alpha", "end"]
+    # ... gamma (needs alpha) and the summary (needs everything) only after what they read
+    assert when["gamma", "start"] > when["alpha", "end"]
+    assert when["summary", "start"] > max(when["alpha", "end"], when["beta", "end"], when["gamma", "end"])
+    log.clear()
+    section.reproduce_section(tmp_path / "serial", executor="serial", progress=False)
+    for name in ("alpha.csv", "beta.csv", "gamma.csv", "summary.md"):
+        a, b = (tmp_path / "pool" / name).read_bytes(), (tmp_path / "serial" / name).read_bytes()
+        assert a == b, name
+    record = pd.read_csv(tmp_path / "pool" / "section.csv")
+    assert (record.wall_s > 0).all() and (record.finished_s >= record.started_s).all()
+    assert "Wall time" in (tmp_path / "pool" / "section.md").read_text()
+
+
+def test_a_failing_entry_skips_its_dependents_and_the_run_says_so(fake_section, monkeypatch, tmp_path):
+    def broken(out, quick=False, **sweep_opts):
+        raise ValueError("this entry is broken")
+
+    monkeypatch.setitem(REPRODUCTIONS, "alpha", broken)
+    with pytest.raises(RuntimeError, match="3 of 4 entries did not finish: alpha, gamma, summary"):
+        section.reproduce_section(tmp_path, workers=2, progress=False)
+    record = pd.read_csv(tmp_path / "section.csv").set_index("entry")
+    assert record.loc["alpha", "status"] == "failed" and "this entry is broken" in record.loc["alpha", "error"]
+    assert record.loc["beta", "status"] == "ok"
+    assert record.loc["gamma", "status"] == "skipped" and "alpha" in record.loc["gamma", "error"]
+
+
+def test_bad_arguments_are_refused_before_any_work(tmp_path):
+    with pytest.raises(ValueError, match="entries must be entries of the section"):
+        section.reproduce_section(tmp_path, entries=("tab_bu", "no_such_entry"))
+    with pytest.raises(ValueError, match="workers must be an integer >= 1"):
+        section.reproduce_section(tmp_path, workers=0)
+    with pytest.raises(ValueError, match="executor must be"):
+        section.reproduce_section(tmp_path, executor="threads")
+    assert not list(tmp_path.iterdir())
+
+
+def test_the_section_is_every_entry_but_the_grid_convergence_study():
+    assert set(section.SECTION) == set(REPRODUCTIONS) - {"grid_convergence"}
+    assert section.SECTION[-1] == "summary" and len(set(section.SECTION)) == len(section.SECTION)
+    for name, needs in section.NEEDS.items():
+        assert all(section.SECTION.index(n) < section.SECTION.index(name) for n in needs)
+
+
+def test_holding_lets_go_only_while_a_sweep_waits(tmp_path):
+    lock = threading.Lock()
+    released = []
+    with holding(lock, on_release=lambda: released.append(lock.locked())):
+        assert lock.locked()
+        run_sweep(square_point, [{"x": 1.0}], tmp_path, executor="process", workers=1, progress=False)
+        assert lock.locked()
+    assert released == [False] and not lock.locked()
