@@ -111,3 +111,9 @@ def test_holding_lets_go_only_while_a_sweep_waits(tmp_path):
         run_sweep(square_point, [{"x": 1.0}], tmp_path, executor="process", workers=1, progress=False)
         assert lock.locked()
     assert released == [False] and not lock.locked()
+
+
+def test_the_quick_section_leaves_out_the_summary(fake_section, tmp_path):
+    df = section.reproduce_section(tmp_path, quick=True, workers=1, progress=False)
+    assert list(df.entry) == ["alpha", "beta", "gamma"] and (df.status == "ok").all()
+    assert not (tmp_path / "summary.md").exists()
