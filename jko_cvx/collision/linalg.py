@@ -142,7 +142,10 @@ def pentadiagonal_cholesky_batch(
         stop = B if info == 0 else start + (info - 1) // n
         done[start:stop] = True
         start = stop + 1
-    leaked = _neighbours(~np.all(np.isfinite(A), axis=(1, 2)))
+    # what crosses into the next block passes through the slots that link them (the storage
+    # a single matrix's call leaves untouched): non-finite there, the next block is redone
+    links = np.concatenate([A[:, -1, 1:], A[:, -2:, 2]], axis=1) if n else np.zeros((B, 0))
+    leaked = _neighbours(~np.all(np.isfinite(links), axis=1))
     for b in np.flatnonzero(leaked & done):
         own = _pentadiagonal_storage(diag[b : b + 1], off1[b : b + 1], off2[b : b + 1])[0].T
         c, info = lapack.dpbtrf(own, lower=1)
@@ -152,28 +155,31 @@ def pentadiagonal_cholesky_batch(
     return A, ok
 
 
-def pentadiagonal_solve_batch(factors: NDArray[np.float64], rhs: NDArray[np.float64]) -> list[NDArray[np.float64]]:
+def pentadiagonal_solve_batch(factors: NDArray[np.float64], rhs: NDArray[np.float64]) -> NDArray[np.float64]:
     """Solve with a batch of factors of :func:`pentadiagonal_cholesky_batch`, bitwise as one ``dpbtrs`` call each.
 
     ``factors`` has shape ``(B, n, 3)`` (every one a successful factorisation), ``rhs``
     ``(B, n, k)``.  One chained ``dpbtrs`` call: the band entries that link consecutive
-    blocks are set to exact zeros (a single matrix's call never reads them), so the
-    substitutions add only exact zeros across a boundary.  Blocks next to one with a
-    non-finite solution (which ``0 * inf`` could carry over) are solved again on their own.
-
-    Returns the B solutions, each a Fortran-ordered ``(n, k)`` array as ``dpbtrs`` returns it.
+    blocks must be exact zeros (they are set so if not; a single matrix's call never reads
+    them), so the substitutions add only exact zeros across a boundary.  Blocks next to one
+    with a non-finite solution (which ``0 * inf`` could carry over) are solved again on
+    their own.  Returns the solutions, shape ``(B, n, k)`` (a view of the chained solution).
     """
     B, n, k = rhs.shape
-    if B == 0:
-        return []
-    F = factors.copy()
-    F[:, -1, 1] = 0.0
-    F[:, -2:, 2] = 0.0
-    y, info = lapack.dpbtrs(F.reshape(-1, 3).T, rhs.reshape(-1, k), lower=1)
+    if B == 0 or n == 0:
+        return np.zeros(rhs.shape)
+    links = np.concatenate([factors[:, -1, 1:], factors[:, -2:, 2]], axis=1)
+    if np.any(links != 0):
+        factors = factors.copy()
+        factors[:, -1, 1:] = 0.0
+        factors[:, -2:, 2] = 0.0
+    y, info = lapack.dpbtrs(factors.reshape(-1, 3).T, rhs.reshape(-1, k), lower=1)
     if info != 0:
         raise RuntimeError(f"LAPACK dpbtrs: illegal argument {-info}")
-    out = [np.asfortranarray(y[b * n : (b + 1) * n]) for b in range(B)]
-    bad = np.array([not np.all(np.isfinite(yb)) for yb in out])
-    for b in np.flatnonzero(_neighbours(bad)):
-        out[b], _ = lapack.dpbtrs(factors[b].T, rhs[b], lower=1)
-    return out
+    Y = y.T.reshape(k, B, n).transpose(1, 2, 0)  # y is Fortran-ordered (B n, k)
+    bad = ~np.isfinite(y).all(axis=1).reshape(B, n).all(axis=1)
+    if bad.any():
+        Y = Y.copy()
+        for b in np.flatnonzero(_neighbours(bad)):
+            Y[b], _ = lapack.dpbtrs(factors[b].T, rhs[b], lower=1)
+    return Y
