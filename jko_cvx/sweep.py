@@ -46,7 +46,15 @@ from typing import Any
 
 import pandas as pd
 
-__all__ = ["StaleCacheWarning", "cached_entries", "code_identity", "holding", "point_key", "run_sweep"]
+__all__ = [
+    "StaleCacheWarning",
+    "cached_entries",
+    "code_identity",
+    "holding",
+    "point_key",
+    "run_sweep",
+    "shared_points",
+]
 
 
 class StaleCacheWarning(UserWarning):
@@ -220,6 +228,44 @@ def holding(lock: threading.Lock, on_release: Callable[[], None] | None = None) 
         lock.release()
 
 
+_SHARED: dict[str, Future] | None = None
+_SHARED_LOCK = threading.Lock()
+
+
+@contextmanager
+def shared_points() -> Iterator[None]:
+    """Within the block, a point that another :func:`run_sweep` call has already submitted is not
+    submitted again: the call takes that call's future.
+
+    For callers that share one Executor (``jko-cvx reproduce section``: ``gk2_bu``'s runs are
+    four of ``tab_g2bu``'s, ``tab_bu``'s are a block of the beta scan's).  A point's key
+    (:func:`point_key`) covers the function, the source of its module, the package's code and
+    the parameters, and a point is a deterministic function of them, so its result is the
+    same whichever call computed it; each call still writes it into its own cache.
+    """
+    global _SHARED
+    with _SHARED_LOCK:
+        if _SHARED is not None:
+            raise RuntimeError("shared_points blocks do not nest")
+        _SHARED = {}
+    try:
+        yield
+    finally:
+        with _SHARED_LOCK:
+            _SHARED = None
+
+
+def _submit(pool: Executor, func: Callable[..., dict], key: str, point: dict) -> Future:
+    """``pool.submit`` of one point, or the future of the same point already submitted (:func:`shared_points`)."""
+    with _SHARED_LOCK:
+        if _SHARED is None:
+            return pool.submit(_call, func, point)
+        fut = _SHARED.get(key)
+        if fut is None:
+            fut = _SHARED[key] = pool.submit(_call, func, point)
+        return fut
+
+
 @contextmanager
 def _lock_released() -> Iterator[None]:
     """Release the lock of :func:`holding` (if this thread holds one) for the block."""
@@ -313,7 +359,7 @@ def run_sweep(
         elif todo:
             with ExitStack() as stack:
                 pool = _open_executor(stack, executor, scheduler, workers)
-                futures: dict[Future, str] = {pool.submit(_call, func, p): k for k, p in todo.items()}
+                futures: dict[Future, str] = {_submit(pool, func, k, p): k for k, p in todo.items()}
                 with _lock_released():  # other holders of a shared pool run meanwhile (holding)
                     for fut in as_completed(futures):
                         store(futures[fut], fut.result())

@@ -3,6 +3,7 @@ results they give one by one; dependents wait, failures are recorded and refused
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 from pathlib import Path
@@ -14,9 +15,11 @@ from jko_cvx.reproduce import REPRODUCTIONS, section
 from jko_cvx.sweep import holding, run_sweep
 
 
-def square_point(x: float, pause: float = 0.0) -> dict:
-    """A sweep point (module level: picklable for the process pool)."""
+def square_point(x: float, pause: float = 0.0, marks: str = "") -> dict:
+    """A sweep point (module level: picklable for the process pool); leaves a file in ``marks`` per call."""
     time.sleep(pause)
+    if marks:
+        Path(marks, f"{x}-{os.getpid()}-{time.perf_counter_ns()}").touch()
     return {"y": x * x + 0.1}
 
 
@@ -117,3 +120,37 @@ def test_the_quick_section_leaves_out_the_summary(fake_section, tmp_path):
     df = section.reproduce_section(tmp_path, quick=True, workers=1, progress=False)
     assert list(df.entry) == ["alpha", "beta", "gamma"] and (df.status == "ok").all()
     assert not (tmp_path / "summary.md").exists()
+
+
+def test_a_point_two_entries_share_runs_once(monkeypatch, tmp_path):
+    """gk2_bu's runs are tab_g2bu's: in one section run the shared pool computes such a point once, and
+    each entry still gets it (and caches it), also with --fresh."""
+    marks = tmp_path / "marks"
+    marks.mkdir()
+
+    def entry(name, xs):
+        def run(out, quick=False, **sweep_opts):
+            points = [{"x": x, "pause": 0.2, "marks": str(marks)} for x in xs]
+            df = run_sweep(square_point, points, Path(out) / "cache" / name, desc=name, **sweep_opts)
+            df.to_csv(Path(out) / f"{name}.csv", index=False)
+
+        return run
+
+    monkeypatch.setattr(section, "SECTION", ("first", "second"))
+    monkeypatch.setattr(section, "NEEDS", {})
+    monkeypatch.setitem(REPRODUCTIONS, "first", entry("first", [1.0, 2.0, 3.0]))
+    monkeypatch.setitem(REPRODUCTIONS, "second", entry("second", [2.0, 3.0, 4.0]))
+    section.reproduce_section(tmp_path / "out", workers=2, progress=False, fresh=True)
+    runs = sorted(float(p.name.split("-")[0]) for p in marks.iterdir())
+    assert runs == [1.0, 2.0, 3.0, 4.0]
+    second = pd.read_csv(tmp_path / "out" / "second.csv")
+    assert list(second.y) == [x * x + 0.1 for x in (2.0, 3.0, 4.0)]
+    assert len(list((tmp_path / "out" / "cache" / "second").glob("*.json"))) == 3
+    assert "JKO_CVX_THREADS" not in os.environ  # the section's one-thread setting is undone
+
+
+def test_shared_points_blocks_do_not_nest():
+    from jko_cvx.sweep import shared_points
+
+    with shared_points(), pytest.raises(RuntimeError, match="do not nest"), shared_points():
+        pass

@@ -110,3 +110,20 @@ def test_fused_gradient_and_step_are_bitwise_the_two_calls(fisher, gamma):
             assert np.array_equal(a, b, equal_nan=True)
             fin = np.isfinite(b)
             assert np.array_equal(a[fin].view(np.int64), b[fin].view(np.int64))
+
+
+def test_relaxation_step_is_bitwise_the_gathered_minimum():
+    from jko_cvx.collision.sqp import _FRACTION_TO_BOUNDARY, _relaxation
+
+    rng = np.random.default_rng(9)
+    for _ in range(200):
+        f = 10.0 ** rng.uniform(-12, 1, 50)
+        pf = rng.standard_normal(50) * 10.0 ** rng.uniform(-14, 2, 50)
+        pf[rng.uniform(size=50) < 0.3] = 0.0
+        neg = pf < 0
+        want = float(np.min(-f[neg] / pf[neg])) * _FRACTION_TO_BOUNDARY if neg.any() else None
+        lam, cut = _relaxation(f, pf, 1.0)
+        if want is not None and want < 1.0:
+            assert cut and lam == want
+        else:
+            assert not cut and lam == 1.0

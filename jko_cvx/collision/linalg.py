@@ -143,10 +143,11 @@ def pentadiagonal_cholesky_batch(
         done[start:stop] = True
         start = stop + 1
     # what crosses into the next block passes through the slots that link them (the storage
-    # a single matrix's call leaves untouched): non-finite there, the next block is redone
+    # a single matrix's call leaves untouched): non-finite there, the next block is redone,
+    # whatever the chain made of it (factorised or stopped)
     links = np.concatenate([A[:, -1, 1:], A[:, -2:, 2]], axis=1) if n else np.zeros((B, 0))
     leaked = _neighbours(~np.all(np.isfinite(links), axis=1))
-    for b in np.flatnonzero(leaked & done):
+    for b in np.flatnonzero(leaked):
         own = _pentadiagonal_storage(diag[b : b + 1], off1[b : b + 1], off2[b : b + 1])[0].T
         c, info = lapack.dpbtrf(own, lower=1)
         A[b] = c.T

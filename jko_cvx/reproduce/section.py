@@ -17,7 +17,9 @@ tests check serial, process and Dask runs give identical tables), and the entrie
 the same files as ``jko-cvx reproduce NAME`` does, one by one.
 
 Entries that read another entry's files wait for it (:data:`NEEDS`); ``summary``, which reads
-every other entry's files, runs last.  A failing entry is recorded and the others go on;
+every other entry's files, runs last.  A point that two entries share (the same function, code
+and parameters: ``gk2_bu``'s runs are four of ``tab_g2bu``'s, ``tab_bu``'s are a block of the
+beta scan's) runs once (:func:`jko_cvx.sweep.shared_points`).  A failing entry is recorded and the others go on;
 entries that need it are skipped.  ``section.{csv,md}`` record, per entry, when it started
 and finished, and the total wall and CPU time, with the code's provenance.
 """
@@ -37,7 +39,8 @@ from typing import Any
 
 import pandas as pd
 
-from ..sweep import code_provenance, holding
+from ..sweep import code_provenance, holding, shared_points
+from ..threads import THREADS_ENV
 from . import REPRODUCTIONS
 
 __all__ = ["NEEDS", "SECTION", "reproduce_section"]
@@ -62,13 +65,14 @@ SECTION = (
     "explicit_figures",
     "explicit2_sketch",
     "gk1_final",
-    "g2bu_loglog",
     "mesh_maps",
+    "g2bu_loglog",
     "summary",
 )
 """The entries of the paper's numerical section, in the order they start: by CPU time, longest first
 (``studies/results/regenerate_timing.csv``, one entry at a time on 2 cores: 1562 s for
-``inhom_gamma1p5`` down to 2 s), then the entries that read others' files.  ``grid_convergence``
+``inhom_gamma1p5`` down to 2 s), then the entries that read others' files (an entry starts after
+the one before it has, so these come last).  ``grid_convergence``
 (the study the paper lacks, 41 minutes on its own) is not part of the section: run it by name."""
 
 NEEDS: dict[str, tuple[str, ...]] = {
@@ -191,6 +195,14 @@ def reproduce_section(
             scheduler = cluster.scheduler_address
         elif scheduler is None and executor == "process":
             shared = stack.enter_context(ProcessPoolExecutor(max_workers=workers))
+        if not isinstance(shared, str):
+            stack.enter_context(shared_points())  # a point two entries share runs once
+            if THREADS_ENV not in os.environ:
+                # the pool's workers use the cores: an entry's own runs (here, in the main
+                # process) take one slice thread instead of one per core (results do not
+                # depend on it, see jko_cvx.threads)
+                os.environ[THREADS_ENV] = "1"
+                stack.callback(os.environ.pop, THREADS_ENV, None)
         call = {"out": out, "quick": quick, "executor": shared, "scheduler": scheduler, "workers": workers}
         call.update(progress=False, fresh=fresh)
         threads = executor != "serial" or scheduler is not None
