@@ -736,6 +736,85 @@ CLAIMS += (
         "the previous code's resolution table (kept beside today's) against today's",
     ),
 )
+_SECTION_TOTAL = re.compile(
+    r"\*\*Total wall time (\d+) s \(([\d.]+) min\) for (\d+) of (\d+) entries; CPU (\d+) s; "
+    r"exit status (-?\d+)\.\*\*  Goal: 20 min: (met|not met)\."
+)
+
+
+def _section_total(text: str) -> tuple[str, ...]:
+    """``jko-cvx reproduce section --fresh``: wall s, min, entries done, of, CPU s, the goal's verdict.
+
+    Refused unless every entry finished and the command exited 0 (a partial run times nothing).
+    """
+    m = _SECTION_TOTAL.search(text)
+    if m is None:
+        raise ValueError("regenerate_timing_section.md: no total line")
+    wall, minutes, done, of, cpu, status, verdict = m.groups()
+    if done != of or status != "0":
+        raise ValueError(f"regenerate_timing_section.md: {done} of {of} entries, exit status {status}")
+    return wall, f"{float(minutes):.0f}", done, cpu, verdict
+
+
+def _section_code(text: str) -> tuple[str, ...]:
+    """The package hash and the 1-minute loads recorded with the section's timing."""
+    m = re.search(r"code ([0-9a-f]{12}); 1-minute load ([\d.]+) before, ([\d.]+) after", text)
+    if m is None:
+        raise ValueError("regenerate_timing_section.md: no code and load line")
+    return m.group(1), f"{float(m.group(2)):.1f}", f"{float(m.group(3)):.1f}"
+
+
+CLAIMS += (
+    Claim(
+        "regenerate.section",
+        "../regenerate_timing_section.md",
+        _section_total,
+        "**`jko-cvx reproduce section --fresh --workers 2` regenerated the section in {} s ({} min) of wall "
+        "time, {} entries, {} s of CPU; the goal of 20 minutes is {}**",
+        "the total line of the section's timing (refused unless every entry finished)",
+    ),
+    Claim(
+        "regenerate.section.readme",
+        "../regenerate_timing_section.md",
+        _section_total,
+        "`jko-cvx reproduce section --fresh --workers 2` regenerated it in {} s ({} min) of wall time, {} "
+        "entries, {} s of CPU: the goal of 20 minutes is {}",
+        "the total line of the section's timing",
+        "README.md",
+    ),
+    Claim(
+        "regenerate.section.code",
+        "../regenerate_timing_section.md",
+        _section_code,
+        "(package sha256 {}, 1-minute load {} before and {} after",
+        "the record line of the section's timing",
+    ),
+)
+def _ab_entry(d: pd.DataFrame) -> tuple[str, ...]:
+    """gk2_bu from the old and the new checkout, interleaved: CPU ranges and the change of the medians."""
+    rows = d[(d.entry == "gk2_bu") & (d.returncode == 0)]
+    old, new = rows[rows.side == "old"].cpu_s, rows[rows.side == "new"].cpu_s
+    if len(old) < 2 or len(new) < 2:
+        raise ValueError("ab_entry.csv: fewer than two runs of each side")
+    return (
+        f"{old.min():.0f}",
+        f"{old.max():.0f}",
+        f"{new.min():.0f}",
+        f"{new.max():.0f}",
+        f"{100 * (1 - new.median() / old.median()):.0f}",
+    )
+
+
+CLAIMS += (
+    Claim(
+        "regenerate.ab",
+        "../ab_entry.csv",
+        _ab_entry,
+        "side by side, interleaved (`results/ab_entry.csv`), the old and the new code's `gk2_bu` took {}-{} and "
+        "{}-{} s of CPU ({} % less)",
+        "cpu_s of the gk2_bu runs by side; 1 - median(new)/median(old)",
+    ),
+)
 # the NAME table of studies/README.md: each entry's measured wall time (fresh full form, 2 workers)
 CLAIMS += tuple(
     Claim(f"wall.{entry}", file, _wall(entry), f"| `{entry}` | {{}} s |", "wall_s of the entry")
