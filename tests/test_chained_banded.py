@@ -2,8 +2,9 @@
 
 ``newton._structured_direction`` factorises and solves a batch of pentadiagonal systems as one
 block-diagonal LAPACK call (``linalg.pentadiagonal_cholesky_batch``/``_solve_batch``).  The
-reference here is the per-slice code it replaced (one ``dpbtrf``/``dpbtrs`` per slice),
-copied verbatim: directions and positive-definiteness verdicts must agree bit for bit,
+reference is the per-slice code it replaced (one ``dpbtrf``/``dpbtrs`` per slice), which it
+still runs below ``_CHAIN_MIN`` slices, applied slice by slice (and the single LAPACK calls
+themselves for the batch helpers): directions and positive-definiteness verdicts must agree bit for bit,
 including on slices that fail (a non-positive pivot mid-batch, NaN, overflow, a denormal
 pivot whose reciprocal is inf) and on their neighbours, which a chained call could touch.
 """
@@ -15,42 +16,19 @@ import pytest
 from scipy.linalg import lapack
 
 from jko_cvx.collision.linalg import pentadiagonal_cholesky_batch, pentadiagonal_solve_batch
-from jko_cvx.collision.newton import _PD_TOL, _structured_direction
+from jko_cvx.collision.newton import _CHAIN_MIN, _structured_direction
 from jko_cvx.kernels import FluxBlock
 
 
-def _banded_cholesky_reference(diag, off1, off2):
-    n1 = diag.shape[-1]
-    ab = np.zeros((3, n1))
-    ab[0] = diag * (1 + _PD_TOL)
-    ab[1, :-1] = off1
-    ab[2, :-2] = off2
-    c, info = lapack.dpbtrf(ab, lower=1)
-    return c, info == 0 and bool(np.isfinite(c[0, -1]))
-
-
 def _structured_direction_reference(fb, scale, bands, rhs):
-    diag, off1, off2 = bands
-    if fb.kind == "diagonal":
-        diag = diag + scale * fb.diag
+    """One slice at a time: below ``_CHAIN_MIN`` slices ``_structured_direction`` makes one LAPACK call per
+    slice (the code the chained path replaced, unchanged), so each row on its own is the reference."""
+    assert _CHAIN_MIN > 1
     x = np.zeros_like(rhs)
     pd = np.zeros(rhs.shape[0], dtype=bool)
-    k = rhs.shape[-1]
     for i in range(rhs.shape[0]):
-        if not (np.all(diag[i] > 0) and np.all(np.isfinite(diag[i]))):
-            continue
-        c, ok = _banded_cholesky_reference(diag[i], off1[i], off2[i])
-        if not ok:
-            continue
-        if fb.kind == "diagonal":
-            x[i], _ = lapack.dpbtrs(c, rhs[i], lower=1)
-            pd[i] = True
-            continue
-        y, _ = lapack.dpbtrs(c, np.concatenate([rhs[i], fb.u[:, None]], axis=1), lower=1)
-        sigma = 1 - scale * (fb.u @ y[:, k])
-        if sigma > _PD_TOL:
-            x[i] = y[:, :k] + np.outer(y[:, k], scale * (fb.u @ y[:, :k]) / sigma)
-            pd[i] = True
+        one = tuple(band[i : i + 1] for band in bands)
+        x[i : i + 1], pd[i : i + 1] = _structured_direction(fb, scale, one, rhs[i : i + 1])
     return x, pd
 
 
