@@ -187,7 +187,10 @@ def reproduce_section(
     with ExitStack() as stack:
         shared: str | Executor = executor
         if scheduler is None and executor == "dask":
-            from distributed import LocalCluster
+            try:
+                from distributed import LocalCluster
+            except ImportError as exc:  # optional extra
+                raise ImportError('Dask sweeps need the optional extra: pip install "jko_cvx[dask]"') from exc
 
             cluster = stack.enter_context(
                 LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True)
