@@ -9,6 +9,7 @@ from scipy.linalg import lapack
 __all__ = [
     "divergence",
     "divergence_adjoint",
+    "pentadiagonal_cholesky",
     "pentadiagonal_cholesky_batch",
     "pentadiagonal_solve_batch",
     "solve_sym_tridiagonal",
@@ -97,6 +98,14 @@ def _pentadiagonal_storage(diag: NDArray, off1: NDArray, off2: NDArray) -> NDArr
     return A
 
 
+def pentadiagonal_cholesky(diag: NDArray, off1: NDArray, off2: NDArray) -> NDArray | None:
+    """Lower banded Cholesky factor (LAPACK ``dpbtrf``, ``(3, n)`` storage) of one symmetric
+    pentadiagonal matrix, or None where it is not positive definite (or its last pivot is not finite)."""
+    ab = _pentadiagonal_storage(diag[None], off1[None], off2[None])[0].T
+    c, info = lapack.dpbtrf(ab, lower=1)
+    return c if info == 0 and np.isfinite(c[0, -1]) else None
+
+
 def _neighbours(bad: NDArray[np.bool_]) -> NDArray[np.bool_]:
     """``bad`` and the entries next to a bad one (the blocks a chained call may have touched)."""
     near = bad.copy()
@@ -148,10 +157,10 @@ def pentadiagonal_cholesky_batch(
     links = np.concatenate([A[:, -1, 1:], A[:, -2:, 2]], axis=1) if n else np.zeros((B, 0))
     leaked = _neighbours(~np.all(np.isfinite(links), axis=1))
     for b in np.flatnonzero(leaked):
-        own = _pentadiagonal_storage(diag[b : b + 1], off1[b : b + 1], off2[b : b + 1])[0].T
-        c, info = lapack.dpbtrf(own, lower=1)
-        A[b] = c.T
-        done[b] = info == 0
+        own = pentadiagonal_cholesky(diag[b], off1[b], off2[b])
+        done[b] = own is not None
+        if done[b]:
+            A[b] = own.T
     ok = done & np.isfinite(A[:, -1, 0]) if n else done
     return A, ok
 

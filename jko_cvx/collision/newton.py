@@ -56,7 +56,13 @@ from ..threads import blas_limited  # h15
 from .certify import certify
 from .checks import check_bool, check_choice, check_int, check_unit
 from .explicit import explicit_step
-from .linalg import divergence, divergence_adjoint, pentadiagonal_cholesky_batch, pentadiagonal_solve_batch
+from .linalg import (
+    divergence,
+    divergence_adjoint,
+    pentadiagonal_cholesky,
+    pentadiagonal_cholesky_batch,
+    pentadiagonal_solve_batch,
+)
 from .problem import CollisionProblem, TermParts, add_pentadiagonal
 from .result import CollisionResult, Status
 from .structured import dense_kernel_direction  # h15
@@ -137,17 +143,6 @@ def _fused(
 _CHAIN_MIN = 8
 
 
-def _banded_cholesky(diag, off1, off2) -> tuple[NDArray | None, bool]:
-    """LAPACK banded Cholesky of a symmetric pentadiagonal matrix, with the PD tolerance."""
-    n1 = diag.shape[-1]
-    ab = np.zeros((3, n1))
-    ab[0] = diag * (1 + _PD_TOL)
-    ab[1, :-1] = off1
-    ab[2, :-2] = off2
-    c, info = lapack.dpbtrf(ab, lower=1)
-    return c, info == 0 and bool(np.isfinite(c[0, -1]))
-
-
 def _sherman_morrison(fb: FluxBlock, scale: float, y: NDArray, k: int) -> NDArray | None:
     """``(B - s u u')^-1 rhs`` from ``y = B^-1 [rhs, u]`` (Fortran-ordered), or None where not PD."""
     sigma = 1 - scale * (fb.u @ y[:, k])
@@ -177,8 +172,8 @@ def _structured_direction(fb: FluxBlock, scale: float, bands, rhs: NDArray) -> t
         for i in range(rhs.shape[0]):
             if not (np.all(diag[i] > 0) and np.all(np.isfinite(diag[i]))):
                 continue
-            c, ok = _banded_cholesky(diag[i], off1[i], off2[i])
-            if not ok:
+            c = pentadiagonal_cholesky(diag[i] * (1 + _PD_TOL), off1[i], off2[i])
+            if c is None:
                 continue
             if fb.kind == "diagonal":
                 x[i], _ = lapack.dpbtrs(c, rhs[i], lower=1)

@@ -85,6 +85,7 @@ from scipy.linalg import lapack
 
 from ..kernels import EnergyOperator, FluxBlock
 from ..threads import map_chunks
+from .linalg import pentadiagonal_cholesky
 
 __all__ = [
     "LINALG_ENV",
@@ -119,17 +120,6 @@ def linalg_mode() -> str:
     if mode not in _MODES:
         raise ValueError(f"environment variable {LINALG_ENV} must be one of {_MODES}, got {mode!r}")
     return mode
-
-
-def _pentadiagonal_cholesky(diag: NDArray, off1: NDArray, off2: NDArray) -> NDArray | None:
-    """Lower banded Cholesky factor (LAPACK ``dpbtrf``) of a symmetric pentadiagonal matrix, or None."""
-    n = diag.size
-    ab = np.zeros((3, n))
-    ab[0] = diag
-    ab[1, :-1] = off1
-    ab[2, :-2] = off2
-    c, info = lapack.dpbtrf(ab, lower=1)
-    return c if info == 0 and np.isfinite(c[0, -1]) else None
 
 
 def _shifted_diagonal(diag: NDArray, e_diag: NDArray, scale: float, pd_tol: float) -> tuple[NDArray, NDArray]:
@@ -261,7 +251,7 @@ class Semiseparable3:
         solved = np.zeros(b, dtype=bool)
         R = np.zeros((2 * n, k + 2), order="F")
         for j in np.flatnonzero(finite):
-            if _pentadiagonal_cholesky(g_diag[j], off1[j], off2[j]) is None:
+            if pentadiagonal_cholesky(g_diag[j], off1[j], off2[j]) is None:
                 decided[lo + j] = False
                 continue
             sx = sc[j, self.X, None]
@@ -330,7 +320,7 @@ class LowRankFlux:
         finite = np.all(d > 0, axis=1) & np.all(np.isfinite(d), axis=1)
         finite &= np.all(np.isfinite(off1), axis=1) & np.all(np.isfinite(off2), axis=1)
         for j in np.flatnonzero(finite):
-            c = _pentadiagonal_cholesky(b_diag[j], off1[j], off2[j])
+            c = pentadiagonal_cholesky(b_diag[j], off1[j], off2[j])
             if c is None:
                 decided[lo + j] = False
                 continue
@@ -379,10 +369,10 @@ class Certified:
             if not (np.all(d[j] > 0) and np.all(np.isfinite(d[j]))):
                 decided[lo + j] = True  # not positive definite, as the dense test has it
                 continue
-            if _pentadiagonal_cholesky(h_diag[j] - scale * self.radius, off1[j], off2[j]) is not None:
+            if pentadiagonal_cholesky(h_diag[j] - scale * self.radius, off1[j], off2[j]) is not None:
                 # certified; G >= C is positive definite too, and the closer preconditioner
                 # (measured, N_v = 481 / 1025: 30 / 50 CG iterations against 57 / 97 with C)
-                factors[j] = _pentadiagonal_cholesky(h_diag[j], off1[j], off2[j])
+                factors[j] = pentadiagonal_cholesky(h_diag[j], off1[j], off2[j])
         if not factors:
             return
         js = np.fromiter(factors, dtype=int)
