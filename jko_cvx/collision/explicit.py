@@ -45,8 +45,15 @@ def sqp_step(
     One tridiagonal solve per slice (see the module docstring); ``p_f = -D p_m / h``, so
     ``(f + p_f, m + p_m)`` is feasible.
     """
-    h = problem.grid.h
     hf, hm = diagonal_hessian(problem, f, m)
+    return _step_from(problem, hf, hm, gf, gm)
+
+
+def _step_from(
+    problem: CollisionProblem, hf: NDArray, hm: NDArray, gf: NDArray, gm: NDArray
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The step ``(p_f, p_m)`` of the tridiagonal system from the diagonal Hessian and the gradient."""
+    h = problem.grid.h
     a = hf / h**2
     diag = a[..., :-1] + a[..., 1:] + hm
     off = -a[..., 1:-1]
@@ -73,7 +80,6 @@ def gradient_and_sqp_step(
     if not np.all(s > 0):
         gf, gm = problem.gradient(f, m)
         return (gf, gm, *sqp_step(problem, f, m, gf, gm))
-    h = problem.grid.h
     wd = wasserstein_derivatives(m, s, problem.wass_coef)
     gfw = np.zeros_like(f)
     gfw[..., :-1] += wd.g_s
@@ -92,10 +98,7 @@ def gradient_and_sqp_step(
         hf[..., :-1] += wd.h_ss + hx
         hf[..., 1:] += wd.h_ss + hy
     gf = gfw + gff + 2 * problem.energy_coef * problem.energy.matvec(f)
-    gm = wd.g_m
-    a = hf / h**2
-    pm = solve_sym_tridiagonal(a[..., :-1] + a[..., 1:] + wd.h_mm, -a[..., 1:-1], -(gm - divergence_adjoint(gf / h)))
-    return gf, gm, -divergence(pm) / h, pm
+    return (gf, wd.g_m, *_step_from(problem, hf, wd.h_mm, gf, wd.g_m))
 
 
 def explicit_step(problem: CollisionProblem) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
