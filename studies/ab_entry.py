@@ -16,22 +16,16 @@ from __future__ import annotations
 
 import argparse
 import os
-import resource
 import subprocess
 import sys
 import tempfile
-import time
 from datetime import UTC, datetime
 from pathlib import Path
 
 import pandas as pd
+from regenerate_timing import run_timed
 
 RESULTS = Path(__file__).parent / "results"
-
-
-def _children_cpu() -> float:
-    use = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return use.ru_utime + use.ru_stime
 
 
 def _commit(tree: Path) -> str:
@@ -44,11 +38,8 @@ def run_once(tree: Path, entry: str, workers: int) -> dict:
     env = {**os.environ, "PYTHONPATH": str(tree)}
     with tempfile.TemporaryDirectory(prefix="jko_cvx_ab_") as out:
         cmd = [sys.executable, "-m", "jko_cvx.cli", "reproduce", entry, "--fresh", "--workers", str(workers)]
-        load0, cpu0, t0 = os.getloadavg()[0], _children_cpu(), time.perf_counter()
-        proc = subprocess.run([*cmd, "--out", out], capture_output=True, text=True, env=env, check=False, cwd=out)
-        wall, cpu = time.perf_counter() - t0, _children_cpu() - cpu0
-    return {"wall_s": wall, "cpu_s": cpu, "returncode": proc.returncode, "load_before": load0,
-            "load_after": os.getloadavg()[0]}  # fmt: skip
+        _, timing = run_timed([*cmd, "--out", out], capture_output=True, text=True, env=env, cwd=out)
+    return timing
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -53,22 +53,31 @@ def _children_cpu() -> float:
     return use.ru_utime + use.ru_stime
 
 
+def run_timed(cmd: list[str], **run_kwargs) -> tuple[subprocess.CompletedProcess, dict]:
+    """Run ``cmd`` in a fresh process: its result, and wall seconds, the CPU seconds of the process
+    and its children (``RUSAGE_CHILDREN``), the exit status and the 1-minute load before and after."""
+    load0, cpu0, t0 = os.getloadavg()[0], _children_cpu(), time.perf_counter()
+    proc = subprocess.run(cmd, check=False, **run_kwargs)
+    wall, cpu = time.perf_counter() - t0, _children_cpu() - cpu0
+    timing = {"wall_s": wall, "cpu_s": cpu, "returncode": proc.returncode, "load_before": load0,
+              "load_after": os.getloadavg()[0]}  # fmt: skip
+    return proc, timing
+
+
 def time_entry(name: str, out: Path, workers: int, quick: bool) -> dict:
     """Run one entry in a fresh process; wall and CPU seconds, exit status, load averages."""
     cmd = [sys.executable, "-m", "jko_cvx.cli", "reproduce", name, "--fresh", "--out", str(out)]
     cmd += ["--workers", str(workers)] + (["--quick"] if quick else [])
-    load0, cpu0, t0 = os.getloadavg()[0], _children_cpu(), time.perf_counter()
-    proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
-    wall, cpu = time.perf_counter() - t0, _children_cpu() - cpu0
+    proc, timing = run_timed(cmd, capture_output=True, text=True)
     tail = (proc.stderr or proc.stdout).strip().splitlines()[-1:] if proc.returncode else []
     return {
         "entry": name,
-        "wall_s": wall,
-        "cpu_s": cpu,
+        "wall_s": timing["wall_s"],
+        "cpu_s": timing["cpu_s"],
         "returncode": proc.returncode,
         "error": tail[0][:200] if tail else "",
-        "load_before": load0,
-        "load_after": os.getloadavg()[0],
+        "load_before": timing["load_before"],
+        "load_after": timing["load_after"],
         "workers": workers,
         "finished": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"),
     }
@@ -126,10 +135,8 @@ def time_section(scratch: Path, workers: int, quick: bool) -> int:
     _copy_claim_sources(scratch)  # the summary's inputs that no entry writes (entries overwrite the rest)
     cmd = [sys.executable, "-m", "jko_cvx.cli", "reproduce", "section", "--fresh", "--out", str(out)]
     cmd += ["--workers", str(workers)] + (["--quick"] if quick else [])
-    load0, cpu0, t0 = os.getloadavg()[0], _children_cpu(), time.perf_counter()
-    proc = subprocess.run(cmd, check=False)
-    wall, cpu = time.perf_counter() - t0, _children_cpu() - cpu0
-    load1 = os.getloadavg()[0]
+    proc, timing = run_timed(cmd)
+    wall, cpu, load0, load1 = (timing[k] for k in ("wall_s", "cpu_s", "load_before", "load_after"))
     entries = pd.read_csv(out / "section.csv")
     stem = "regenerate_timing" + ("_quick" if quick else "") + "_section"
     entries.to_csv(RESULTS / f"{stem}.csv", index=False)
