@@ -87,8 +87,12 @@ def test_beta_scan_puts_the_papers_entry_of_each_dt_beside_ours(monkeypatch, tmp
     """Mutation ``beta-scan-paper-column``: the paper's number comes from its LaTeX table here."""
     from jko_cvx.reproduce import beta_scan
 
-    def sweep(func, points, *args, **kwargs):  # planted results: no runs
-        return pd.DataFrame([{**p, "T_b": 0.5, "seconds": 0.0} for p in points])
+    def sweep(func, points, *args, **kwargs):  # planted results: no runs (one run per column of eps_v)
+        rows = []
+        for p in points:
+            n = len(p["eps_v"])
+            rows.append({**p, "T_b": [0.5] * n, "steps": [1] * n, "failed_steps": [0] * n, "seconds": 0.0})
+        return pd.DataFrame(rows)
 
     monkeypatch.setattr(beta_scan, "run_sweep", sweep)
     beta_scan.reproduce_tab_bu_beta_scan(tmp_path, quick=True)
