@@ -98,10 +98,14 @@ def secondary_peaks(f: np.ndarray, level: float = LEVEL) -> np.ndarray:
     return np.where(other, f, 0.0).max(axis=1)
 
 
-def g2bu_run(lam: float, n_x: int, n_v: int) -> dict[str, Any]:
-    """One sweep point: the verdict, T_b, the rho / m records and the level-set check."""
+RECORDS = ("step", "t", "dt", "min_dx", "min_dv", "max_f", "mass")
+"""The per-step diagnostics a :func:`g2bu_run` point returns (``records``: the panel of ``fig:gk2_evo_example2``)."""
+
+
+def g2bu_run(lam: float, n_x: int, n_v: int, t_end: float = 0.2) -> dict[str, Any]:
+    """One sweep point: the verdict, T_b, the rho / m records, the level-set check and the per-step ``records``."""
     t0 = time.perf_counter()
-    run = simulate(g2bu_scene(lam, n_x, n_v))
+    run = simulate(g2bu_scene(lam, n_x, n_v, t_end))
     d = run.diagnostics
     rho, comps, split, secondary = [], [], 0, 0.0
     for snap in run.snapshots:
@@ -132,6 +136,7 @@ def g2bu_run(lam: float, n_x: int, n_v: int) -> dict[str, Any]:
         "secondary peak": secondary,
         "t_steps": d.t.tolist(),
         "min_dx_series": d.min_dx.tolist(),
+        "records": {k: d[k].tolist() for k in RECORDS},
         "final": snapshot_record(last),
         "snapshots": [snapshot_record(s) for s in run.snapshots_at(EVOLUTION_TIMES if lam == EVOLUTION_LAMBDA else ())],
         "seconds": time.perf_counter() - t0,

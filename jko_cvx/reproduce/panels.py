@@ -19,7 +19,8 @@ import pandas as pd
 
 from ..benchmarks.figures import pyplot
 from ..simulate import simulate
-from .g2bu import g2bu_scene
+from ..sweep import run_sweep
+from .g2bu import RECORDS, g2bu_run
 from .ibu import ibu_scene
 
 __all__ = ["reproduce_g2bu_loglog", "reproduce_g2bu_records", "reproduce_ibu_panels"]
@@ -86,17 +87,22 @@ def reproduce_g2bu_loglog(out: Path, quick: bool = False, **_sweep_opts: Any) ->
     return df
 
 
-def reproduce_g2bu_records(out: Path, quick: bool = False, **_sweep_opts: Any) -> pd.DataFrame:
-    """``fig:gk2_evo_example2`` records (lambda = 310; ``quick``: to t = 0.05); ``g2bu_records.{csv,png}``."""
+def reproduce_g2bu_records(out: Path, quick: bool = False, **sweep_opts: Any) -> pd.DataFrame:
+    """``fig:gk2_evo_example2`` records (lambda = 310; ``quick``: to t = 0.05); ``g2bu_records.{csv,png}``.
+
+    The run is ``tab_g2bu``'s lambda = 310 sweep point (:func:`~jko_cvx.reproduce.g2bu.g2bu_run`),
+    which in ``jko-cvx reproduce section`` runs once for both entries.
+    """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    run = simulate(g2bu_scene(310.0, t_end=0.05 if quick else 0.2))
-    d = run.diagnostics[["step", "t", "dt", "min_dx", "min_dv", "max_f", "mass"]].copy()
+    point = {"lam": 310.0, "n_x": 121, "n_v": 201, **({"t_end": 0.05} if quick else {})}
+    run = run_sweep(g2bu_run, [point], out / "cache" / "g2bu_records", desc="g2bu_records", **sweep_opts).iloc[0]
+    d = pd.DataFrame(run.records)[list(RECORDS)]
     d.to_csv(out / "g2bu_records.csv", index=False)
     (out / "g2bu_records.md").write_text(
         "# fig:gk2_evo_example2 records: lambda = 310, 121 x 201\n\n"
-        f"{len(d) - 1} steps; verdict: {run.verdict['reason']} at t = {run.t:.5g}; "
+        f"{len(d) - 1} steps; verdict: {run.reason} at t = {d.t.iloc[-1]:.5g}; "
         f"min dx {d.min_dx.min():.3g}, min dv {d.min_dv.min():.3g}, max f {d.max_f.max():.4g}; "
         f"{time.perf_counter() - t0:.0f} s.\n"
     )
