@@ -22,40 +22,70 @@ def solve_sym_tridiagonal(
     """Solve symmetric tridiagonal systems ``T x = rhs`` along the last axis.
 
     ``T`` has ``diag`` (shape ``(..., n)``) on its diagonal and ``off``
-    (shape ``(..., n-1)``) on both off-diagonals.  Thomas' algorithm without
-    pivoting, vectorised over leading (batch) axes; stable for the diagonally
-    dominant or positive definite matrices it is used on here.  Positive definite
-    systems go to LAPACK's ``dptsv`` (a batch as one block-diagonal system); the loop is
-    the fallback for the others.
+    (shape ``(..., n-1)``) on both off-diagonals.  Each system is solved by LAPACK's
+    positive definite tridiagonal solver ``dptsv``, or, where that fails (not positive
+    definite), by Thomas' algorithm without pivoting (:func:`_thomas`; stable for the
+    diagonally dominant matrices it meets here).
+
+    Each row's solution is the one it has alone, whatever the other rows of the batch: a
+    batch of finite rows goes to LAPACK as one block-diagonal system (the rows chained by
+    zero off-diagonals: the factorisation decouples exactly), but a non-finite value would
+    cross the zero links (0 * inf = NaN, forwards and backwards through every row) and one
+    indefinite row would fail the whole call.  So rows with a non-finite entry, and every
+    row of a chain that fails or returns a non-finite value, are solved one by one.
     """
     diag = np.asarray(diag, dtype=float)
     off = np.asarray(off, dtype=float)
     rhs = np.asarray(rhs, dtype=float)
     if diag.ndim == 1 and rhs.ndim == 1:
-        # One system: LAPACK's positive definite tridiagonal solver (about 50x faster).
+        return _solve_one(diag, off, rhs)
+    shape = np.broadcast_shapes(diag.shape, rhs.shape)
+    n = shape[-1]
+    if n == 1:
+        return _thomas(diag, off, rhs, shape)
+    rows = int(np.prod(shape[:-1]))
+    D = np.broadcast_to(diag, shape).reshape(rows, n)
+    E = np.broadcast_to(off, (*shape[:-1], n - 1)).reshape(rows, n - 1)
+    R = np.broadcast_to(rhs, shape).reshape(rows, n)
+    x = np.empty((rows, n))
+    finite = np.isfinite(D).all(axis=-1) & np.isfinite(E).all(axis=-1) & np.isfinite(R).all(axis=-1)
+    chain = np.flatnonzero(finite)
+    alone = ~finite
+    if chain.size:
+        # Measured on a 121 x 121 batch: 0.22 ms against 0.92 ms for the Thomas loop.
+        links = np.zeros((chain.size, n))
+        links[:, :-1] = E[chain]
+        _, _, xc, info = lapack.dptsv(D[chain].ravel(), links.ravel()[:-1], R[chain].ravel())
+        xc = xc.reshape(chain.size, n)
+        if info == 0 and np.isfinite(xc).all():
+            x[chain] = xc
+        else:
+            alone[chain] = True
+    for i in np.flatnonzero(alone):
+        x[i] = _solve_one(D[i], E[i], R[i])
+    return x.reshape(shape)
+
+
+def _solve_one(diag: NDArray, off: NDArray, rhs: NDArray) -> NDArray[np.float64]:
+    """One system: ``dptsv`` (about 50x faster than the loop), else Thomas' algorithm."""
+    if diag.size > 1:
         _, _, x, info = lapack.dptsv(diag, off, rhs)
         if info == 0:
             return x
-    shape = np.broadcast_shapes(diag.shape, rhs.shape)
+    return _thomas(diag, off, rhs, diag.shape)
+
+
+def _thomas(diag: NDArray, off: NDArray, rhs: NDArray, shape: tuple[int, ...]) -> NDArray[np.float64]:
+    """Thomas' algorithm without pivoting, vectorised over the leading axes of ``shape`` (row by row)."""
     n = shape[-1]
-    if len(shape) > 1 and n > 1:
-        # A batch: one LAPACK call on the block-diagonal system, the rows chained by zero
-        # off-diagonals (the factorisation then decouples exactly).  Measured on a 121 x 121
-        # batch: 0.22 ms against 0.92 ms for the Python-level loop over the points below.
-        rows = int(np.prod(shape[:-1]))
-        links = np.zeros((rows, n))
-        links[:, :-1] = np.broadcast_to(off, (*shape[:-1], n - 1)).reshape(rows, n - 1)
-        _, _, x, info = lapack.dptsv(
-            np.broadcast_to(diag, shape).ravel(), links.ravel()[:-1], np.broadcast_to(rhs, shape).ravel()
-        )
-        if info == 0:
-            return x.reshape(shape)
     diag = np.broadcast_to(diag, shape)
     off = np.broadcast_to(off, (*shape[:-1], n - 1))
+    rhs = np.broadcast_to(rhs, shape)
     c = np.empty((*shape[:-1], n - 1))
     d = np.empty(shape)
     piv = diag[..., 0]
-    c[..., 0] = off[..., 0] / piv
+    if n > 1:
+        c[..., 0] = off[..., 0] / piv
     d[..., 0] = rhs[..., 0] / piv
     for i in range(1, n):
         piv = diag[..., i] - off[..., i - 1] * c[..., i - 1]

@@ -100,13 +100,15 @@ _STALL_CHECKS = 3
 
 
 def _fused(
-    problem: CollisionProblem, f: NDArray, m: NDArray, want_parts: bool = True
+    problem: CollisionProblem, f: NDArray, m: NDArray, want_parts: bool | NDArray[np.bool_] = True
 ) -> tuple[NDArray, tuple, TermParts | None]:
     """Reduced gradient and the bands of the edge part of the reduced Hessian, in one pass.
 
     The formulas of :mod:`~jko_cvx.collision.terms` (those of :meth:`CollisionProblem.gradient`
     and :meth:`CollisionProblem.reduced_hessian`), evaluated once for the shared quantities
-    :math:`s` and :math:`m/s`, at interior points (no domain guards).
+    :math:`s` and :math:`m/s`, at interior points (no domain guards).  ``want_parts``: the
+    per-term split of the gradient for every slice (True), none (False), or for the slices
+    of a boolean mask (the same numbers as those rows of the whole split).
     """
     h = problem.grid.h
     x, y = f[..., :-1], f[..., 1:]
@@ -127,13 +129,15 @@ def _fused(
     gf[..., 1:] += gy
     g = wd.g_m - divergence_adjoint(gf / h)
     parts = None
-    if want_parts:  # the per-term split, for the KKT residual's scale
-        gfw = np.zeros_like(f)
-        gfw[..., :-1] += wd.g_s
-        gfw[..., 1:] += wd.g_s
-        gff = gf - gfe - gfw
-        zero = np.zeros_like(m)
-        parts = TermParts((gfw, wd.g_m), (gff, zero), (gfe, zero))
+    if want_parts is not False:  # the per-term split, for the KKT residual's scale
+        rows = slice(None) if want_parts is True else want_parts
+        g_s, g_m, gf_r, gfe_r = wd.g_s[rows], wd.g_m[rows], gf[rows], gfe[rows]
+        gfw = np.zeros_like(gf_r)
+        gfw[..., :-1] += g_s
+        gfw[..., 1:] += g_s
+        gff = gf_r - gfe_r - gfw
+        zero = np.zeros_like(g_m)
+        parts = TermParts((gfw, g_m), (gff, zero), (gfe_r, zero))
     return g, reduced_bands(problem.grid, xx, yy, xy, wd.h_sm, wd.h_mm), parts
 
 
@@ -505,10 +509,17 @@ def _residual_test(
 ) -> NDArray[np.bool_]:
     """KKT residual where ``check``: slices within ``tol`` or stalled at their rounding floor stop.
 
+    ``parts`` is the gradient split of the ``check`` slices only (``_fused``); a slice's
+    residual is its own whatever the other slices of the batch
+    (:func:`~jko_cvx.collision.linalg.solve_sym_tridiagonal`), so only those are computed.
     A residual that no longer halves while the Newton decrement is at rounding level
     (``_STALL_CHECKS`` times) has reached its floor.  Returns the stopped slices.
     """
-    kk = Pa.kkt_residual(st.f, st.m, parts).total
+    kk = np.full(check.shape, np.nan)
+    if check.all():
+        kk = Pa.kkt_residual(st.f, st.m, parts).total
+    else:
+        kk[check] = Pa.rows(check).kkt_residual(st.f[check], st.m[check], parts).total
     prev = st.kkt.copy()
     st.kkt = np.where(check, kk, st.kkt)
     st.kkt_here |= check
@@ -614,7 +625,7 @@ def _iterate(P: CollisionProblem, st: NewtonState, opts: NewtonOptions, run: _At
                 break
             check = st.near | (it == opts.max_iter)
             checking = bool(check.any())
-            g, bands, parts = _fused(Pa, st.f, st.m, want_parts=checking)
+            g, bands, parts = _fused(Pa, st.f, st.m, want_parts=check if checking else False)
             p, pd, valid = _direction(Pa, bands, g)
             if checking:
                 _residual_test(Pa, st, parts, pd, check, opts)
