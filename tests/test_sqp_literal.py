@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from jko_cvx import CollisionProblem, Grid, PowerKernel, Status, solve_collision
+from jko_cvx.collision.terms import FISHER_TERMS
 
 G = Grid.uniform(-2.0, 2.0, 61)
 F_GAUSS = np.exp(-2 * G.points**2)
@@ -127,3 +128,182 @@ def test_relaxation_step_is_bitwise_the_gathered_minimum():
             assert cut and lam == want
         else:
             assert not cut and lam == 1.0
+
+
+# ---------------------------------------------------------------- the fast SQP loop, bit for bit
+# The loop (``sqp._iterate`` with ``explicit.sqp_stepper``) is written for few NumPy calls per
+# iteration; these tests hold it to the formulas it replaced, kept here verbatim.
+
+
+def _literal_relaxation(f, pf, step):
+    """``sqp._relaxation`` before the fast loop, verbatim."""
+    neg = pf < 0
+    if neg.any():
+        to_boundary = float(np.where(neg, -f / np.where(neg, pf, -1.0), np.inf).min())
+        if to_boundary * 0.995 < step:
+            return to_boundary * 0.995, True
+    return step, False
+
+
+def _literal_iterate(problem, qp_step, step, tol, max_iter, safeguard, callback):
+    """``sqp._iterate`` before the fast loop, verbatim (the banded path through ``gradient_and_sqp_step``)."""
+    from jko_cvx.collision.explicit import gradient_and_sqp_step, sqp_step
+
+    f, m = problem.initial_point()
+    zeta, it, safeguarded = 1.0, 0, 0
+    with np.errstate(all="ignore"):
+        while it < max_iter and zeta > tol:
+            if qp_step is sqp_step:
+                gf, gm, pf, pm = gradient_and_sqp_step(problem, f, m)
+            else:
+                gf, gm = problem.gradient(f, m)
+                try:
+                    pf, pm = qp_step(problem, f, m, gf, gm)
+                except FloatingPointError:
+                    return f, m, zeta, it, safeguarded, Status.NUMERICAL_ERROR
+            if not (np.all(np.isfinite(pf)) and np.all(np.isfinite(pm))):
+                return f, m, zeta, it, safeguarded, Status.NUMERICAL_ERROR
+            lam, truncated = (step, False) if safeguard == "none" else _literal_relaxation(f, pf, step)
+            safeguarded += truncated
+            norm_u = np.sqrt(f @ f + m @ m)
+            f = f + lam * pf
+            m = m + lam * pm
+            zeta = lam * np.sqrt(pf @ pf + pm @ pm) / norm_u
+            if truncated and safeguard == "floor":
+                zeta = max(zeta, 2 * tol)
+            it += 1
+            if callback is not None:
+                callback(it, f, m, zeta)
+            if safeguard == "none" and np.any(f <= 0):
+                return f, m, zeta, it, safeguarded, Status.NUMERICAL_ERROR
+    return f, m, zeta, it, safeguarded, None
+
+
+def _same_bits(a, b):
+    """Equal bit for bit: every finite entry (the sign of a zero included), NaN where NaN."""
+    a, b = np.asarray(a), np.asarray(b)
+    assert a.shape == b.shape and a.dtype == b.dtype
+    assert np.array_equal(a, b, equal_nan=True)
+    fin = np.isfinite(b)
+    assert np.array_equal(a[fin].view(np.int64), b[fin].view(np.int64))
+
+
+def _random_problem(rng, fisher, gamma, zeros=False):
+    grid = Grid(np.cumsum(rng.uniform(0.02, 0.2, 41)) - 2.0)
+    f_star = np.exp(-2 * grid.points**2) * rng.uniform(0.5, 1.5, grid.n) + (0.0 if zeros else 1e-9)
+    if zeros:
+        f_star[5:9] = 0.0  # three empty edges: the guarded general path
+    beta = np.inf if fisher is None else 30.0
+    return CollisionProblem(grid, PowerKernel(gamma), f_star, 0.01, 2.0, beta, fisher or "log")
+
+
+_FORMS = [*FISHER_TERMS, None]
+
+
+@pytest.mark.parametrize("fisher", _FORMS)
+@pytest.mark.parametrize("gamma", [1.0, 1.5, 2.0])
+def test_sqp_stepper_is_bitwise_the_fused_step(fisher, gamma):
+    """``sqp_stepper(problem)(f, m)`` is ``gradient_and_sqp_step(problem, f, m)[2:]`` bit for bit, at
+    interior points (m with exact zeros: signed zeros), at points with an empty edge and at
+    points with a non-finite step; the same stepper, called in turn, carries nothing over."""
+    from jko_cvx.collision.explicit import gradient_and_sqp_step, sqp_stepper
+
+    rng = np.random.default_rng(int(gamma * 10) + 7 * _FORMS.index(fisher))
+    prob = _random_problem(rng, fisher, gamma)
+    stepper = sqp_stepper(prob)
+    points = []
+    for scale in (0.0, 1e-6, 1e-3, 1e-1):
+        m = rng.normal(scale=scale, size=prob.n - 1) * prob.f_star[1:]
+        m[rng.uniform(size=m.size) < 0.2] = 0.0
+        f = prob.density_from_flux(m)
+        points.append((f, m))
+        vac = f.copy()
+        vac[10:12] = 0.0  # an empty edge
+        points.append((vac, m * (np.arange(m.size) != 10)))
+        tiny = f.copy()
+        tiny[20] = 1e-300  # steps that overflow (inf, NaN)
+        points.append((tiny, m))
+    for i in rng.permutation(len(points)).tolist() * 2:
+        f, m = points[i]
+        with np.errstate(all="ignore"):
+            want = gradient_and_sqp_step(prob, f, m)[2:]
+            got = stepper(f, m)
+        for a, b in zip(got, want, strict=True):
+            _same_bits(a, b)
+
+
+@pytest.mark.parametrize("fisher", _FORMS)
+@pytest.mark.parametrize("gamma", [1.0, 1.5, 2.0])
+@pytest.mark.parametrize("safeguard", ["floor", "cut", "none"])
+@pytest.mark.parametrize("datum", ["smooth", "peak", "zeros"])
+def test_sqp_loop_is_bitwise_the_literal_loop(fisher, gamma, safeguard, datum):
+    """Every iterate ``(f, m, zeta)`` of the SQP loop, and what it returns, is that of the loop it
+    replaced bit for bit: interior iterates, cut steps (the peaked datum at a large dt), the
+    empty edges of a datum with zeros (no log Fisher term there), iterates that leave the domain."""
+    from jko_cvx.collision.explicit import sqp_step
+    from jko_cvx.collision.sqp import _iterate
+
+    if datum == "zeros" and fisher == "log":
+        pytest.skip("the log Fisher term needs f_star > 0")
+    rng = np.random.default_rng(int(gamma * 10) + 7 * _FORMS.index(fisher))
+    if datum == "peak":
+        f_star = np.exp(-(G.points**2) / (2 * 0.1**2)) + 1e-3
+        prob = CollisionProblem(
+            G, PowerKernel(gamma), f_star, 0.3, 1.0, np.inf if fisher is None else 30.0, fisher or "log"
+        )
+    else:
+        prob = _random_problem(rng, fisher, gamma, zeros=datum == "zeros")
+    runs = []
+    for loop in (_iterate, _literal_iterate):
+        seen: list = []
+        record = seen.append
+        out = loop(
+            prob, sqp_step, 0.9, 1e-12, 150, safeguard, lambda i, f, m, z, rec=record: rec((i, f.copy(), m.copy(), z))
+        )
+        runs.append((out, seen))
+    (got, got_seen), (want, want_seen) = runs
+    assert len(got_seen) == len(want_seen) == got[3]
+    for (i, f, m, z), (j, g, n, y) in zip(got_seen, want_seen, strict=True):
+        assert i == j and type(z) is type(y)
+        _same_bits(f, g)
+        _same_bits(m, n)
+        _same_bits(z, y)
+    _same_bits(got[0], want[0])
+    _same_bits(got[1], want[1])
+    _same_bits(got[2], want[2])
+    assert got[3:] == want[3:]
+
+
+@pytest.mark.parametrize("kind", ["nan", "inf", "overflow", "finite"])
+def test_sqp_loop_finiteness_test_is_the_literal_one(kind):
+    """The loop tests the sum of squares of the step first: a step with an inf or NaN entry still
+    ends the loop (NUMERICAL_ERROR) at the same iteration, a finite step whose squares overflow
+    does not, as before."""
+    from jko_cvx.collision.sqp import _iterate
+
+    prob = CollisionProblem(G, PowerKernel(1.0), F_GAUSS, 0.01, beta=10.0)
+    bad = {"nan": np.nan, "inf": np.inf, "overflow": 1e200, "finite": 1e-3}[kind]
+
+    def qp_steps():
+        """A QP step (the OSQP path's signature) whose every third step has ``bad`` in p_m[7]."""
+        calls = []
+
+        def qp_step(problem, f, m, gf, gm):
+            calls.append(1)
+            pm = 1e-3 * np.cos(np.arange(m.size)) * (f[:-1] + f[1:])
+            if len(calls) % 3 == 0:
+                pm[7] = bad
+            return -np.diff(np.r_[0.0, pm, 0.0]) / problem.grid.h, pm
+
+        return qp_step
+
+    for sg in ("floor", "none"):
+        want = _literal_iterate(prob, qp_steps(), 0.5, 1e-12, 10, sg, None)
+        got = _iterate(prob, qp_steps(), 0.5, 1e-12, 10, sg, None)
+        for a, b in zip(got[:3], want[:3], strict=True):
+            _same_bits(a, b)
+        assert got[3:] == want[3:]
+        if sg == "floor" and kind in ("nan", "inf"):
+            assert got[3] == 2 and got[5] is Status.NUMERICAL_ERROR
+        elif sg == "floor":
+            assert got[3] > 2

@@ -18,14 +18,17 @@ it.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 from numpy.typing import NDArray
+from scipy.linalg import lapack
 
 from .linalg import divergence, divergence_adjoint, solve_sym_tridiagonal
 from .problem import CollisionProblem
 from .terms import FISHER_TERMS, wasserstein_derivatives
 
-__all__ = ["diagonal_hessian", "explicit_step", "gradient_and_sqp_step", "sqp_step"]
+__all__ = ["diagonal_hessian", "explicit_step", "gradient_and_sqp_step", "sqp_step", "sqp_stepper"]
 
 
 def diagonal_hessian(problem: CollisionProblem, f: NDArray, m: NDArray) -> tuple[NDArray, NDArray]:
@@ -99,6 +102,91 @@ def gradient_and_sqp_step(
         hf[..., 1:] += wd.h_ss + hy
     gf = gfw + gff + 2 * problem.energy_coef * problem.energy.matvec(f)
     return (gf, wd.g_m, *_step_from(problem, hf, wd.h_mm, gf, wd.g_m))
+
+
+def sqp_stepper(problem: CollisionProblem) -> Callable[[NDArray, NDArray], tuple[NDArray, NDArray]]:
+    """The banded SQP step of one unbatched problem as a function ``(f, m) -> (p_f, p_m)``, for the SQP loop.
+
+    Bitwise the step of :func:`gradient_and_sqp_step` (its last two outputs): the same
+    operations on the same operands in the same order, with what does not change between
+    iterations evaluated once (``h**2``, ``-w``, ``2 w``, ``2 dt sigma``), the subexpressions
+    the gradient and the Hessian share evaluated once, the mixed Hessian entries (unused by
+    the step) not evaluated, and the node sums written into scratch arrays.  One iteration
+    is a few dozen calls on arrays of N ~ 100 points, so their count is its cost.  An empty
+    edge (some ``f_k + f_{k+1} <= 0``, or NaN) takes the guarded general path, as there.
+
+    The returned ``p_f`` and ``p_m`` are new arrays on every call.
+    """
+    if problem.batched:
+        raise ValueError("sqp_stepper takes one problem; pass problem.slice(i)")
+    n = problem.n
+    h = problem.grid.h
+    h2 = h**2
+    w = problem.wass_coef
+    minus_w, two_w = -w, 2 * w
+    c = problem.fisher_coef
+    fisher = None if problem.fisher is None else FISHER_TERMS[problem.fisher].gradient_and_curvature
+    energy_coef = 2 * problem.energy_coef
+    matvec = problem.energy.matvec
+    add, divide, subtract, negative = np.add, np.divide, np.subtract, np.negative
+    smallest = np.minimum.reduce
+    dptsv = lapack.dptsv
+    # scratch node arrays (zeroed where the general path starts from np.zeros_like) and their
+    # edge views: k-th edge to point k (lo) and to point k+1 (hi)
+    gfw, gff, hf, a, gh, div = (np.empty(n) for _ in range(6))
+    gfw_lo, gfw_hi, gff_lo, gff_hi, hf_lo, hf_hi = gfw[:-1], gfw[1:], gff[:-1], gff[1:], hf[:-1], hf[1:]
+    a_lo, a_hi, a_mid, gh_lo, gh_hi = a[:-1], a[1:], a[1:-1], gh[:-1], gh[1:]
+    div_lo, div_hi = div[:-1], div[1:]
+
+    def step(f: NDArray, m: NDArray) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        x, y = f[:-1], f[1:]
+        s = x + y
+        if not smallest(s) > 0:  # as not np.all(s > 0): the minimum of an array with a NaN is NaN
+            gf, gm = problem.gradient(f, m)
+            return sqp_step(problem, f, m, gf, gm)
+        # wasserstein_derivatives (without h_sm): -w u u, 2 w u, 2 w u u / s, 2 w / s
+        u = m / s
+        g_s = minus_w * u * u
+        g_m = two_w * u
+        h_ss = g_m * u / s
+        h_mm = two_w / s
+        gfw.fill(0.0)
+        add(gfw_lo, g_s, out=gfw_lo)
+        add(gfw_hi, g_s, out=gfw_hi)
+        gff.fill(0.0)
+        hf.fill(0.0)
+        if fisher is None:
+            add(hf_lo, h_ss, out=hf_lo)
+            add(hf_hi, h_ss, out=hf_hi)
+        else:
+            gx, gy, hx, hy = fisher(x, y, s, c)
+            add(gff_lo, gx, out=gff_lo)
+            add(gff_hi, gy, out=gff_hi)
+            add(hf_lo, h_ss + hx, out=hf_lo)
+            add(hf_hi, h_ss + hy, out=hf_hi)
+        gf = gfw + gff
+        add(gf, energy_coef * matvec(f), out=gf)
+        # _step_from
+        divide(hf, h2, out=a)
+        diag = a_lo + a_hi
+        add(diag, h_mm, out=diag)
+        off = -a_mid
+        divide(gf, h, out=gh)
+        rhs = gh_lo - gh_hi  # divergence_adjoint(gf / h)
+        subtract(g_m, rhs, out=rhs)
+        negative(rhs, out=rhs)
+        _, _, pm, info = dptsv(diag, off, rhs)  # solve_sym_tridiagonal's first try (inputs not overwritten)
+        if info != 0:
+            pm = solve_sym_tridiagonal(diag, off, rhs)
+        # divergence(pm): zeros, [:-1] = pm, [1:] -= pm
+        div[-1] = 0.0
+        div_lo[...] = pm
+        subtract(div_hi, pm, out=div_hi)
+        pf = negative(div)
+        divide(pf, h, out=pf)
+        return pf, pm
+
+    return step
 
 
 def explicit_step(problem: CollisionProblem) -> tuple[NDArray[np.float64], NDArray[np.float64]]:

@@ -45,6 +45,7 @@ The exit flag is Algorithm 1's: :math:`e_f = 1` iff :math:`l = I_{max}`, i.e. if
 
 from __future__ import annotations
 
+import math
 import time
 from numbers import Real
 from typing import Any
@@ -55,7 +56,7 @@ import scipy.sparse as sp
 from ..conservation import check_floor
 from .certify import certify
 from .checks import check_bool, check_callable, check_choice, check_int, check_unit
-from .explicit import diagonal_hessian, gradient_and_sqp_step, sqp_step
+from .explicit import diagonal_hessian, sqp_step, sqp_stepper
 from .linalg import divergence
 from .problem import CollisionProblem
 from .result import CollisionResult, Status
@@ -216,24 +217,29 @@ def _iterate(
     """
     f, m = problem.initial_point()
     zeta, it, safeguarded = 1.0, 0, 0
+    # the banded QP: gradient and step share their terms, the per-problem constants set up once
+    banded = sqp_stepper(problem) if qp_step is sqp_step else None
     with np.errstate(all="ignore"):
         while it < max_iter and zeta > tol:
-            if qp_step is sqp_step:  # the banded QP: gradient and step share their terms
-                gf, gm, pf, pm = gradient_and_sqp_step(problem, f, m)
+            if banded is not None:
+                pf, pm = banded(f, m)
             else:
                 gf, gm = problem.gradient(f, m)
                 try:
                     pf, pm = qp_step(problem, f, m, gf, gm)
                 except FloatingPointError:
                     return f, m, zeta, it, safeguarded, Status.NUMERICAL_ERROR
-            if not (np.all(np.isfinite(pf)) and np.all(np.isfinite(pm))):
+            # A finite sum of squares has finite terms (an inf or NaN entry makes it inf or NaN):
+            # the entry-wise test runs only where it is not (a finite step can overflow it).
+            step_sq = pf @ pf + pm @ pm
+            if not math.isfinite(step_sq) and not (np.isfinite(pf).all() and np.isfinite(pm).all()):
                 return f, m, zeta, it, safeguarded, Status.NUMERICAL_ERROR
             lam, truncated = (step, False) if safeguard == "none" else _relaxation(f, pf, step)
             safeguarded += truncated
             norm_u = np.sqrt(f @ f + m @ m)
             f = f + lam * pf
             m = m + lam * pm
-            zeta = lam * np.sqrt(pf @ pf + pm @ pm) / norm_u
+            zeta = lam * np.sqrt(step_sq) / norm_u
             if truncated and safeguard == "floor":
                 # A step cut short by the safeguard says nothing about convergence:
                 # never let it pass the zeta test.
@@ -249,11 +255,11 @@ def _iterate(
 def _relaxation(f: np.ndarray, pf: np.ndarray, step: float) -> tuple[float, bool]:
     """The relaxation step lambda, shortened by the positivity safeguard (fraction to the boundary)."""
     neg = pf < 0
-    if neg.any():
-        # the same quotients as -f[neg] / pf[neg] and an exact minimum, without the gathers
-        to_boundary = float(np.where(neg, -f / np.where(neg, pf, -1.0), np.inf).min())
-        if to_boundary * _FRACTION_TO_BOUNDARY < step:
-            return to_boundary * _FRACTION_TO_BOUNDARY, True
+    # the same quotients as -f[neg] / pf[neg] and an exact minimum, without the gathers; with
+    # no negative entry the minimum is inf and the step is not cut (no test needed for that)
+    to_boundary = float(np.minimum.reduce(np.where(neg, -f / np.where(neg, pf, -1.0), np.inf)))
+    if to_boundary * _FRACTION_TO_BOUNDARY < step:
+        return to_boundary * _FRACTION_TO_BOUNDARY, True
     return step, False
 
 
