@@ -499,7 +499,10 @@ RUN_LOG = (
     "snippets updated after the refactors (18 min under load); 17:56-18:09 round 2's first 48 (13 min); "
     "--update reruns at 18:12 and 18:17 after merging main and adding tests.  Those runs copied the tree "
     "without studies/results and README.md, so test_quoted_numbers failed at collection there and "
-    "summary-within-strict's 'caught' was not earned; this run copies both and its baseline passes"
+    "summary-within-strict's 'caught' was not earned; this run copies both and its baseline passes.  "
+    "2026-12-02 05:10: --update of the six whose snippets the code had outgrown (transport-foot-sign, "
+    "transport-no-floor, sim-B_x-eps_v, tilt-bracket, sqp-exit-flag, sim-B_v-leq: the snippets follow "
+    "today's code) and the two new ones (tridiag-no-finite-check, table-replay-initial-row)"
 )
 UNMUTATED_WHY = "re-exports only: a broken import there fails every test at collection"
 # Mutations that survived a run and were caught after a test was added (kept visible: the first
