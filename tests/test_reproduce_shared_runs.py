@@ -1,4 +1,7 @@
-"""``g2bu_records``: the records panel of ``fig:gk2_evo_example2`` is ``tab_g2bu``'s lambda = 310 sweep point."""
+"""Entries drawn from another entry's sweep point.
+
+``g2bu_records`` is ``tab_g2bu``'s lambda = 310 run; ``ibu_panels`` is ``ibu``'s run.
+"""
 
 from __future__ import annotations
 
@@ -40,3 +43,20 @@ def test_the_full_form_asks_for_tab_g2bus_point(monkeypatch, tmp_path):
 
 class _Stop(Exception):
     pass
+
+
+def test_ibu_and_ibu_panels_ask_for_one_point(monkeypatch, tmp_path):
+    """``fig:gk3``'s panels are drawn from ``ibu``'s run: one sweep point, which a section run computes once."""
+    from jko_cvx.reproduce import ibu
+
+    asked = {}
+
+    def sweep(func, points, cache, desc, **kwargs):
+        asked[desc] = [(func, p) for p in points]
+        raise _Stop
+
+    monkeypatch.setattr(ibu, "run_sweep", sweep)
+    for entry in (ibu.reproduce_ibu, panels.reproduce_ibu_panels):
+        with pytest.raises(_Stop):
+            entry(tmp_path)
+    assert asked["ibu"] == asked["ibu_panels"] and len(asked["ibu"]) == 1
