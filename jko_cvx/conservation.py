@@ -153,17 +153,24 @@ def _tilt_exponent(f, h, dv, goal, beta, lo, hi, span, active):
         goal < np.max(np.where(f > 0, dv, -np.inf), axis=-1)
     )
     active = active & inside
+    size = -1  # rows only ever leave the active set: a new count means new rows
     for _ in range(_MAX_NEWTON):
         rows = np.flatnonzero(active)
         if rows.size == 0:
             break
+        if rows.size != size:  # the active rows' data, gathered once per row set
+            size = rows.size
+            dv_r, goal_r, tol_r, accept_r = dv[rows], goal[rows], tol[rows], accept[rows]
+            f_r = f[rows]
+            hf_r, pos_r = h * f_r, f_r > 0
         b, lo_r, hi_r = beta[rows], lo[rows], hi[rows]
         b = np.where((b > lo_r) & (b < hi_r), b, 0.5 * (lo_r + hi_r))
-        mean, tvar = _tilted_mean_var(f[rows], h, dv[rows], b)
-        e = mean - goal[rows]
-        stalled = ~(np.abs(e) < 0.5 * err[rows])
-        done = (np.abs(e) <= tol[rows]) | ((np.abs(e) <= accept[rows]) & stalled)
-        err[rows], evaluated[rows] = np.abs(e), b
+        mean, tvar = _tilted_moments(hf_r, pos_r, dv_r, b)
+        e = mean - goal_r
+        abs_e = np.abs(e)
+        stalled = ~(abs_e < 0.5 * err[rows])
+        done = (abs_e <= tol_r) | ((abs_e <= accept_r) & stalled)
+        err[rows], evaluated[rows] = abs_e, b
         lo[rows] = np.where(e < 0, b, lo_r)
         hi[rows] = np.where(e > 0, b, hi_r)
         beta[rows] = b - np.divide(e, tvar, out=np.zeros_like(e), where=tvar > 0)
@@ -206,14 +213,27 @@ def _shifted_exp(expo, f):
     that every weight of the row underflows (an excess above the floor is zero on most of
     a concentrated row); the exponent is capped at 0 where ``f`` is 0 (no overflow there).
     """
-    top = np.max(np.where(f > 0, expo, -np.inf), axis=-1, keepdims=True)
+    return _shifted_exp_on(expo, f > 0)
+
+
+def _shifted_exp_on(expo: NDArray[np.float64], pos: NDArray[np.bool_]) -> NDArray[np.float64]:
+    """:func:`_shifted_exp` given the mask ``pos = f > 0`` (the Newton loop reuses it)."""
+    top = np.where(pos, expo, -np.inf).max(axis=-1, keepdims=True)
     top = np.where(np.isfinite(top), top, 0.0)
     return np.exp(np.minimum(expo - top, 0.0))
 
 
 def _tilted_mean_var(f, h, dv, beta):
     """Mean and variance of ``dv`` under the weights ``h f exp(beta dv)`` (shifted exponent: no overflow)."""
-    w = h * f * _shifted_exp(beta[..., None] * dv, f)
+    return _tilted_moments(h * f, f > 0, dv, beta)
+
+
+def _tilted_moments(
+    hf: NDArray[np.float64], pos: NDArray[np.bool_], dv: NDArray[np.float64], beta: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """:func:`_tilted_mean_var` given ``hf = h * f`` and ``pos = f > 0``, which stay fixed
+    while a row iterates (the weights ``hf * exp(...)`` are the same product as before)."""
+    w = hf * _shifted_exp_on(beta[..., None] * dv, pos)
     w0 = w.sum(axis=-1)
     mean = np.divide((w * dv).sum(axis=-1), w0, out=np.zeros_like(w0), where=w0 > 0)
     c = dv - mean[..., None]

@@ -50,11 +50,10 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.interpolate import PchipInterpolator
 from scipy.optimize import brentq, minimize_scalar
 
 from .conservation import check_floor, restore_moments, restore_three_moments
-from .grid import Grid, PeriodicGrid
+from .grid import Grid, PeriodicGrid, pchip_ppoly, pchip_terms
 
 __all__ = ["OneBumpMap", "TwoBumpMap", "concentration_set", "quadrant_set", "remap"]
 
@@ -371,8 +370,9 @@ def remap(
         raise ValueError(f"f must have length {old.n} along axis {axis}, got shape {f.shape}")
     if new.points[0] < old.points[0] - 1e-12 * old.length or new.points[-1] > old.points[-1] + 1e-12 * old.length:
         raise ValueError("the new grid must lie within the old grid's interval")
-    with np.errstate(over="ignore", divide="ignore"):  # underflowed slopes, see Grid.pchip
-        interp = PchipInterpolator(old.points, f, axis=-1, extrapolate=True)
+    # SciPy's PchipInterpolator(old.points, f, axis=-1) without its checks (same coefficients:
+    # grid.pchip_coefficients); underflowed slopes, see Grid.pchip
+    interp = pchip_ppoly(pchip_terms(old), f)
     g = interp(np.clip(new.points, old.points[0], old.points[-1]))
     g = np.maximum(g, floor)
     if conserve_energy:

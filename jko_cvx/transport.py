@@ -87,6 +87,7 @@ def transport_step(
     xi, near_cut = xgrid.vacuum_coordinate(f.T, reach)
     moment = np.sum(f.T * xi * xgrid.h, axis=-1) + v * dt * m_old
     may_cross = np.abs(v) * abs(dt) * near_cut > _CROSSING * m_old
-    moment[may_cross] = np.sum(out.T * xi * xgrid.h, axis=-1)[may_cross] * (m_old / (xgrid.h @ out))[may_cross]
+    if may_cross.any():  # (rare: the crawl's lines all have a vacuum to cut in)
+        moment[may_cross] = np.sum(out.T * xi * xgrid.h, axis=-1)[may_cross] * (m_old / (xgrid.h @ out))[may_cross]
     g, _ = restore_moments(out.T, xgrid.h, xi, m_old, moment, floor=floor)
     return g.T
