@@ -117,9 +117,11 @@ def certify(
     claims = np.broadcast_to(np.asarray(claimed, dtype=object), f.shape[:1])
     orders = np.broadcast_to(np.asarray(second_order, dtype=object), f.shape[:1])
     status = np.empty(f.shape[0], dtype=object)
+    # the finiteness test for the whole batch at once (per row, the same booleans as _judge's)
+    finite = (np.isfinite(f).all(axis=-1) & np.isfinite(m).all(axis=-1) & np.isfinite(objective)).tolist()
     for i in range(f.shape[0]):
         status[i] = _judge(
-            problem, f[i], m[i], total[i], objective[i], kkt_tol, check_convexity, claims[i], orders[i], i
+            problem, f[i], m[i], total[i], objective[i], kkt_tol, check_convexity, claims[i], orders[i], i, finite[i]
         )
     return Certificate(status, np.asarray(total, dtype=float).copy(), np.asarray(objective, dtype=float), kkt)
 
@@ -135,11 +137,17 @@ def _judge(
     claimed: Status | None,
     second_order: bool | None,
     row: int | None = None,
+    finite: bool | None = None,
 ) -> Status:
-    """The status of one point (row ``row`` of a batched problem); see :func:`certify`."""
+    """The status of one point (row ``row`` of a batched problem); see :func:`certify`.
+
+    ``finite``: whether f, m and the objective are all finite, when the caller has it.
+    """
     if claimed is not None and claimed is not Status.CONVERGED:
         return claimed
-    if not (np.all(np.isfinite(f)) and np.all(np.isfinite(m)) and np.isfinite(objective)):
+    if finite is None:
+        finite = bool(np.all(np.isfinite(f)) and np.all(np.isfinite(m)) and np.isfinite(objective))
+    if not finite:
         return Status.NUMERICAL_ERROR
     if not residual <= kkt_tol:
         return Status.NOT_CERTIFIED

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import NDArray
 from scipy.linalg import lapack
@@ -43,10 +45,10 @@ def solve_sym_tridiagonal(
     n = shape[-1]
     if n == 1:
         return _thomas(diag, off, rhs, shape)
-    rows = int(np.prod(shape[:-1]))
-    D = np.broadcast_to(diag, shape).reshape(rows, n)
-    E = np.broadcast_to(off, (*shape[:-1], n - 1)).reshape(rows, n - 1)
-    R = np.broadcast_to(rhs, shape).reshape(rows, n)
+    rows = math.prod(shape[:-1])
+    D = _rows_view(diag, shape, rows)
+    E = _rows_view(off, (*shape[:-1], n - 1), rows)
+    R = _rows_view(rhs, shape, rows)
     x = np.empty((rows, n))
     finite = np.isfinite(D).all(axis=-1) & np.isfinite(E).all(axis=-1) & np.isfinite(R).all(axis=-1)
     chain = np.flatnonzero(finite)
@@ -54,16 +56,27 @@ def solve_sym_tridiagonal(
     if chain.size:
         # Measured on a 121 x 121 batch: 0.22 ms against 0.92 ms for the Thomas loop.
         links = np.zeros((chain.size, n))
-        links[:, :-1] = E[chain]
-        _, _, xc, info = lapack.dptsv(D[chain].ravel(), links.ravel()[:-1], R[chain].ravel())
+        whole = chain.size == rows  # every row in the chain: no gathers (dptsv copies its inputs)
+        links[:, :-1] = E if whole else E[chain]
+        Dc, Rc = (D, R) if whole else (D[chain], R[chain])
+        _, _, xc, info = lapack.dptsv(Dc.ravel(), links.ravel()[:-1], Rc.ravel())
         xc = xc.reshape(chain.size, n)
         if info == 0 and np.isfinite(xc).all():
+            if whole:
+                return xc.reshape(shape)
             x[chain] = xc
         else:
             alone[chain] = True
     for i in np.flatnonzero(alone):
         x[i] = _solve_one(D[i], E[i], R[i])
     return x.reshape(shape)
+
+
+def _rows_view(a: NDArray, shape: tuple[int, ...], rows: int) -> NDArray:
+    """``a`` broadcast to ``shape`` as ``(rows, n)``: a view without a broadcast where it has that shape."""
+    if a.shape == shape:
+        return a.reshape(rows, shape[-1])
+    return np.broadcast_to(a, shape).reshape(rows, shape[-1])
 
 
 def _solve_one(diag: NDArray, off: NDArray, rhs: NDArray) -> NDArray[np.float64]:

@@ -119,9 +119,8 @@ def _fused(
     if problem.fisher is not None:
         term = FISHER_TERMS[problem.fisher]
         c = problem.fisher_coef
-        fx, fy = term.gradient(x, y, s, c)
+        fx, fy, hx, hy, hxy = term.gradient_and_hessian(x, y, s, c)  # shared subexpressions once
         gx, gy = wd.g_s + fx, wd.g_s + fy
-        hx, hy, hxy = term.hessian(x, y, s, c)
         xx, yy, xy = wd.h_ss + hx, wd.h_ss + hy, wd.h_ss + hxy
     gfe = 2 * problem.energy_coef * problem.energy.matvec(f)
     gf = gfe.copy()
@@ -482,7 +481,7 @@ def _start(P: CollisionProblem, m0: NDArray | None, opts: NewtonOptions) -> tupl
         warm = np.all(F_star - divergence(M0) / h > 0, axis=-1) & np.all(np.isfinite(M0), axis=-1)
         m[warm] = M0[warm]
     status = np.full(B, None, dtype=object)
-    positive = np.all(F_star > 0, axis=-1)
+    positive = (F_star > 0).all(axis=-1)
     status[~positive] = Status.NUMERICAL_ERROR  # an interior method cannot start from exact zeros
     with np.errstate(all="ignore"):
         if opts.start == "explicit" and positive.any():
@@ -542,7 +541,7 @@ def _no_descent(st: NewtonState, g: NDArray, bands, p: NDArray, valid: NDArray) 
     iterate at the vacuum boundary (f underflowed, inf curvature) or a non-finite step
     is a numerical failure, which the interior-damped retry resolves.
     """
-    go = valid & np.all(np.isfinite(p), axis=-1)
+    go = valid & np.isfinite(p).all(axis=-1)
     if not go.all():
         free = np.equal(st.status, None)
         finite = _finite_model(g, bands)
@@ -570,7 +569,7 @@ def _line_search(
         trial = m + alpha[:, None] * p
         ft = Pa.f_star - divergence(trial) / h
         phit = _objective_interior(Pa, ft, trial)
-        ok = ~accepted & np.all(ft > 0, axis=-1) & (phit <= phi0 + _ARMIJO * alpha * slope)
+        ok = ~accepted & (ft > 0).all(axis=-1) & (phit <= phi0 + _ARMIJO * alpha * slope)
         phi_new = np.where(ok, phit, phi_new)
         accepted |= ok
         alpha = np.where(accepted, alpha, 0.5 * alpha)
@@ -657,7 +656,7 @@ def _finalise(
     projected, and the residual is recomputed only where none belongs to the returned point.
     """
     with np.errstate(all="ignore"):
-        positive = np.all(out["f"] > 0, axis=-1)
+        positive = (out["f"] > 0).all(axis=-1)
         f_out, m_out = out["f"], out["m"]
         if not positive.all():
             f_out[~positive], m_out[~positive] = P.rows(~positive).project_feasible(out["f"][~positive])

@@ -144,38 +144,64 @@ def dense_direction(
     """
     diag, off1, off2 = bands
     B, n1 = diag.shape
-    SE = scale * e_dense
+    SE, se_t = _scaled_block(e_dense, scale)
     x = np.zeros(rhs.shape)
     pd = np.zeros(B, dtype=bool)
     todo = np.arange(B) if rows is None else np.flatnonzero(rows)
     se_flat = SE.reshape(-1)
     d = se_flat[:: n1 + 1] + diag[todo]
-    usable = np.all(d > 0, axis=-1) & np.all(np.isfinite(d), axis=-1)
+    usable = ((d > 0).all(axis=-1) & np.isfinite(d).all(axis=-1)).tolist()
     shifted = d + pd_tol * d
     lower1 = se_flat[n1 :: n1 + 1] + off1[todo]  # H[k+1, k]
     lower2 = se_flat[2 * n1 :: n1 + 1] + off2[todo]  # H[k+2, k]
-    # C-ordered copy of SE', so that the transpose of each slice's copy is SE itself in
-    # Fortran order; its lower bands sit at these strided positions of the C-ordered copy.
-    se_t = np.ascontiguousarray(SE.T)
+    slices = todo.tolist()
 
     def work(a: int, b: int) -> None:
+        # One matrix per chunk, refilled from se_t for each slice: dpotrf (overwrite_a) and
+        # dpotrs work in it, and x[i] receives a copy of the solution.
+        Ht = np.empty_like(se_t)
+        flat = Ht.reshape(-1)
+        Hf = Ht.T
         for j in range(a, b):
             if not usable[j]:
                 continue
-            Ht = se_t.copy()
-            flat = Ht.reshape(-1)
+            np.copyto(Ht, se_t)
             flat[:: n1 + 1] = shifted[j]
             flat[1 :: n1 + 1] = lower1[j]
             flat[2 : n1 * (n1 - 2) : n1 + 1] = lower2[j]
-            c, info = lapack.dpotrf(Ht.T, lower=1, clean=0, overwrite_a=1)
+            c, info = lapack.dpotrf(Hf, lower=1, clean=0, overwrite_a=1)
             if info != 0 or not np.isfinite(c[-1, -1]):
                 continue
-            i = todo[j]
+            i = slices[j]
             pd[i] = True
             x[i], _ = lapack.dpotrs(c, rhs[i], lower=1)
 
     map_chunks(work, todo.size)
     return x, pd
+
+
+_SCALED: list = []  # the last (E, scale, scale * E, its C-ordered transpose) of dense_direction
+
+
+def _scaled_block(e_dense: NDArray, scale: float) -> tuple[NDArray, NDArray]:
+    """``scale * e_dense`` and the C-ordered copy of its transpose, kept for the last read-only block.
+
+    The transpose's copy for a slice is, in Fortran order, ``scale * E`` itself; its lower
+    bands sit at strided positions of the C-ordered copy.  Newton calls with the same
+    cached block and scale at every iteration of a step: the products are the same
+    floating-point operations, so keeping them changes no bit (the key compares the
+    scale's bits, so -0.0 and 0.0 differ; a writeable block is never kept).
+    """
+    key = float(scale).hex()
+    last = _SCALED[0] if _SCALED else None
+    if last is not None and last[0] is e_dense and last[1] == key:
+        return last[2], last[3]
+    SE = scale * e_dense
+    se_t = np.ascontiguousarray(SE.T)
+    if not e_dense.flags.writeable:
+        SE.flags.writeable = se_t.flags.writeable = False
+        _SCALED[:] = [(e_dense, key, SE, se_t)]
+    return SE, se_t
 
 
 class Semiseparable3:

@@ -87,6 +87,17 @@ class PerspectiveFisher:
         k = 16 * c / (s * s * s)
         return k * y * y, k * x * x, -(k * x * y)
 
+    def gradient_and_hessian(self, x: Array, y: Array, s: Array, c: Array) -> tuple[Array, Array, Array, Array, Array]:
+        """:meth:`gradient` and :meth:`hessian`, ``(gx, gy, hxx, hyy, hxy)``, bit for bit.
+
+        The same expressions, the subexpression they share evaluated once (``2 r r``): what
+        one Newton iteration needs, at fewer NumPy calls.
+        """
+        r = (y - x) / s
+        r2 = 2 * r * r
+        k = 16 * c / (s * s * s)
+        return c * (-4 * r - r2), c * (4 * r - r2), k * y * y, k * x * x, -(k * x * y)
+
     def gradient_and_curvature(self, x: Array, y: Array, s: Array, c: Array) -> tuple[Array, Array, Array, Array]:
         """:meth:`gradient` and the diagonal of :meth:`hessian`, ``(gx, gy, hxx, hyy)``, bit for bit.
 
@@ -124,6 +135,23 @@ class LogFisher:
         L = np.log(y) - np.log(x)
         q = c * (s + L * (y - x))
         return q / (x * x), q / (y * y), c * (-s + L * (x - y)) / (x * y)
+
+    def gradient_and_hessian(self, x: Array, y: Array, s: Array, c: Array) -> tuple[Array, Array, Array, Array, Array]:
+        """:meth:`gradient` and :meth:`hessian`, ``(gx, gy, hxx, hyy, hxy)``, bit for bit.
+
+        The same expressions, the subexpressions they share evaluated once (``L``, the two
+        logarithms, and ``L^2/2``): what one Newton iteration needs, at fewer NumPy calls.
+        """
+        L = np.log(y) - np.log(x)
+        half_l2 = 0.5 * L * L
+        q = c * (s + L * (y - x))
+        return (
+            c * (-L * s / x + half_l2),
+            c * (L * s / y + half_l2),
+            q / (x * x),
+            q / (y * y),
+            c * (-s + L * (x - y)) / (x * y),
+        )
 
     def gradient_and_curvature(self, x: Array, y: Array, s: Array, c: Array) -> tuple[Array, Array, Array, Array]:
         """:meth:`gradient` and the diagonal of :meth:`hessian`, ``(gx, gy, hxx, hyy)``, bit for bit.
