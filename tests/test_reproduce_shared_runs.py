@@ -25,38 +25,40 @@ def test_the_records_are_the_runs_diagnostics(tmp_path):
     assert f"verdict: {run.verdict['reason']} at t = {run.t:.5g}" in (tmp_path / "g2bu_records.md").read_text()
 
 
-def test_the_full_form_asks_for_tab_g2bus_point(monkeypatch, tmp_path):
-    """In one section run the shared pool computes the lambda = 310 run once for both entries."""
-    asked = {}
+def asked_points(monkeypatch, tmp_path, modules, entries) -> dict[str, list]:
+    """The (function, point) pairs each entry asks ``run_sweep`` for, by progress label; no point runs.
+
+    ``modules``: where the entries look ``run_sweep`` up.  A section run computes a point
+    two entries share once only if both ask for the same function and point.
+    """
+    asked: dict[str, list] = {}
+
+    class Stop(Exception):
+        pass
 
     def sweep(func, points, cache, desc, **kwargs):
         asked[desc] = [(func, p) for p in points]
-        raise _Stop
+        raise Stop
 
-    monkeypatch.setattr(panels, "run_sweep", sweep)
-    monkeypatch.setattr(g2bu, "run_sweep", sweep)
-    for entry in (panels.reproduce_g2bu_records, g2bu.reproduce_tab_g2bu):
-        with pytest.raises(_Stop):
+    for module in modules:
+        monkeypatch.setattr(module, "run_sweep", sweep)
+    for entry in entries:
+        with pytest.raises(Stop):
             entry(tmp_path)
+    return asked
+
+
+def test_the_full_form_asks_for_tab_g2bus_point(monkeypatch, tmp_path):
+    """In one section run the shared pool computes the lambda = 310 run once for both entries."""
+    asked = asked_points(
+        monkeypatch, tmp_path, (panels, g2bu), (panels.reproduce_g2bu_records, g2bu.reproduce_tab_g2bu)
+    )
     assert len(asked["g2bu_records"]) == 1 and asked["g2bu_records"][0] in asked["tab_g2bu"]
-
-
-class _Stop(Exception):
-    pass
 
 
 def test_ibu_and_ibu_panels_ask_for_one_point(monkeypatch, tmp_path):
     """``fig:gk3``'s panels are drawn from ``ibu``'s run: one sweep point, which a section run computes once."""
     from jko_cvx.reproduce import ibu
 
-    asked = {}
-
-    def sweep(func, points, cache, desc, **kwargs):
-        asked[desc] = [(func, p) for p in points]
-        raise _Stop
-
-    monkeypatch.setattr(ibu, "run_sweep", sweep)
-    for entry in (ibu.reproduce_ibu, panels.reproduce_ibu_panels):
-        with pytest.raises(_Stop):
-            entry(tmp_path)
+    asked = asked_points(monkeypatch, tmp_path, (ibu,), (ibu.reproduce_ibu, panels.reproduce_ibu_panels))
     assert asked["ibu"] == asked["ibu_panels"] and len(asked["ibu"]) == 1

@@ -25,6 +25,8 @@ from jko_cvx.reproduce.blowup_tables import (
 )
 from jko_cvx.verdict import StopReason, Verdict
 
+from .test_reproduce_shared_runs import asked_points
+
 INF = float("inf")
 
 
@@ -111,21 +113,8 @@ def test_entries_come_in_the_tables_order():
 
 def test_tab_bu_asks_for_the_beta_scans_points_in_the_same_form(monkeypatch, tmp_path):
     """A pool shared by the section runs a point once only if both entries ask for the same point."""
-    asked: dict[str, list] = {}
-
-    def sweep(func, points, cache, desc, **kwargs):
-        asked[desc] = [(func, p) for p in points]
-        raise _Stop
-
-    monkeypatch.setattr(blowup_tables, "run_sweep", sweep)
-    monkeypatch.setattr(beta_scan, "run_sweep", sweep)
-    for entry in (blowup_tables.reproduce_tab_bu, beta_scan.reproduce_tab_bu_beta_scan):
-        with pytest.raises(_Stop):
-            entry(tmp_path)
+    entries = (blowup_tables.reproduce_tab_bu, beta_scan.reproduce_tab_bu_beta_scan)
+    asked = asked_points(monkeypatch, tmp_path, (blowup_tables, beta_scan), entries)
     scan = asked["beta scan"]
     assert len(asked["tab_bu"]) == 15 and len(scan) == 15 * len(beta_scan.BETAS)
     assert all(pair in scan for pair in asked["tab_bu"])
-
-
-class _Stop(Exception):
-    pass
