@@ -68,6 +68,11 @@ def test_gradient_and_hessian_is_gradient_then_hessian(name, gamma):
     assert len(got) == 5
     for a, r in zip(got, ref, strict=True):
         assert _same(a, r)
+    with np.errstate(all="ignore"):
+        diagonal = term.gradient_and_hessian(x, y, s, c, mixed=False)  # the SQP's: no mixed entry
+    assert diagonal[4] is None
+    for a, r in zip(diagonal[:4], ref[:4], strict=True):
+        assert _same(a, r)
     assert not np.isfinite(got[0]).all()  # the boundary and NaN rows are exercised
 
 

@@ -24,7 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.linalg import lapack
 
-from .linalg import divergence, divergence_adjoint, solve_sym_tridiagonal
+from .linalg import _thomas, divergence, divergence_adjoint, solve_sym_tridiagonal
 from .problem import CollisionProblem
 from .terms import FISHER_TERMS, wasserstein_derivatives
 
@@ -125,12 +125,12 @@ def sqp_stepper(problem: CollisionProblem) -> Callable[[NDArray, NDArray], tuple
     w = problem.wass_coef
     minus_w, two_w = -w, 2 * w
     c = problem.fisher_coef
-    fisher = None if problem.fisher is None else FISHER_TERMS[problem.fisher].gradient_and_curvature
+    fisher = None if problem.fisher is None else FISHER_TERMS[problem.fisher].gradient_and_hessian
     energy_coef = 2 * problem.energy_coef
     matvec = problem.energy.matvec
     add, divide, subtract, negative = np.add, np.divide, np.subtract, np.negative
     smallest = np.minimum.reduce
-    dptsv = lapack.dptsv
+    dptsv, thomas = lapack.dptsv, _thomas
     # scratch node arrays (zeroed where the general path starts from np.zeros_like) and their
     # edge views: k-th edge to point k (lo) and to point k+1 (hi)
     gfw, gff, hf, a, gh, div = (np.empty(n) for _ in range(6))
@@ -159,7 +159,7 @@ def sqp_stepper(problem: CollisionProblem) -> Callable[[NDArray, NDArray], tuple
             add(hf_lo, h_ss, out=hf_lo)
             add(hf_hi, h_ss, out=hf_hi)
         else:
-            gx, gy, hx, hy = fisher(x, y, s, c)
+            gx, gy, hx, hy, _ = fisher(x, y, s, c, mixed=False)
             add(gff_lo, gx, out=gff_lo)
             add(gff_hi, gy, out=gff_hi)
             add(hf_lo, h_ss + hx, out=hf_lo)
@@ -176,8 +176,8 @@ def sqp_stepper(problem: CollisionProblem) -> Callable[[NDArray, NDArray], tuple
         subtract(g_m, rhs, out=rhs)
         negative(rhs, out=rhs)
         _, _, pm, info = dptsv(diag, off, rhs)  # solve_sym_tridiagonal's first try (inputs not overwritten)
-        if info != 0:
-            pm = solve_sym_tridiagonal(diag, off, rhs)
+        if info != 0:  # its fallback, without trying dptsv again
+            pm = thomas(diag, off, rhs, diag.shape)
         # divergence(pm): zeros, [:-1] = pm, [1:] -= pm
         div[-1] = 0.0
         div_lo[...] = pm

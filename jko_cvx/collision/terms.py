@@ -87,28 +87,19 @@ class PerspectiveFisher:
         k = 16 * c / (s * s * s)
         return k * y * y, k * x * x, -(k * x * y)
 
-    def gradient_and_hessian(self, x: Array, y: Array, s: Array, c: Array) -> tuple[Array, Array, Array, Array, Array]:
+    def gradient_and_hessian(
+        self, x: Array, y: Array, s: Array, c: Array, mixed: bool = True
+    ) -> tuple[Array, Array, Array, Array, Array | None]:
         """:meth:`gradient` and :meth:`hessian`, ``(gx, gy, hxx, hyy, hxy)``, bit for bit.
 
         The same expressions, the subexpression they share evaluated once (``2 r r``): what
-        one Newton iteration needs, at fewer NumPy calls.
+        one Newton iteration needs, at fewer NumPy calls.  ``mixed=False`` leaves ``hxy``
+        out (None): the paper's SQP uses the diagonal only.
         """
         r = (y - x) / s
         r2 = 2 * r * r
         k = 16 * c / (s * s * s)
-        return c * (-4 * r - r2), c * (4 * r - r2), k * y * y, k * x * x, -(k * x * y)
-
-    def gradient_and_curvature(self, x: Array, y: Array, s: Array, c: Array) -> tuple[Array, Array, Array, Array]:
-        """:meth:`gradient` and the diagonal of :meth:`hessian`, ``(gx, gy, hxx, hyy)``, bit for bit.
-
-        The same expressions, the subexpression they share evaluated once (``2 r r``) and the
-        mixed entry left out: what one iteration of the paper's SQP needs, at fewer NumPy calls.
-        """
-        r = (y - x) / s
-        r2 = 2 * r * r
-        k = 16 * c / (s * s * s)
-        return c * (-4 * r - r2), c * (4 * r - r2), k * y * y, k * x * x
-
+        return c * (-4 * r - r2), c * (4 * r - r2), k * y * y, k * x * x, -(k * x * y) if mixed else None
 
 class LogFisher:
     """The paper's :math:`\\psi(x, y) = \\tfrac12 (\\log y - \\log x)^2 s`: a barrier at f = 0."""
@@ -136,11 +127,14 @@ class LogFisher:
         q = c * (s + L * (y - x))
         return q / (x * x), q / (y * y), c * (-s + L * (x - y)) / (x * y)
 
-    def gradient_and_hessian(self, x: Array, y: Array, s: Array, c: Array) -> tuple[Array, Array, Array, Array, Array]:
+    def gradient_and_hessian(
+        self, x: Array, y: Array, s: Array, c: Array, mixed: bool = True
+    ) -> tuple[Array, Array, Array, Array, Array | None]:
         """:meth:`gradient` and :meth:`hessian`, ``(gx, gy, hxx, hyy, hxy)``, bit for bit.
 
         The same expressions, the subexpressions they share evaluated once (``L``, the two
         logarithms, and ``L^2/2``): what one Newton iteration needs, at fewer NumPy calls.
+        ``mixed=False`` leaves ``hxy`` out (None): the paper's SQP uses the diagonal only.
         """
         L = np.log(y) - np.log(x)
         half_l2 = 0.5 * L * L
@@ -150,21 +144,8 @@ class LogFisher:
             c * (L * s / y + half_l2),
             q / (x * x),
             q / (y * y),
-            c * (-s + L * (x - y)) / (x * y),
+            c * (-s + L * (x - y)) / (x * y) if mixed else None,
         )
-
-    def gradient_and_curvature(self, x: Array, y: Array, s: Array, c: Array) -> tuple[Array, Array, Array, Array]:
-        """:meth:`gradient` and the diagonal of :meth:`hessian`, ``(gx, gy, hxx, hyy)``, bit for bit.
-
-        The same expressions, the subexpressions they share evaluated once (``L``, ``L^2/2``)
-        and the mixed entry left out: what one iteration of the paper's SQP needs, at fewer
-        NumPy calls.
-        """
-        L = np.log(y) - np.log(x)
-        half_l2 = 0.5 * L * L
-        q = c * (s + L * (y - x))
-        return c * (-L * s / x + half_l2), c * (L * s / y + half_l2), q / (x * x), q / (y * y)
-
 
 FISHER_TERMS: dict[str, PerspectiveFisher | LogFisher] = {"perspective": PerspectiveFisher(), "log": LogFisher()}
 

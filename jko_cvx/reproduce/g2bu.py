@@ -134,8 +134,6 @@ def g2bu_run(lam: float, n_x: int, n_v: int, t_end: float = 0.2) -> dict[str, An
         "split slices": split,
         "slices": sum(int(snap["f"].shape[0]) for snap in run.snapshots),
         "secondary peak": secondary,
-        "t_steps": d.t.tolist(),
-        "min_dx_series": d.min_dx.tolist(),
         "records": {k: d[k].tolist() for k in RECORDS},
         "final": snapshot_record(last),
         "snapshots": [snapshot_record(s) for s in run.snapshots_at(EVOLUTION_TIMES if lam == EVOLUTION_LAMBDA else ())],
@@ -261,7 +259,7 @@ def _figure(df: pd.DataFrame, path: Path) -> None:
     ax.legend(fontsize=7, ncol=2)
     ax = axes[1, 0]
     for i, row in df.iterrows():
-        ax.semilogy(row.t_steps, row.min_dx_series, color=f"C{i % 10}", label=f"lambda = {row['lambda']}")
+        ax.semilogy(row.records["t"], row.records["min_dx"], color=f"C{i % 10}", label=f"lambda = {row['lambda']}")
     ax.axhline(EPS, color="k", ls=":", lw=1, label="eps")
     ax.axvline(T, color="0.5", ls=":")
     ax.set(xlabel="t", ylabel="min dx", title="min dx against t")

@@ -18,8 +18,9 @@ the same files as ``jko-cvx reproduce NAME`` does, one by one.
 
 Entries that read another entry's files wait for it (:data:`NEEDS`); ``summary``, which reads
 every other entry's files, runs last.  A point that two entries share (the same function, code
-and parameters: ``gk2_bu``'s runs are four of ``tab_g2bu``'s, ``tab_bu``'s are a block of the
-beta scan's) runs once (:func:`jko_cvx.sweep.shared_points`).  A failing entry is recorded and the others go on;
+and parameters: ``gk2_bu``'s runs are four of ``tab_g2bu``'s and ``g2bu_records``' one,
+``tab_bu``'s are a block of the beta scan's, ``ibu_panels``' is ``ibu``'s) runs once
+(:func:`jko_cvx.sweep.shared_points`).  A failing entry is recorded and the others go on;
 entries that need it are skipped.  ``section.{csv,md}`` record, per entry, when it started
 and finished, and the total wall and CPU time, with the code's provenance.
 """
@@ -70,8 +71,8 @@ SECTION = (
     "summary",
 )
 """The entries of the paper's numerical section, in the order they start: by CPU time, longest first
-(``studies/results/regenerate_timing.csv``, one entry at a time on 2 cores: 1562 s for
-``inhom_gamma1p5`` down to 2 s), then the entries that read others' files (an entry starts after
+(``studies/results/regenerate_timing.csv``, one entry at a time on 2 cores: ``inhom_gamma1p5``
+first, the entries of a few seconds last), then the entries that read others' files (an entry starts after
 the one before it has, so these come last).  ``grid_convergence``
 (the study the paper lacks, 41 minutes on its own) is not part of the section: run it by name."""
 
