@@ -24,7 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.linalg import lapack
 
-from .linalg import _thomas, divergence, divergence_adjoint, solve_sym_tridiagonal
+from .linalg import divergence, divergence_adjoint, solve_sym_tridiagonal
 from .problem import CollisionProblem
 from .terms import FISHER_TERMS, wasserstein_derivatives
 
@@ -130,7 +130,7 @@ def sqp_stepper(problem: CollisionProblem) -> Callable[[NDArray, NDArray], tuple
     matvec = problem.energy.matvec
     add, divide, subtract, negative = np.add, np.divide, np.subtract, np.negative
     smallest = np.minimum.reduce
-    dptsv, thomas = lapack.dptsv, _thomas
+    dptsv = lapack.dptsv
     # scratch node arrays (zeroed where the general path starts from np.zeros_like) and their
     # edge views: k-th edge to point k (lo) and to point k+1 (hi)
     gfw, gff, hf, a, gh, div = (np.empty(n) for _ in range(6))
@@ -176,8 +176,8 @@ def sqp_stepper(problem: CollisionProblem) -> Callable[[NDArray, NDArray], tuple
         subtract(g_m, rhs, out=rhs)
         negative(rhs, out=rhs)
         _, _, pm, info = dptsv(diag, off, rhs)  # solve_sym_tridiagonal's first try (inputs not overwritten)
-        if info != 0:  # its fallback, without trying dptsv again
-            pm = thomas(diag, off, rhs, diag.shape)
+        if info != 0:  # positive definite unless non-finite: solve_sym_tridiagonal's own fallback
+            pm = solve_sym_tridiagonal(diag, off, rhs)
         # divergence(pm): zeros, [:-1] = pm, [1:] -= pm
         div[-1] = 0.0
         div_lo[...] = pm
