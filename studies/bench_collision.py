@@ -17,15 +17,22 @@ is about 1e-8), with the ratios conic/newton and sqp/newton from the same run; t
 batched throughput (121 slices of N = 121) and Newton's time per solve against N with
 the fitted growth exponent.
 
-Run: ``python studies/bench_collision.py [--repeats 7] [--sizes 61 121 241]``.
-Writes ``studies/results/bench_collision.csv`` and ``bench_newton.csv`` and prints
-Markdown tables.
+Run (README's tables): ``OPENBLAS_NUM_THREADS=1 python studies/bench_collision.py --sizes 61 121 241 481``.
+Writes ``studies/results/bench_collision.csv`` (first part), ``bench_newton.csv`` (against
+beta), ``bench_newton_growth.csv`` (Newton against N), ``bench_newton_batch.csv`` (the
+batch) and ``bench_collision.md`` (every table, with the date, the code, the thread
+setting and the machine's load), and prints the report; README.md quotes these files
+(claims ``bench.*`` of :mod:`jko_cvx.reproduce.summary`).
 """
 
 from __future__ import annotations
 
 import argparse
+import datetime
+import os
+import shlex
 import statistics
+import sys
 import time
 from pathlib import Path
 
@@ -34,6 +41,7 @@ import pandas as pd
 
 from jko_cvx import CollisionProblem, Grid, PowerKernel, solve_collision
 from jko_cvx.collision import conic, nlp
+from jko_cvx.sweep import code_provenance
 
 
 def bench(n: int, repeats: int, beta: float = 10.0, dt: float = 0.01, fisher: str = "perspective") -> list[dict]:
@@ -89,7 +97,7 @@ def _median_time(fn, repeats: int) -> tuple[float, object]:
     return statistics.median(times), res
 
 
-def bench_newton(repeats: int) -> tuple[pd.DataFrame, pd.DataFrame, str]:
+def bench_newton(repeats: int) -> tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame]:
     grid = Grid.uniform(-2.0, 2.0, 121)
     f0 = np.exp(-2 * grid.points**2)
     rows = []
@@ -127,10 +135,10 @@ def bench_newton(repeats: int) -> tuple[pd.DataFrame, pd.DataFrame, str]:
     t_loop, _ = _median_time(
         lambda: [solve_collision(batch.slice(i), method="newton", tol=1e-9) for i in range(121)], 1
     )
-    batch_line = (
-        f"batched Newton, 121 slices of N = 121: {t_batch:.3f} s ({ok}/121 converged, max KKT "
-        f"{np.max(res_b.kkt_residual):.1e}); one at a time: {t_loop:.3f} s"
-    )
+    batch_table = pd.DataFrame(
+        [{"slices": 121, "batched_s": t_batch, "converged": ok, "max_kkt": float(np.max(res_b.kkt_residual)),
+          "one_at_a_time_s": t_loop}]
+    )  # fmt: skip
     # growth with N
     sizes = [61, 121, 241, 481]
     ts = []
@@ -138,9 +146,48 @@ def bench_newton(repeats: int) -> tuple[pd.DataFrame, pd.DataFrame, str]:
         g = Grid.uniform(-2.0, 2.0, n)
         p = CollisionProblem(g, PowerKernel(1.0), np.exp(-2 * g.points**2), 0.01, beta=10.0)
         ts.append(_median_time(lambda p=p: solve_collision(p, method="newton", tol=1e-9), repeats)[0])
-    expo = float(np.polyfit(np.log(sizes), np.log(ts), 1)[0])
     by_n = pd.DataFrame({"N": sizes, "newton_s": ts})
-    return by_beta, by_n, batch_line + f"\nNewton time per solve vs N: fitted exponent {expo:.2f}"
+    return by_beta, by_n, batch_table
+
+
+_ENV_KEYS = ("JKO_CVX_BLAS_THREADS", "JKO_CVX_THREADS", "OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def _blas_setting() -> str:
+    """BLAS threads as the loaded libraries report them inside the package's limit (solves run there)."""
+    from threadpoolctl import threadpool_info
+
+    from jko_cvx.threads import blas_limits
+
+    with blas_limits():
+        counts = sorted({lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"})
+    return f"BLAS threads {counts} inside the package's limit"
+
+
+def _table(df: pd.DataFrame, floatfmt: str = ".3g") -> str:
+    return df.to_markdown(index=False, floatfmt=floatfmt) if _has_tabulate() else df.to_string(index=False)
+
+
+def report(
+    df: pd.DataFrame, by_beta: pd.DataFrame | None, by_n: pd.DataFrame | None, batch: pd.DataFrame | None, header: str
+) -> str:
+    """The Markdown report: the provenance ``header``, then every table the run measured."""
+    parts = [header]
+    for fisher, part in df.groupby("fisher", sort=False):
+        parts.append(f"### {fisher} Fisher, median s per solve\n\n" + _table(part.drop(columns="fisher")))
+        piv = part.pivot(index="N", columns="method", values="median_s")
+        for a, b in (("conic", "sqp"), ("conic", "newton"), ("sqp", "newton"), ("nlp", "conic"), ("nlp", "sqp")):
+            if a in piv and b in piv:
+                text = ", ".join(f"N = {n}: {r:.3g}" for n, r in (piv[a] / piv[b]).items())
+                parts.append(f"- {fisher}: {a} / {b} (medians per solve): {text}")
+    if by_beta is not None:
+        parts.append("### Against the Fisher weight (N = 121), median s per solve\n\n" + _table(by_beta))
+    if by_n is not None:
+        expo = float(np.polyfit(np.log(by_n.N), np.log(by_n.newton_s), 1)[0])
+        parts.append(f"### Newton per solve against N (fitted exponent {expo:.2f})\n\n" + _table(by_n))
+    if batch is not None:
+        parts.append("### Batched Newton, 121 slices of N = 121\n\n" + _table(batch))
+    return "\n\n".join(parts) + "\n"
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -150,27 +197,34 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--no-newton", dest="newton", action="store_false", help="skip the fast-solver part")
     ap.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "bench_collision.csv")
     args = ap.parse_args(argv)
+    if args.repeats < 1 or any(n < 5 for n in args.sizes):
+        ap.error("--repeats must be >= 1 and every --sizes entry >= 5")
+    code = code_provenance(bench)  # before the run: an edit meanwhile cannot change the record
+    env = ", ".join(f"{k}={os.environ.get(k, 'unset')}" for k in _ENV_KEYS)
+    load0 = os.getloadavg()[0]
     rows = [r for fisher in ("perspective", "log") for n in args.sizes for r in bench(n, args.repeats, fisher=fisher)]
     df = pd.DataFrame(rows)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     df.to_csv(args.out, index=False)
-    cols = ["fisher", "N", "method", "median_s", "iterations", "passes", "kkt_residual", "compile_s"]
-    cols += ["clarabel_s", "canonicalize_s", "ipopt_s", "status"]
-    print(df[cols].to_markdown(index=False, floatfmt=".3g") if _has_tabulate() else df[cols].to_string(index=False))
-    for fisher, part in df.groupby("fisher", sort=False):
-        piv = part.pivot(index="N", columns="method", values="median_s")
-        ratios = [(a, b) for a, b in (("conic", "sqp"), ("nlp", "newton"), ("nlp", "sqp")) if a in piv and b in piv]
-        for a, b in ratios:
-            text = ", ".join(f"N={n}: {r:.3g}" for n, r in (piv[a] / piv[b]).items())
-            print(f"{fisher}: ratio {a} / {b} (median per solve): {text}")
-    print(f"wrote {args.out}")
+    by_beta = by_n = batch = None
     if args.newton:
-        by_beta, by_n, lines = bench_newton(args.repeats)
+        by_beta, by_n, batch = bench_newton(args.repeats)
         by_beta.to_csv(args.out.with_name("bench_newton.csv"), index=False)
-        show = by_beta.to_markdown(index=False, floatfmt=".3g") if _has_tabulate() else by_beta.to_string(index=False)
-        print("\nN = 121, gamma = 1, dt = 0.01 (median s per solve, iterations, KKT residual reached):\n" + show)
-        print(by_n.to_markdown(index=False, floatfmt=".3g") if _has_tabulate() else by_n.to_string(index=False))
-        print(lines)
+        by_n.to_csv(args.out.with_name("bench_newton_growth.csv"), index=False)
+        batch.to_csv(args.out.with_name("bench_newton_batch.csv"), index=False)
+    header = (
+        "# One collision step, four methods (`studies/bench_collision.py`)\n\n"
+        f"`{shlex.join([Path(sys.argv[0]).name, *(argv if argv is not None else sys.argv[1:])])}`, finished "
+        f"{datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC on this {os.cpu_count()}-core machine; "
+        f"code {code['package_sha256'][:12]} (git {str(code['git_commit'])[:12]}, jko_cvx modified: "
+        f"{code['jko_cvx_modified']}); thread environment: {env}; {_blas_setting()}; 1-minute load "
+        f"{load0:.2f} before, {os.getloadavg()[0]:.2f} after.  Medians of {args.repeats} solves per row, "
+        "methods side by side in one process."
+    )
+    text = report(df, by_beta, by_n, batch, header)
+    args.out.with_suffix(".md").write_text(text)
+    print(text)
+    print(f"wrote {args.out} and {args.out.with_suffix('.md').name}")
 
 
 def _has_tabulate() -> bool:
