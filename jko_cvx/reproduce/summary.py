@@ -792,6 +792,8 @@ CLAIMS += (
         "the record line of the section's timing",
     ),
 )
+
+
 def _tridiagonal_fix(before: pd.DataFrame) -> tuple[str, ...]:
     """``tab_g2bu`` before and after the batched tridiagonal fix: rows whose max f moved, the largest
     relative change, and whether T_b and the step counts moved at all."""
@@ -1087,6 +1089,227 @@ CLAIMS += (
         "the signs of the differences of T_b (N_v = 801) in lambda",
     ),
 )
+
+
+# --- README's benchmark section (studies/bench_collision.py): every cell of its tables ----------------------
+
+_BENCH_SIZES = (61, 121, 241, 481)
+_BENCH_METHODS = {"perspective": ("conic", "sqp", "newton", "nlp"), "log": ("sqp", "newton", "nlp")}
+
+
+def _opt(x: float, fmt: str) -> str:
+    """``x`` formatted, or empty where the method has no such figure (NaN)."""
+    return "" if pd.isna(x) else format(x, fmt)
+
+
+def _bench_row(d: pd.DataFrame, fisher: str, n: int, method: str) -> tuple[str, ...]:
+    """A row of README's one-step table: median s, iterations, [DC passes,] KKT, build s, in-solver s."""
+    rows = d[(d.fisher == fisher) & (d.N == n) & (d.method == method)]
+    if len(rows) != 1:
+        raise ValueError(f"bench_collision.csv: expected one row for {fisher}, N = {n}, {method}")
+    r = rows.iloc[0]
+    inside = r.clarabel_s if method == "conic" else r.ipopt_s
+    cells = [_g(r.median_s, 3), f"{int(r.iterations)}"]
+    if fisher == "perspective":
+        cells.append(_opt(r.passes, ".0f"))
+    return (*cells, f"{r.kkt_residual:.1e}", _opt(r.compile_s, ".3f"), _opt(inside, ".3f"))
+
+
+def _bench_ratio(d: pd.DataFrame, fisher: str, a: str, b: str) -> str:
+    """The ratios of the medians a / b at N = 61, 121, 241, 481, comma-separated."""
+    piv = d[d.fisher == fisher].pivot(index="N", columns="method", values="median_s")
+    return ", ".join(_g(piv[a][n] / piv[b][n], 3) for n in _BENCH_SIZES)
+
+
+def _bench_ratios(d: pd.DataFrame) -> tuple[str, ...]:
+    return (
+        _bench_ratio(d, "perspective", "conic", "newton"),
+        _bench_ratio(d, "perspective", "sqp", "newton"),
+        _bench_ratio(d, "log", "sqp", "newton"),
+        _bench_ratio(d, "perspective", "nlp", "conic"),
+        _bench_ratio(d, "perspective", "nlp", "sqp"),
+        _bench_ratio(d, "log", "nlp", "sqp"),
+    )
+
+
+def _bench_growth(d: pd.DataFrame, fisher: str, method: str) -> str:
+    """The fitted exponent p of median ~ N^p over N = 61 ... 481."""
+    rows = d[(d.fisher == fisher) & (d.method == method)].sort_values("N")
+    return f"{np.polyfit(np.log(rows.N), np.log(rows.median_s), 1)[0]:.1f}"
+
+
+def _bench_cvxpy(d: pd.DataFrame) -> tuple[str, ...]:
+    """nlp's per-solve reduction chain (ms), nlp's build and conic's compile (s): ranges over the rows."""
+    nlp, conic = d[d.method == "nlp"], d[d.method == "conic"]
+    return (
+        f"{1e3 * nlp.canonicalize_s.min():.1f}",
+        f"{1e3 * nlp.canonicalize_s.max():.1f}",
+        f"{nlp.compile_s.min():.3f}",
+        f"{nlp.compile_s.max():.3f}",
+        f"{conic.compile_s.min():.3f}",
+        f"{conic.compile_s.max():.3f}",
+    )
+
+
+def _bench_nlp(d: pd.DataFrame) -> tuple[str, ...]:
+    """nlp's medians (both forms), nlp / Newton (both forms) and nlp / conic (perspective): ranges over N."""
+    piv = d.pivot_table(index=["fisher", "N"], columns="method", values="median_s")
+    nlp_newton = piv.nlp / piv.newton
+    nlp_conic = (piv.nlp / piv.conic).dropna()
+    return (
+        _g(piv.nlp.min(), 2),
+        _g(piv.nlp.max(), 2),
+        f"{nlp_newton.min():.0f}",
+        f"{nlp_newton.max():.0f}",
+        f"{nlp_conic.min():.1f}",
+        f"{nlp_conic.max():.1f}",
+    )
+
+
+def _single_path(text: str) -> tuple[str, ...]:
+    """The range of branch/main over the one-problem table of ``newton_single_path.md``."""
+    section = text.split("## One problem", 1)[1].split("\n## ", 1)[0]
+    ratios = [float(line.split("|")[6]) for line in section.splitlines() if re.match(r"\| \d", line)]
+    return (f"{min(ratios):.1f}", f"{max(ratios):.1f}")
+
+
+def _bench_beta_row(d: pd.DataFrame, beta: float) -> tuple[str, ...]:
+    r = d.set_index("beta").loc[beta]
+    return (
+        _g(r.conic_s, 3),
+        f"{r.conic_kkt:.1e}",
+        _g(r.sqp_s, 3),
+        f"{int(r.sqp_it)}",
+        _g(r.newton_s, 3),
+        f"{int(r.newton_it)}",
+        _g(r["conic/newton"], 3),
+        _g(r["sqp/newton"], 3),
+    )
+
+
+def _bench_batch(d: pd.DataFrame) -> tuple[str, ...]:
+    r = d.iloc[0]
+    return (
+        f"{r.batched_s:.4f}",
+        f"{int(r.converged)}",
+        f"{int(r.slices)}",
+        f"{r.max_kkt:.1e}",
+        f"{r.one_at_a_time_s:.3f}",
+    )
+
+
+def _bench_growth_newton(d: pd.DataFrame) -> tuple[str, ...]:
+    d = d.sort_values("N")
+    return (
+        ", ".join(f"{1e3 * t:.2f}" for t in d.newton_s),
+        f"{np.polyfit(np.log(d.N), np.log(d.newton_s), 1)[0]:.2f}",
+    )
+
+
+def _bench_claims() -> tuple[Claim, ...]:
+    claims = []
+    for fisher, methods in _BENCH_METHODS.items():
+        cols = 6 if fisher == "perspective" else 5
+        for n in _BENCH_SIZES:
+            for method in methods:
+                claims.append(
+                    Claim(
+                        f"bench.{fisher}.{n}.{method}",
+                        "../bench_collision.csv",
+                        lambda d, f=fisher, n=n, m=method: _bench_row(d, f, n, m),
+                        f"| {n} | {method} |" + " {} |" * cols,
+                        f"{fisher} Fisher, N = {n}, {method}: median s, iterations, "
+                        + ("DC passes, " if fisher == "perspective" else "")
+                        + "KKT, build s, in-solver s",
+                        "README.md",
+                    )
+                )
+    claims += [
+        Claim(
+            "bench.ratios",
+            "../bench_collision.csv",
+            _bench_ratios,
+            "Ratios of the medians at N = 61, 121, 241, 481: conic / Newton {} (perspective); SQP / Newton {} "
+            "(perspective) and {} (log); nlp / conic {} (perspective); nlp / SQP {} (perspective) and {} (log).",
+            "medians per solve, bench_collision.csv",
+            "README.md",
+        ),
+        Claim(
+            "bench.growth",
+            "../bench_collision.csv",
+            lambda d: tuple(
+                _bench_growth(d, f, m) for f, m in (("perspective", "nlp"), ("log", "nlp"), ("perspective", "sqp"))
+            ),
+            "nlp's time grows like N^{} (perspective) and N^{} (log) over N = 61 ... 481, the SQP's like N^{}",
+            "least-squares slope of log median against log N",
+            "README.md",
+        ),
+        Claim(
+            "bench.cvxpy",
+            "../bench_collision.csv",
+            _bench_cvxpy,
+            "CVXPY's reduction chain costs nlp {}-{} ms per solve (`canonicalize_s`); nlp's build ({}-{} s) is "
+            "cheaper than conic's compile ({}-{} s)",
+            "ranges over the N and Fisher forms",
+            "README.md",
+        ),
+        Claim(
+            "bench.nlp",
+            "../bench_collision.csv",
+            _bench_nlp,
+            "{}-{} s per solve at N = 61-481, {}-{}x Newton and {}-{}x the conic re-solve (benchmark below)",
+            "ranges over N = 61 ... 481 and both Fisher forms (conic: perspective only)",
+            "README.md",
+        ),
+        Claim(
+            "bench.nlp_iterations",
+            "../bench_collision.csv",
+            lambda d: (f"{d[d.method == 'nlp'].iterations.min()}", f"{d[d.method == 'nlp'].iterations.max()}"),
+            "nlp's iteration count stays between {} and {}",
+            "nlp's iterations over N and both Fisher forms",
+            "README.md",
+        ),
+        *(
+            Claim(
+                f"bench.beta.{beta:g}",
+                "../bench_newton.csv",
+                lambda d, b=beta: _bench_beta_row(d, b),
+                f"| {beta:g} |" + " {} |" * 8,
+                f"beta = {beta:g}: conic s, KKT, sqp s, iterations, newton s, iterations, ratios",
+                "README.md",
+            )
+            for beta in (1.0, 3.0, 10.0, 30.0)
+        ),
+        Claim(
+            "bench.batch",
+            "../bench_newton_batch.csv",
+            _bench_batch,
+            "Batched Newton, 121 slices of N = 121: {} s ({} of {} slices converged, max KKT {}; one slice at a "
+            "time: {} s).",
+            "median of the batched solve; the loop over slices",
+            "README.md",
+        ),
+        Claim(
+            "bench.single_path",
+            "../newton_single_path.md",
+            _single_path,
+            "(a batch of one, {}-{}x slower per small solve than the former scalar path",
+            "branch/main over the one-problem table",
+            "README.md",
+        ),
+        Claim(
+            "bench.newton_growth",
+            "../bench_newton_growth.csv",
+            _bench_growth_newton,
+            "Newton time per solve against N = 61, 121, 241, 481: {} ms, fitted exponent {}",
+            "medians; least-squares slope of log time against log N",
+            "README.md",
+        ),
+    ]
+    return tuple(claims)
+
+
+CLAIMS += _bench_claims()
 
 
 def claim_values(results: Path = RESULTS) -> dict[str, tuple[str, ...]]:
