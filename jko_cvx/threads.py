@@ -49,11 +49,13 @@ import numpy as np
 __all__ = [
     "BLAS_THREADS_ENV",
     "THREADS_ENV",
+    "THREAD_ENV_KEYS",
     "blas_limited",
     "blas_limits",
     "blas_threads",
     "map_chunks",
     "slice_workers",
+    "thread_environment",
     "usable_cores",
 ]
 
@@ -62,6 +64,8 @@ R = TypeVar("R")
 
 BLAS_THREADS_ENV = "JKO_CVX_BLAS_THREADS"
 THREADS_ENV = "JKO_CVX_THREADS"
+# The variables a timing depends on: the package's own and the BLAS libraries'.
+THREAD_ENV_KEYS = (BLAS_THREADS_ENV, THREADS_ENV, "OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
 _state = threading.local()  # depth of blas_limits, and whether this thread is a slice worker
 _lock = threading.Lock()
@@ -127,6 +131,22 @@ def blas_limits() -> Iterator[None]:
             yield
     finally:
         _state.depth = 0
+
+
+def thread_environment() -> str:
+    """The thread setting a timing was taken under, for a benchmark's record.
+
+    The variables of ``THREAD_ENV_KEYS`` (``unset`` where absent), the BLAS threads the
+    loaded libraries report inside :func:`blas_limits` (where every solve runs) and the
+    slice threads, e.g. ``"JKO_CVX_BLAS_THREADS=unset, ..., OPENBLAS_NUM_THREADS=1; BLAS
+    threads [1] inside solves, 2 slice threads"``.
+    """
+    from threadpoolctl import threadpool_info
+
+    env = ", ".join(f"{k}={os.environ.get(k, 'unset')}" for k in THREAD_ENV_KEYS)
+    with blas_limits():
+        counts = sorted({lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"})
+    return f"{env}; BLAS threads {counts} inside solves, {slice_workers()} slice threads"
 
 
 def blas_limited(func: Callable[P, R]) -> Callable[P, R]:

@@ -42,6 +42,7 @@ import pandas as pd
 from jko_cvx import CollisionProblem, Grid, PowerKernel, solve_collision
 from jko_cvx.collision import conic, nlp
 from jko_cvx.sweep import code_provenance
+from jko_cvx.threads import thread_environment
 
 
 def bench(n: int, repeats: int, beta: float = 10.0, dt: float = 0.01, fisher: str = "perspective") -> list[dict]:
@@ -150,20 +151,6 @@ def bench_newton(repeats: int) -> tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame
     return by_beta, by_n, batch_table
 
 
-_ENV_KEYS = ("JKO_CVX_BLAS_THREADS", "JKO_CVX_THREADS", "OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
-
-
-def _blas_setting() -> str:
-    """BLAS threads as the loaded libraries report them inside the package's limit (solves run there)."""
-    from threadpoolctl import threadpool_info
-
-    from jko_cvx.threads import blas_limits
-
-    with blas_limits():
-        counts = sorted({lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"})
-    return f"BLAS threads {counts} inside the package's limit"
-
-
 def _table(df: pd.DataFrame, floatfmt: str = ".3g") -> str:
     return df.to_markdown(index=False, floatfmt=floatfmt) if _has_tabulate() else df.to_string(index=False)
 
@@ -200,7 +187,6 @@ def main(argv: list[str] | None = None) -> None:
     if args.repeats < 1 or any(n < 5 for n in args.sizes):
         ap.error("--repeats must be >= 1 and every --sizes entry >= 5")
     code = code_provenance(bench)  # before the run: an edit meanwhile cannot change the record
-    env = ", ".join(f"{k}={os.environ.get(k, 'unset')}" for k in _ENV_KEYS)
     load0 = os.getloadavg()[0]
     rows = [r for fisher in ("perspective", "log") for n in args.sizes for r in bench(n, args.repeats, fisher=fisher)]
     df = pd.DataFrame(rows)
@@ -217,7 +203,7 @@ def main(argv: list[str] | None = None) -> None:
         f"`{shlex.join([Path(sys.argv[0]).name, *(argv if argv is not None else sys.argv[1:])])}`, finished "
         f"{datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC on this {os.cpu_count()}-core machine; "
         f"code {code['package_sha256'][:12]} (git {str(code['git_commit'])[:12]}, jko_cvx modified: "
-        f"{code['jko_cvx_modified']}); thread environment: {env}; {_blas_setting()}; 1-minute load "
+        f"{code['jko_cvx_modified']}); threads: {thread_environment()}; 1-minute load "
         f"{load0:.2f} before, {os.getloadavg()[0]:.2f} after.  Medians of {args.repeats} solves per row, "
         "methods side by side in one process."
     )

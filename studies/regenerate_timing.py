@@ -41,11 +41,12 @@ import pandas as pd
 
 from jko_cvx.reproduce import REPRODUCTIONS
 from jko_cvx.sweep import code_identity
+from jko_cvx.threads import THREAD_ENV_KEYS
 
 RESULTS = Path(__file__).parent / "results"
 GOAL_S = 20 * 60
 """The issue's goal for the whole section on 2 cores."""
-_ENV_KEYS = ("JKO_CVX_BLAS_THREADS", "JKO_CVX_THREADS", "OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+_ENV_KEYS = THREAD_ENV_KEYS
 
 
 def _children_cpu() -> float:

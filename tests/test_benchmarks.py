@@ -84,6 +84,9 @@ def test_cost_growth_quick(tmp_path):
     step = tables["step"]
     assert isinstance(step, pd.DataFrame) and (step.status == "CONVERGED").all()
     assert (tmp_path / "cost_growth.md").exists() and (tmp_path / "cost_growth.png").exists()
+    head = (tmp_path / "cost_growth.md").read_text().split("\n\n")[1]  # the run's record
+    assert " UTC on " in head and "(quick form)" in head and "threads: JKO_CVX_BLAS_THREADS=" in head
+    assert "1-minute load" in head and "medians of 2 repeats" in head
 
 
 def test_study_command_writes_its_tables(tmp_path, capsys):

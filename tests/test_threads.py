@@ -16,6 +16,7 @@ from jko_cvx.threads import (
     blas_threads,
     map_chunks,
     slice_workers,
+    thread_environment,
     usable_cores,
 )
 
@@ -31,6 +32,16 @@ def test_defaults(monkeypatch):
     assert slice_workers() == usable_cores()
     monkeypatch.setenv(BLAS_THREADS_ENV, "0")  # BLAS keeps its own threads: no threads on top
     assert blas_threads() == 0 and slice_workers() == 1
+
+
+def test_the_recorded_thread_environment_names_every_setting(monkeypatch):
+    monkeypatch.setenv(BLAS_THREADS_ENV, "1")
+    monkeypatch.setenv(THREADS_ENV, "2")
+    monkeypatch.delenv("MKL_NUM_THREADS", raising=False)
+    text = thread_environment()
+    assert text.startswith("JKO_CVX_BLAS_THREADS=1, JKO_CVX_THREADS=2, OPENBLAS_NUM_THREADS=")
+    assert "MKL_NUM_THREADS=unset" in text
+    assert text.endswith("; BLAS threads [1] inside solves, 2 slice threads")  # what the libraries report
 
 
 def test_one_slice_thread_inside_a_process_pool_worker(monkeypatch):

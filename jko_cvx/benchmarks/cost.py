@@ -19,9 +19,11 @@ per-call overheads dominate).
 from __future__ import annotations
 
 import dataclasses
+import os
 import statistics
 import time
 from collections.abc import Callable
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -32,6 +34,8 @@ from ..collision import CollisionProblem, Status, solve_collision
 from ..collision.conic import clear_model_cache
 from ..grid import Grid
 from ..kernels import PowerKernel
+from ..sweep import code_identity
+from ..threads import thread_environment, usable_cores
 
 __all__ = ["cost_growth", "fit_exponent", "median_time"]
 
@@ -159,6 +163,8 @@ def cost_growth(out: Path, quick: bool = False, repeats: int = 5, **_sweep_opts:
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     reps = 2 if quick else repeats
+    code = code_identity(cost_growth)["package_sha256"][:12]  # before the run: an edit meanwhile cannot change it
+    load0 = os.getloadavg()[0]
     step = pd.DataFrame(_step_rows(quick, reps))
     batch = pd.DataFrame(_batch_rows(quick, reps))
     tstep = pd.DataFrame(_time_step_rows(quick))
@@ -182,6 +188,9 @@ def cost_growth(out: Path, quick: bool = False, repeats: int = 5, **_sweep_opts:
     wide.columns = [f"gamma={g:g} {m} [s]" for g, m in wide.columns]
     text = (
         "# Cost growth\n\n"
+        f"Measured {datetime.now(UTC):%Y-%m-%d %H:%M} UTC on {usable_cores()} cores, code {code}"
+        f"{' (quick form)' if quick else ''}; threads: {thread_environment()}; 1-minute load {load0:.2f} "
+        f"before, {os.getloadavg()[0]:.2f} after; medians of {reps} repeats.\n\n"
         "## One collision step against N_v (median of one solve; conic: re-solve, compile apart)\n\n"
         + wide.reset_index().to_markdown(index=False, floatfmt=".3g")
         + "\n\n"
