@@ -1269,6 +1269,14 @@ def _bench_claims() -> tuple[Claim, ...]:
             "nlp's iterations over N and both Fisher forms",
             "README.md",
         ),
+        Claim(
+            "bench.sqp_iterations",
+            "../bench_newton.csv",
+            lambda d: tuple(f"{int(x)}" for x in d.sort_values("beta").sqp_it),
+            "SQP iterations {} / {} / {} / {} for beta = 1 / 3 / 10 / 30",
+            "sqp_it of bench_newton.csv",
+            "README.md",
+        ),
         *(
             Claim(
                 f"bench.beta.{beta:g}",
@@ -1373,6 +1381,146 @@ CLAIMS += (
         lambda d: (f"{d.speedup.min():.1f}", f"{d.speedup.max():.1f}", f"{d.B.min()}", f"{d.B.max()}"),
         "{}-{}x faster than B single calls (B = {}-{}, gamma = 3, N = 121): `cost_growth.md`",
         "one-at-a-time / batched over B",
+        "README.md",
+    ),
+)
+
+
+
+# --- README's "Bad input" table (studies/misuse_probe.py): every row ---------------------------------------
+
+
+def _misuse_row(d: pd.DataFrame, i: int) -> tuple[str, ...]:
+    """Row ``i`` of README's misuse table: class, input, the outcome before, the message now.
+
+    Pipes are escaped for Markdown; a message longer than 170 characters is cut at 167 and
+    marked with an ellipsis.
+    """
+    r = d.iloc[i]
+    msg = str(r["message (now)"]).removeprefix("jko-cvx: error: ")
+    msg = msg if len(msg) <= 170 else msg[:167] + "..."
+    before = "clear" if bool(r["clear (before)"]) else str(r["outcome (before)"])
+    return tuple(str(x).replace("|", "\\|") for x in (r["class"], r["input"], before, msg))
+
+
+def _misuse_claims() -> tuple[Claim, ...]:
+    n = len(pd.read_csv(RESULTS.parent / "misuse_scene_cli.csv"))
+    return tuple(
+        Claim(
+            f"misuse.row{i}",
+            "../misuse_scene_cli.csv",
+            lambda d, i=i: _misuse_row(d, i),
+            "| {} | `{}` | {} | {} |",
+            f"row {i} of misuse_scene_cli.csv: class, input, before, message now",
+            "README.md",
+        )
+        for i in range(n)
+    )
+
+
+CLAIMS += _misuse_claims()
+
+
+
+# --- README's measured inhom_gamma3 runs (the inhom_gamma3 entry) -------------------------------------------
+
+
+def _g3_runs(d: pd.DataFrame) -> tuple[str, ...]:
+    r = d.set_index("lambda")
+    four = r.loc[4.0]
+    return (
+        f"{four.seconds:.1f}",
+        f"{four['mass drift']:.1e}",
+        f"{four['momentum drift']:.1e}",
+        f"{int(four['moment2 increases'])}",
+        ", ".join(f"{r.seconds[lam]:.1f}" for lam in (2.0, 6.0, 8.0, 10.0)),
+        str(int(r["blow-up flagged"].astype(bool).sum())),
+        _g(r.loc[10.0, "min dx (min)"], 2),
+        _g(r.loc[10.0, "min dx at end"], 2),
+        f"{r.loc[10.0, 'max f (peak)']:.1f}",
+    )
+
+
+CLAIMS += (
+    Claim(
+        "readme.inhom_gamma3_runs",
+        "inhom_gamma3.csv",
+        _g3_runs,
+        "lambda = 4 took {} s in its run, no blow-up (the paper's conclusion), mass drift {}, momentum drift {}, "
+        "second moment increasing at {} steps.  The other gamma = 3 runs (lambda = 2, 6, 8, 10): {} s; {} of the "
+        "five flag blow-up; for lambda = 10 min dx falls to {} and recovers to {} at t = 4 while max f peaks at {}",
+        "the lambda rows of inhom_gamma3.csv",
+        "README.md",
+    ),
+    Claim(
+        "readme.momentum_drift",
+        "inhom_gamma3.csv",
+        lambda d: (f"{d['momentum drift'].max():.1e}",),
+        "Momentum drift over the `inhom_gamma3` runs (121 x 121 to t = 4): at most {}",
+        "largest momentum drift of inhom_gamma3.csv",
+        "README.md",
+    ),
+)
+
+
+
+# --- README's `jko-cvx compare` paragraph and solver table (work_precision_step) ----------------------------
+
+
+def _wps_ranges(d: pd.DataFrame) -> tuple[str, ...]:
+    """Median ms ranges over the tolerances, gamma = 1: Newton, the SQP (banded), Clarabel; SCS's KKT at 1e-4."""
+    g1 = d[d.problem == "gamma=1"]
+    out = []
+    for family in ("newton", "sqp:banded", "conic:CLARABEL"):
+        ms = 1e3 * g1[g1.family == family].median_s
+        out += [_g(ms.min(), 2), _g(ms.max(), 2)]
+    scs = g1[(g1.family == "conic:SCS") & (g1.setting == "tol=0.0001")]
+    if len(scs) != 1 or scs.status.iloc[0] != "NOT_CERTIFIED":
+        raise ValueError("work_precision_step.csv: SCS at tol 1e-4 is no longer one NOT_CERTIFIED row")
+    return (*out, f"{scs.kkt.iloc[0]:.1e}")
+
+
+def _sqp_failures(d: pd.DataFrame) -> tuple[str, ...]:
+    failed = d[d.failed_step >= 0]
+    if set(failed.family) != {"sqp"} or failed.beta.nunique() != 1:
+        raise ValueError("work_precision_run.csv: failed runs other than the SQP's at one beta")
+    return (f"{failed.beta.iloc[0]:g}", f"{failed.failed_step.max()}")
+
+
+def _crawl(d: pd.DataFrame) -> tuple[str, ...]:
+    per_slice = d.iterations_sum / d.slices
+    return (
+        f"{d.iterations_max.median():.0f}",
+        f"{d.iterations_max.max()}",
+        f"{per_slice.median():.1f}",
+        f"{d.one_iteration_slices.median():.0f}",
+    )
+
+
+CLAIMS += (
+    Claim(
+        "crawl.iterations",
+        "../bench_crawl.csv",
+        _crawl,
+        "the slowest slice needs {} Newton iterations per solve (median; at most {}), the average slice {}, and {} of "
+        "the 121 slices converge in one",
+        "per-solve medians and the largest, bench_crawl.csv",
+    ),
+    Claim(
+        "readme.sqp_failures",
+        "../work_precision_run.csv",
+        _sqp_failures,
+        "fails on vacuum tails at weak Fisher weight (beta = {} within the first {} steps",
+        "the failed runs of work_precision_run.csv (all SQP, one beta)",
+        "README.md",
+    ),
+    Claim(
+        "readme.compare",
+        "../work_precision_step.csv",
+        _wps_ranges,
+        "Newton {}-{} ms, SQP {}-{} ms, Clarabel {}-{} ms over their tolerances (`work_precision_step.csv`, the "
+        "same step); SCS at tol 1e-4 returns \"optimal\" with KKT {}, which the package reports as NOT_CERTIFIED",
+        "gamma = 1 rows of work_precision_step.csv",
         "README.md",
     ),
 )
