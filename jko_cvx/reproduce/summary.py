@@ -1497,7 +1497,36 @@ def _crawl(d: pd.DataFrame) -> tuple[str, ...]:
     )
 
 
+def _default_scene_tb(d: pd.DataFrame) -> tuple[str, ...]:
+    """T_b of the beta-scan run with the default scene's physics (tab_bu_g1 at beta = 1000)."""
+    row = d[(d.data == "g1") & np.isclose(d.eps_v, 2.5e-4) & np.isclose(d["dt"], 0.01) & (d.beta == 1000.0)]
+    if len(row) != 1:
+        raise ValueError("tab_bu_beta_scan.csv: expected one g1 row at eps_v = 2.5e-4, dt = 0.01, beta = 1000")
+    return (_g(row.T_b.iloc[0], 4),)
+
+
+def _default_scene_beta_range(d: pd.DataFrame) -> tuple[str, ...]:
+    rows = d[(d.data == "g1") & np.isclose(d.eps_v, 2.5e-4) & np.isclose(d["dt"], 0.01) & (d.beta >= 1000.0)]
+    return (f"{rows.T_b.min():.2f}", f"{rows.T_b.max():.2f}")
+
+
 CLAIMS += (
+    Claim(
+        "readme.default_beta_range",
+        "tab_bu_beta_scan.csv",
+        _default_scene_beta_range,
+        "beta >= 1000 gives T_b = {}-{} (`tab_bu_beta_scan.csv`)",
+        "g1, eps_v = 1e-3/4, dt = 0.01 over beta >= 1000 (inf included)",
+        "README.md",
+    ),
+    Claim(
+        "readme.default_tb",
+        "tab_bu_beta_scan.csv",
+        _default_scene_tb,
+        "(measured `T_b = {}` with these settings: `tab_bu_beta_scan.csv`, beta = 1000",
+        "the g1, eps_v = 1e-3/4, dt = 0.01, beta = 1000 entry of the beta scan (the default scene's physics)",
+        "README.md",
+    ),
     Claim(
         "crawl.iterations",
         "../bench_crawl.csv",
