@@ -34,11 +34,13 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from bench_threads import SCENE, blas_setting, inhom_batch, time_solves
+from bench_threads import SCENE, inhom_batch, time_solves
 
 from jko_cvx.collision.structured import LINALG_ENV
 from jko_cvx.scene import load_scene
 from jko_cvx.simulate import simulate
+from jko_cvx.sweep import code_identity
+from jko_cvx.threads import thread_environment
 
 RESULTS = Path(__file__).parent / "results"
 
@@ -146,7 +148,7 @@ def main(argv: list[str] | None = None) -> None:
     args = ap.parse_args(argv)
     if args.tag and not args.tag.replace("_", "").isalnum():
         ap.error(f"--tag must be letters, digits and underscores, got {args.tag!r}")
-    setting = blas_setting()
+    setting = f"threads: {thread_environment()}; code {code_identity(main)['package_sha256'][:12]}"
     newton = pd.DataFrame(newton_rows(args.sizes, args.dense_max, args.repeats, tuple(args.gammas)))
     RESULTS.mkdir(parents=True, exist_ok=True)
     newton.to_csv(RESULTS / f"bench_scale{args.tag}_newton.csv", index=False)
@@ -166,8 +168,7 @@ def report(newton: pd.DataFrame, fits: pd.DataFrame, steps: pd.DataFrame, settin
     wide.columns = [f"{lin} {what.replace('median_', '')}" for what, lin in wide.columns]
     parts = [
         "# Scale targets (issue 15)\n",
-        f"Default environment ({setting}; no JKO_CVX_* or OPENBLAS_* variables set), "
-        f"{os.cpu_count()} cores shared with other users (load averages in the CSVs); "
+        f"{setting}; {os.cpu_count()} cores shared with other users (load averages in the CSVs); "
         f"measured {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}.\n",
         "\n## Batched Newton, 32 slices (median seconds per solve)\n",
         wide.reset_index().to_markdown(index=False, floatfmt=".3g"),
