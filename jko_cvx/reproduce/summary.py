@@ -1390,12 +1390,17 @@ CLAIMS += (
 # --- README's "Bad input" table (studies/misuse_probe.py): every row ---------------------------------------
 
 
+_MISUSE_ROWS = 43  # rows of misuse_scene_cli.csv; _misuse_row refuses a file with another count
+
+
 def _misuse_row(d: pd.DataFrame, i: int) -> tuple[str, ...]:
     """Row ``i`` of README's misuse table: class, input, the outcome before, the message now.
 
     Pipes are escaped for Markdown; a message longer than 170 characters is cut at 167 and
     marked with an ellipsis.
     """
+    if len(d) != _MISUSE_ROWS:
+        raise ValueError(f"misuse_scene_cli.csv has {len(d)} rows, the README's table {_MISUSE_ROWS}")
     r = d.iloc[i]
     msg = str(r["message (now)"]).removeprefix("jko-cvx: error: ")
     msg = msg if len(msg) <= 170 else msg[:167] + "..."
@@ -1404,7 +1409,6 @@ def _misuse_row(d: pd.DataFrame, i: int) -> tuple[str, ...]:
 
 
 def _misuse_claims() -> tuple[Claim, ...]:
-    n = len(pd.read_csv(RESULTS.parent / "misuse_scene_cli.csv"))
     return tuple(
         Claim(
             f"misuse.row{i}",
@@ -1414,7 +1418,7 @@ def _misuse_claims() -> tuple[Claim, ...]:
             f"row {i} of misuse_scene_cli.csv: class, input, before, message now",
             "README.md",
         )
-        for i in range(n)
+        for i in range(_MISUSE_ROWS)
     )
 
 
