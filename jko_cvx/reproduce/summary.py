@@ -794,6 +794,29 @@ CLAIMS += (
 )
 
 
+CLAIMS += (
+    *(
+        Claim(
+            f"regenerate.section.{label}",
+            f"../regenerate_timing_section_2026-12-02T{stamp}.md",
+            _section_total,
+            "{} s ({} min) of wall time, {} entries, {} s of CPU: the goal {}",
+            f"the total line of the section's timing finished at {stamp[:2]}:{stamp[2:]} UTC",
+            "README.md",
+        )
+        for label, stamp in (("earlier", "0549"), ("first_rerun", "0753"))
+    ),
+    Claim(
+        "regenerate.section.earlier_load",
+        "../regenerate_timing_section_2026-12-02T0549.md",
+        lambda text: _section_code(text)[1:2],
+        "(`regenerate_timing_section_2026-12-02T0549.md`, 1-minute load {} before it started)",
+        "the record line of the 05:49 timing",
+        "README.md",
+    ),
+)
+
+
 def _tridiagonal_fix(before: pd.DataFrame) -> tuple[str, ...]:
     """``tab_g2bu`` before and after the batched tridiagonal fix: rows whose max f moved, the largest
     relative change, and whether T_b and the step counts moved at all."""
