@@ -223,16 +223,11 @@ def _shifted_exp_on(expo: NDArray[np.float64], pos: NDArray[np.bool_]) -> NDArra
     return np.exp(np.minimum(expo - top, 0.0))
 
 
-def _tilted_mean_var(f, h, dv, beta):
-    """Mean and variance of ``dv`` under the weights ``h f exp(beta dv)`` (shifted exponent: no overflow)."""
-    return _tilted_moments(h * f, f > 0, dv, beta)
-
-
 def _tilted_moments(
     hf: NDArray[np.float64], pos: NDArray[np.bool_], dv: NDArray[np.float64], beta: NDArray[np.float64]
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """:func:`_tilted_mean_var` given ``hf = h * f`` and ``pos = f > 0``, which stay fixed
-    while a row iterates (the weights ``hf * exp(...)`` are the same product as before)."""
+    """Mean and variance of ``dv`` under the weights ``h f exp(beta dv)`` (shifted exponent: no
+    overflow), given ``hf = h * f`` and ``pos = f > 0``, which stay fixed while a row iterates."""
     w = hf * _shifted_exp_on(beta[..., None] * dv, pos)
     w0 = w.sum(axis=-1)
     mean = np.divide((w * dv).sum(axis=-1), w0, out=np.zeros_like(w0), where=w0 > 0)

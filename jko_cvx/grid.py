@@ -69,7 +69,7 @@ def pchip_coefficients(
     ``CubicHermiteSpline`` (elementwise only, so the layout does not matter; tested against
     SciPy), without its input checks and array-namespace dispatch, which cost as much as the
     arithmetic at 121 points, and with the x-only terms (:func:`_spacing_terms`) built once
-    per grid.  ``y`` must be finite (SciPy's check is the caller's).
+    per grid.  Non-finite ``y`` is refused, with SciPy's message.
 
     Parameters
     ----------
@@ -83,6 +83,8 @@ def pchip_coefficients(
     ndarray, shape (4, n - 1, ...)
         Highest power first, as ``PPoly.c``.
     """
+    if not np.isfinite(y).all():
+        raise ValueError("`y` must contain only finite values.")
     _, hk, w1, w2, wsum, left, right = terms
     shape = y.shape
     y = y.reshape(shape[0], -1)
@@ -118,8 +120,6 @@ def pchip_ppoly(terms: tuple[NDArray[np.float64], ...], vals: NDArray[np.float64
     :func:`pchip_coefficients`: the same coefficients, so the same values when evaluated."""
     from scipy.interpolate import PPoly
 
-    if not np.isfinite(vals).all():
-        raise ValueError("`y` must contain only finite values.")
     c = pchip_coefficients(terms, np.moveaxis(vals, -1, 0))
     return PPoly.construct_fast(c, terms[0], extrapolate=True, axis=vals.ndim - 1)
 
@@ -356,8 +356,6 @@ class PeriodicGrid:
                 f"values must have shape (N, L) = ({self.n}, L) and queries (M, L), got {vals.shape} and {q.shape}"
             )
         k = _PERIODIC_IMAGES
-        if not np.isfinite(vals).all():
-            raise ValueError("`y` must contain only finite values.")
         terms = pchip_terms(self)
         xe = terms[0]
         # c: (4, len(xe) - 1, L), highest power first (the extended PCHIP's, without a PPoly)

@@ -200,7 +200,7 @@ def main(argv: list[str] | None = None) -> None:
         batch.to_csv(args.out.with_name("bench_newton_batch.csv"), index=False)
     header = (
         "# One collision step, four methods (`studies/bench_collision.py`)\n\n"
-        f"`{shlex.join([Path(sys.argv[0]).name, *(argv if argv is not None else sys.argv[1:])])}`, finished "
+        f"`{shlex.join(['bench_collision.py', *(argv if argv is not None else sys.argv[1:])])}`, finished "
         f"{datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC on this {os.cpu_count()}-core machine; "
         f"code {code['package_sha256'][:12]} (git {str(code['git_commit'])[:12]}, jko_cvx modified: "
         f"{code['jko_cvx_modified']}); threads: {thread_environment()}; 1-minute load "

@@ -101,6 +101,7 @@ class PerspectiveFisher:
         k = 16 * c / (s * s * s)
         return c * (-4 * r - r2), c * (4 * r - r2), k * y * y, k * x * x, -(k * x * y) if mixed else None
 
+
 class LogFisher:
     """The paper's :math:`\\psi(x, y) = \\tfrac12 (\\log y - \\log x)^2 s`: a barrier at f = 0."""
 
@@ -146,6 +147,7 @@ class LogFisher:
             q / (y * y),
             c * (-s + L * (x - y)) / (x * y) if mixed else None,
         )
+
 
 FISHER_TERMS: dict[str, PerspectiveFisher | LogFisher] = {"perspective": PerspectiveFisher(), "log": LogFisher()}
 
