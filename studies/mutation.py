@@ -134,8 +134,8 @@ MUTATIONS = [
       'slope = -np.einsum("bi,bi->b", g, p)', "test_line_search.py test_newton.py",
       "directional derivative with the wrong sign (Armijo term and decrement; was: single path Armijo sign)"),
     M("newton-batched-no-armijo", "collision/newton.py",
-      "ok = ~accepted & np.all(ft > 0, axis=-1) & (phit <= phi0 + _ARMIJO * alpha * slope)",
-      "ok = ~accepted & np.all(ft > 0, axis=-1)", "test_line_search.py test_newton.py",
+      "ok = ~accepted & (ft > 0).all(axis=-1) & (phit <= phi0 + _ARMIJO * alpha * slope)",
+      "ok = ~accepted & (ft > 0).all(axis=-1)", "test_line_search.py test_newton.py",
       "batched path accepts any interior step"),
     M("newton-batched-armijo-sign", "collision/newton.py",
       "(phit <= phi0 + _ARMIJO * alpha * slope)", "(phit <= phi0 - _ARMIJO * alpha * slope)",
@@ -311,8 +311,9 @@ MUTATIONS = [
       "if claimed is not None and claimed not in (Status.CONVERGED, Status.MAX_ITERATIONS):\n        return claimed",
       "test_contract.py test_extremes_pinned.py test_newton.py",
       "a solver out of iterations is re-judged by the residual (and may be certified)"),
-    R("terms-log-hessian-cross", "collision/terms.py", "c * (-s + L * (x - y)) / (x * y)",
-      "c * (-s + L * (y - x)) / (x * y)", "test_problem.py test_newton.py",
+    R("terms-log-hessian-cross", "collision/terms.py",
+      "q / (x * x), q / (y * y), c * (-s + L * (x - y)) / (x * y)",
+      "q / (x * x), q / (y * y), c * (-s + L * (y - x)) / (x * y)", "test_problem.py test_newton.py",
       "log-Fisher Hessian, sign inside the cross term"),
     R("structured-inertia-sign", "collision/structured.py", "good = ok & (det < 0)", "good = ok & (det > 0)",
       "test_structured.py", "gamma = 3 structured solve: Haynsworth's inertia test with the wrong sign"),
@@ -502,7 +503,10 @@ RUN_LOG = (
     "summary-within-strict's 'caught' was not earned; this run copies both and its baseline passes.  "
     "2026-12-02 05:10: --update of the six whose snippets the code had outgrown (transport-foot-sign, "
     "transport-no-floor, sim-B_x-eps_v, tilt-bracket, sqp-exit-flag, sim-B_v-leq: the snippets follow "
-    "today's code) and the two new ones (tridiag-no-finite-check, table-replay-initial-row)"
+    "today's code) and the two new ones (tridiag-no-finite-check, table-replay-initial-row).  "
+    "2026-12-02 09:20: --update of newton-batched-no-armijo and terms-log-hessian-cross, whose snippets "
+    "the round's rewrites had outgrown (terms-log-hessian-cross now mutates LogFisher.hessian; its twin "
+    "in gradient_and_hessian is tested bit for bit against it)"
 )
 UNMUTATED_WHY = "re-exports only: a broken import there fails every test at collection"
 # Mutations that survived a run and were caught after a test was added (kept visible: the first
