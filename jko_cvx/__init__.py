@@ -15,9 +15,9 @@ kinetic equation".  The public contract::
 
 from importlib.metadata import PackageNotFoundError, version
 
-from .collision import CollisionProblem, CollisionResult, KKTResidual, Status, conic_solvers, solve_collision
-from .grid import Grid
-from .kernels import PowerKernel
+from jko_cvx.collision import CollisionProblem, CollisionResult, KKTResidual, Status, conic_solvers, solve_collision
+from jko_cvx.grid import Grid
+from jko_cvx.kernels import PowerKernel
 
 try:
     __version__ = version("jko_cvx")
@@ -29,7 +29,7 @@ except PackageNotFoundError:  # running from a source tree
 def __getattr__(name: str):
     # runs as data: imported on first use (they need pandas and the scene module)
     if name in ("Run", "load_run"):
-        from . import run
+        from jko_cvx import run
 
         return getattr(run, name)
     raise AttributeError(f"module 'jko_cvx' has no attribute {name!r}")

@@ -8,7 +8,7 @@ Ctrl-C (SIGINT) or SIGTERM writes a checkpoint, prints the command that resumes 
 with status 130.  ``jko-cvx export RUN_DIR --netcdf FILE`` writes a run as netCDF.
 ``jko-cvx solve`` solves one collision step with every method; ``jko-cvx solvers`` lists the installed
 conic solvers; ``jko-cvx reproduce NAME [--quick]`` regenerates one of the paper's tables or figures
-(:mod:`jko_cvx.reproduce`).
+(:mod:`jko_cvx.studies.reproduce`).
 """
 
 from __future__ import annotations
@@ -22,10 +22,10 @@ from pathlib import Path
 
 import numpy as np
 
-from . import __version__
-from .collision import CollisionProblem, conic_solvers, solve_collision
-from .grid import Grid
-from .kernels import PowerKernel
+from jko_cvx import __version__
+from jko_cvx.collision import CollisionProblem, conic_solvers, solve_collision
+from jko_cvx.grid import Grid
+from jko_cvx.kernels import PowerKernel
 
 # Bad input the user can fix: one line on stderr, exit code 2, no traceback.  SceneError is
 # a ValueError; OSError covers unreadable or unwritable paths; ImportError a missing extra.
@@ -33,10 +33,10 @@ EXPECTED_ERRORS = (ValueError, TypeError, OSError, ImportError)
 
 
 def _run_scene(scene_path: Path | None, out: Path | None, resume: bool, overwrite: bool, quiet: bool) -> int:
-    from .interrupts import RunInterrupted
-    from .plot import save_figures
-    from .scene import default_scene, load_scene
-    from .simulate import simulate
+    from jko_cvx.engine.interrupts import RunInterrupted
+    from jko_cvx.engine.loop import simulate
+    from jko_cvx.engine.plot import save_figures
+    from jko_cvx.scene.model import default_scene, load_scene
 
     scene = default_scene() if scene_path is None else load_scene(scene_path)
     out = out if out is not None else Path("runs") / scene.name
@@ -77,7 +77,7 @@ def _run_scene(scene_path: Path | None, out: Path | None, resume: bool, overwrit
 
 
 def _export(args) -> int:
-    from .run import export_netcdf, load_run
+    from jko_cvx.engine.run import export_netcdf, load_run
 
     try:
         path = export_netcdf(load_run(args.run_dir), args.netcdf)
@@ -92,7 +92,7 @@ def _solve_one(args) -> int:
     grid = Grid.uniform(-args.L, args.L, args.n)
     prob = CollisionProblem(grid, PowerKernel(args.gamma), np.exp(-2 * grid.points**2), args.dt, beta=args.beta)
     print(prob)
-    from .collision.nlp import nlp_available
+    from jko_cvx.collision.nlp import nlp_available
 
     methods = ["conic", "sqp", "newton"] + (["nlp"] if nlp_available() else [])
     for method in methods:
@@ -104,8 +104,8 @@ def _solve_one(args) -> int:
 
 
 def _compare(args) -> int:
-    from .compare import compare_solvers, problem_from_scene
-    from .scene import load_scene
+    from jko_cvx.scene.model import load_scene
+    from jko_cvx.studies.compare import compare_solvers, problem_from_scene
 
     if args.scene is not None:
         prob = problem_from_scene(load_scene(args.scene), args.t)
@@ -131,17 +131,17 @@ def _compare(args) -> int:
 
 
 def _study(args) -> int:
-    from .benchmarks import STUDIES
+    from jko_cvx.studies.solvers import STUDIES
 
     return _run_named("study", STUDIES[args.name], args, progress_kw={})
 
 
 def _reproduce(args) -> int:
-    from .reproduce import REPRODUCTIONS
+    from jko_cvx.studies.reproduce import REPRODUCTIONS
 
     entry: str = args.name
     if entry == "section":
-        from .reproduce.section import reproduce_section
+        from jko_cvx.studies.reproduce.section import reproduce_section
 
         func = reproduce_section
     else:
@@ -218,7 +218,10 @@ def main(argv: list[str] | None = None) -> int:
     sub = parser.add_subparsers(dest="command", required=True)
     p_run = sub.add_parser("run", help="run a scene (default: the built-in homogeneous gamma = 1, g1 scene)")
     p_run.add_argument(
-        "scene", nargs="?", type=Path, help="scene TOML file, or the name of a shipped scene (jko_cvx/scenes/*.toml)"
+        "scene",
+        nargs="?",
+        type=Path,
+        help="scene TOML file, or the name of a shipped scene (jko_cvx.scene.shipped_scene_names())",
     )
     p_run.add_argument("--out", type=Path, default=None, help="run directory (default runs/<scene name>)")
     again = p_run.add_mutually_exclusive_group()
@@ -235,7 +238,7 @@ def main(argv: list[str] | None = None) -> int:
     p_solve.add_argument("--dt", type=_positive, default=0.01)
     p_solve.add_argument("--beta", type=_weight, default=10.0)
     sub.add_parser("solvers", help="list the installed conic solvers")
-    from .reproduce import REPRODUCTIONS
+    from jko_cvx.studies.reproduce import REPRODUCTIONS
 
     p_rep = sub.add_parser("reproduce", help="regenerate one of the paper's tables or figures beside its numbers")
     p_rep.add_argument(
@@ -245,7 +248,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     _sweep_arguments(p_rep, "results/reproduce", "process", "a reduced version (under 2 minutes)")
     p_rep.add_argument("--fresh", action="store_true", help="ignore the sweep cache: recompute every point")
-    from .benchmarks import STUDIES
+    from jko_cvx.studies.solvers import STUDIES
 
     p_std = sub.add_parser("study", help="a solver study: work-precision (also vs the FV peer), cost growth, extremes")
     p_std.add_argument("name", choices=sorted(STUDIES), help="which study")

@@ -26,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .grid import Grid, PeriodicGrid
+from jko_cvx.grid import Grid, PeriodicGrid
 
 __all__ = ["diagnostics"]
 

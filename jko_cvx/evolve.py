@@ -3,7 +3,7 @@
 This is the bare time loop of ``eqn: gke_hom`` without mesh refinement:
 :math:`f^{n+1} = \\text{JKO}(f^n)` with a fixed :math:`\\Delta t`, for studies on a fixed grid
 such as the exact-solution convergence tests.  Scenes with refinement, adaptive steps,
-blow-up detection and run directories go through :func:`jko_cvx.simulate.simulate`.
+blow-up detection and run directories go through :func:`jko_cvx.engine.loop.simulate`.
 """
 
 from __future__ import annotations
@@ -15,12 +15,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .collision import CollisionProblem, CollisionResult, solve_collision
-from .collision.checks import check_bool
-from .grid import Grid
-from .kernels import PowerKernel
-from .scene_limits import STEPS_ENV, Limits
-from .time_order import collision_step_order2
+from jko_cvx.collision import CollisionProblem, CollisionResult, solve_collision
+from jko_cvx.collision.checks import check_bool
+from jko_cvx.grid import Grid
+from jko_cvx.kernels import PowerKernel
+from jko_cvx.limits import STEPS_ENV, Limits
+from jko_cvx.time_order import collision_step_order2
 
 __all__ = ["FixedGridRun", "evolve_fixed_grid"]
 

@@ -44,7 +44,7 @@ from numbers import Integral, Real
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .kernels import PowerKernel
+from jko_cvx.kernels import PowerKernel
 
 __all__ = ["Cells", "FiniteVolumeRun", "evolve_finite_volume"]
 

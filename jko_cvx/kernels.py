@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .grid import Grid
+from jko_cvx.grid import Grid
 
 __all__ = ["DenseEnergy", "EnergyOperator", "EnergySplit", "LowRankEnergy", "PowerKernel"]
 

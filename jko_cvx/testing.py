@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from .collision import CollisionProblem
-from .grid import Grid
-from .kernels import PowerKernel
+from jko_cvx.collision import CollisionProblem
+from jko_cvx.grid import Grid
+from jko_cvx.kernels import PowerKernel
 
 __all__ = ["random_density", "random_grid", "random_problem"]
 

@@ -37,7 +37,7 @@ orders 1.80 and 1.86, identical to 3 digits to clipping at :math:`10^{-12} \\max
 dt = 0.08), and a tiny floor (:math:`10^{-14} \\max f`, or DESIGN.md's :math:`10^{-30}`) leaves
 Newton with a dynamic range it stalls on (MAX_ITERATIONS on 2 of 60 steps at gamma = 3/2).
 After the limiter, the mass (and the momentum when the problem conserves it) is restored
-exactly by :func:`jko_cvx.conservation.restore_moments` (a rescaling, or an exponential tilt:
+exactly by :func:`jko_cvx.mesh.moments.restore_moments` (a rescaling, or an exponential tilt:
 positive whatever the correction).  The fraction of the mass the limiter added is reported in
 ``info["limited_mass"]``.
 
@@ -55,8 +55,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .collision import CollisionProblem, CollisionResult, Status, solve_collision
-from .conservation import restore_moments
+from jko_cvx.collision import CollisionProblem, CollisionResult, Status, solve_collision
+from jko_cvx.mesh.moments import restore_moments
 
 __all__ = ["collision_step_order2", "strang_step"]
 

@@ -13,7 +13,7 @@ v-line rigidly by :math:`v_j \\Delta t`, so its first x-moment grows by exactly
 :math:`v_j \\Delta t\\, M_j`.  PCHIP does not keep that: a bump resolved by two points per
 standard deviation (61 points on [-5, 5]) moved at 90 % of its speed (0.672 instead of
 0.75 by t = 0.3; 0.740 on 121 points).  The step restores the moment by the exponential
-tilt of :func:`jko_cvx.conservation.restore_moments` (of the mass above the floor: the floor
+tilt of :func:`jko_cvx.mesh.moments.restore_moments` (of the mass above the floor: the floor
 stays exact), in the coordinate
 :math:`\\xi = (x - c_j) \\bmod P` cut in the line's vacuum at :math:`c_j`; lines whose
 mass could cross that cut within the step (:math:`|v_j| \\Delta t \\max f > 10^{-10} M_j`,
@@ -27,9 +27,9 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .conservation import restore_moments
-from .grid import PeriodicGrid
-from .refine import check_line_density
+from jko_cvx.grid import PeriodicGrid
+from jko_cvx.mesh.moments import restore_moments
+from jko_cvx.mesh.refine import check_line_density
 
 __all__ = ["transport_step"]
 

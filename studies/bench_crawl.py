@@ -4,7 +4,7 @@ The regeneration of the numerical section is bounded by one serial run: ``inhom_
 lambda = 10 on 121 x 121 reaches the paper's criterion after thousands of CFL steps on a
 collapsed grid.  This benchmark runs the shipped scene (``--case``, ``--n``) to ``--t-end``
 and records, per step, the collision's wall time and the Newton iterations of every slice
-(the engine's own solves, observed by wrapping ``jko_cvx.simulate.solve_collision``; nothing
+(the engine's own solves, observed by wrapping ``jko_cvx.engine.loop.solve_collision``; nothing
 else changes).  It reports the split of the run's time (collision, transport, refinement),
 the distribution of iterations over slices, and the share of slice-iterations spent on
 stragglers (slices needing ``--straggler`` iterations or more): the measure any faster
@@ -27,9 +27,9 @@ import numpy as np
 import pandas as pd
 from bench_threads import blas_setting
 
-import jko_cvx.simulate as engine
-from jko_cvx.reproduce.gamma1p5 import gamma1p5_scene
-from jko_cvx.sweep import code_provenance
+import jko_cvx.engine.loop as engine
+from jko_cvx.studies.reproduce.gamma1p5 import gamma1p5_scene
+from jko_cvx.studies.sweep import code_provenance
 
 RESULTS = Path(__file__).parent / "results"
 

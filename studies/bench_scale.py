@@ -37,9 +37,9 @@ import pandas as pd
 from bench_threads import SCENE, inhom_batch, time_solves
 
 from jko_cvx.collision.structured import LINALG_ENV
-from jko_cvx.scene import load_scene
-from jko_cvx.simulate import simulate
-from jko_cvx.sweep import code_identity
+from jko_cvx.engine.loop import simulate
+from jko_cvx.scene.model import load_scene
+from jko_cvx.studies.sweep import code_identity
 from jko_cvx.threads import thread_environment
 
 RESULTS = Path(__file__).parent / "results"
@@ -81,7 +81,7 @@ def newton_rows(sizes: list[int], dense_max: int, repeats: int, gammas: tuple[fl
 def step_rows(cases: list[tuple[int, str]], steps: int) -> list[dict]:
     """Time steps of the scene at N_x = N_v = n; records the process's peak resident memory so far.
 
-    The scene-size limit (:mod:`jko_cvx.scene_limits`) estimates 32 B N^2 bytes per slice for
+    The scene-size limit (:mod:`jko_cvx.scene.limits`) estimates 32 B N^2 bytes per slice for
     batched dense Newton Hessians (32 GiB at 1025 x 1025), which the structured and threaded
     directions no longer form; it is raised here to 64 GiB and the measured peak is reported.
     """

@@ -1,6 +1,6 @@
 """Why the uniform 481 x 481 gamma = 3/2, lambda = 5 run of ``grid_convergence`` stopped on e_f (fixed since).
 
-Reruns that point (``jko_cvx.reproduce.grid_convergence``: the ``inhom_gamma1p5_after`` scene on
+Reruns that point (``jko_cvx.studies.reproduce.grid_convergence``: the ``inhom_gamma1p5_after`` scene on
 a fixed uniform 481 x 481 grid, stopped at sigma_v < 0.05 or t = 0.7) with the collision
 solves watched: for every solve with an uncertified slice it records the slice, its status,
 its KKT residual (and the largest residual of the certified slices), Newton's iterations and
@@ -30,10 +30,10 @@ from pathlib import Path
 
 import numpy as np
 
-import jko_cvx.simulate as simulate_module
-from jko_cvx.reproduce.gamma1p5 import COLLAPSE_SPREAD
-from jko_cvx.reproduce.grid_convergence import study_scene
-from jko_cvx.sweep import code_provenance
+import jko_cvx.engine.loop as simulate_module
+from jko_cvx.studies.reproduce.gamma1p5 import COLLAPSE_SPREAD
+from jko_cvx.studies.reproduce.grid_convergence import study_scene
+from jko_cvx.studies.sweep import code_provenance
 
 RESULTS = Path(__file__).parent / "results"
 

@@ -1,18 +1,18 @@
 """The grid-convergence report from the points a (stopped) ``jko-cvx reproduce grid_convergence`` finished.
 
-The full sweep (:mod:`jko_cvx.reproduce.grid_convergence`) needs more machine time than one
+The full sweep (:mod:`jko_cvx.studies.reproduce.grid_convergence`) needs more machine time than one
 session on 2 cores has: the mapped 481 x 481 gamma = 3/2 runs and the tab:g2bu runs at
 N_v = 801 take hours.  This script builds the same tables, report and figure from the
 points that finished (the sweep writes each point's result to its cache as soon as it
 arrives) and lists the points that did not.
 
 Only entries computed by the code this script runs with are reported: a point's cache key
-covers the code (:func:`jko_cvx.sweep.point_key`), so the script looks each point up under
+covers the code (:func:`jko_cvx.studies.sweep.point_key`), so the script looks each point up under
 the key the running package gives it, and an entry that another code wrote (or that
 belongs to no point of the sweep) is counted and left out -- a report never mixes codes.
 To report a sweep that ran in a frozen checkout, run this script with that checkout's
 package (``PYTHONPATH=CHECKOUT``).  The report records that code itself
-(:func:`jko_cvx.sweep.code_provenance`: commit, package hash); a checkout whose ``jko_cvx``
+(:func:`jko_cvx.studies.sweep.code_provenance`: commit, package hash); a checkout whose ``jko_cvx``
 differs from its commit is refused, since nothing would say which code that was::
 
     PYTHONPATH=FROZEN python studies/grid_convergence_partial.py \\
@@ -29,13 +29,13 @@ from pathlib import Path
 
 import pandas as pd
 
-from jko_cvx.reproduce.grid_convergence import _points, grid_point, write_report
-from jko_cvx.sweep import StaleCacheWarning, cached_entries, code_provenance, point_key
+from jko_cvx.studies.reproduce.grid_convergence import _points, grid_point, write_report
+from jko_cvx.studies.sweep import StaleCacheWarning, cached_entries, code_provenance, point_key
 
 # The sweep's own reader of entries under given keys (key, point and digest checked), private
 # but present in every package version that wrote such caches: the script must run with the
 # frozen checkout's package, so it uses nothing newer.
-from jko_cvx.sweep import _read_cache as read_cache
+from jko_cvx.studies.sweep import _read_cache as read_cache
 
 
 def provenance_text(prov: dict, note: str | None) -> str:

@@ -52,7 +52,7 @@ prob = CollisionProblem(grid, K, f, 0.01, beta=10.0)
 """
 
 SCENE = """
-from jko_cvx.scene import scene_from_dict
+from jko_cvx.scene.model import scene_from_dict
 SCENE_TOML = '''name = "probe"
 gamma = 1.0
 t_end = 0.02
@@ -81,7 +81,7 @@ scene = scene_from_dict(scene_dict)
 
 FV = "from jko_cvx.finite_volume import Cells, evolve_finite_volume\ncells = Cells(-2.0, 2.0, 20)\n"
 PG = "from jko_cvx.grid import PeriodicGrid\nxg = PeriodicGrid.uniform(1.0, 8)\nv = grid.points\nF = np.ones((8, 21))\n"
-SWEEP = "import os\nfrom jko_cvx.sweep import run_sweep\n"
+SWEEP = "import os\nfrom jko_cvx.studies.sweep import run_sweep\n"
 
 
 def _case(cls, call, names, expect="raise", setup="", requires=None):
@@ -225,28 +225,28 @@ CASES = [
       ["max_steps"], setup=FV),
     # ---------------------------------------------------------------- simulate and runs
     C("simulate: resume without out", "simulate(scene, resume=True)", ["out"],
-      setup=SCENE + "from jko_cvx.simulate import simulate"),
+      setup=SCENE + "from jko_cvx.engine.loop import simulate"),
     C("simulate: overwrite without out", "simulate(scene, overwrite=True)", ["out"],
-      setup=SCENE + "from jko_cvx.simulate import simulate",
+      setup=SCENE + "from jko_cvx.engine.loop import simulate",
       requires="'overwrite' in inspect.signature(simulate).parameters"),
     C("simulate: a path instead of a Scene", "simulate('scene.toml')", ["scene"],
-      setup=SCENE + "from jko_cvx.simulate import simulate"),
+      setup=SCENE + "from jko_cvx.engine.loop import simulate"),
     C("simulate: out is a file", "simulate(scene, out='afile')", ["afile"],
-      setup=SCENE + "from jko_cvx.simulate import simulate\nopen('afile', 'w').write('x')"),
+      setup=SCENE + "from jko_cvx.engine.loop import simulate\nopen('afile', 'w').write('x')"),
     C("simulate: rerun into a run directory", "simulate(scene, out='run')", ["run", "overwrite"],
-      setup=SCENE + "from jko_cvx.simulate import simulate\nsimulate(scene, out='run')"),
+      setup=SCENE + "from jko_cvx.engine.loop import simulate\nsimulate(scene, out='run')"),
     C("simulate: resume with nothing to resume", "simulate(scene, out='run', resume=True)", ["resume"],
-      setup=SCENE + "from jko_cvx.simulate import simulate"),
+      setup=SCENE + "from jko_cvx.engine.loop import simulate"),
     C("simulate: resume = 'yes'", "simulate(scene, out='run', resume='yes')", ["resume"],
-      setup=SCENE + "from jko_cvx.simulate import simulate"),
+      setup=SCENE + "from jko_cvx.engine.loop import simulate"),
     C("load_run: not a run directory", "load_run('empty')", ["empty"],
-      setup="import os\nos.mkdir('empty')\nfrom jko_cvx.run import load_run"),
-    C("load_run: missing path", "load_run('missing')", ["missing"], setup="from jko_cvx.run import load_run"),
+      setup="import os\nos.mkdir('empty')\nfrom jko_cvx.engine.run import load_run"),
+    C("load_run: missing path", "load_run('missing')", ["missing"], setup="from jko_cvx.engine.run import load_run"),
     # ---------------------------------------------------------------- scenes
     C("load_scene: a directory", "load_scene('adir')", ["adir"],
-      setup="import os\nos.mkdir('adir')\nfrom jko_cvx.scene import load_scene"),
+      setup="import os\nos.mkdir('adir')\nfrom jko_cvx.scene.model import load_scene"),
     C("load_scene: missing file", "load_scene('missing.toml')", ["missing.toml"],
-      setup="from jko_cvx.scene import load_scene"),
+      setup="from jko_cvx.scene.model import load_scene"),
     C("scene_from_dict: not a mapping", "scene_from_dict('gamma = 1')", ["scene"], setup=SCENE),
     C("scene_from_dict: section as a scalar", "scene_from_dict({**scene_dict, 'v': 5})", ["v"], setup=SCENE),
     C("scene_from_dict: string for a number", "scene_from_dict({**scene_dict, 'gamma': '1'})", ["gamma"], setup=SCENE),
@@ -268,14 +268,14 @@ CASES = [
     C("run_sweep: fresh = 'yes'", "run_sweep(os.path.join, [{'a': 1}], 'cache', executor='serial', progress=False, "
       "fresh='yes')", ["fresh"], setup=SWEEP, requires="'fresh' in inspect.signature(run_sweep).parameters"),
     # ---------------------------------------------------------------- remap and transport
-    C("remap: old not a Grid", "remap(grid.points, f, grid)", ["old"], setup="from jko_cvx.refine import remap"),
-    C("remap: f wrong length", "remap(grid, f[:-1], grid)", ["f"], setup="from jko_cvx.refine import remap"),
+    C("remap: old not a Grid", "remap(grid.points, f, grid)", ["old"], setup="from jko_cvx.mesh.refine import remap"),
+    C("remap: f wrong length", "remap(grid, f[:-1], grid)", ["f"], setup="from jko_cvx.mesh.refine import remap"),
     C("remap: new grid outside", "remap(grid, f, Grid.uniform(-3.0, 3.0, 21))", ["new"],
-      setup="from jko_cvx.refine import remap"),
+      setup="from jko_cvx.mesh.refine import remap"),
     C("remap: f with NaN", "remap(grid, np.where(grid.points > 1, np.nan, f), Grid.uniform(-1.0, 1.0, 11))", ["f"],
-      setup="from jko_cvx.refine import remap"),
+      setup="from jko_cvx.mesh.refine import remap"),
     C("remap: floor < 0", "remap(grid, f, Grid.uniform(-1.0, 1.0, 11), floor=-1.0)", ["floor"],
-      setup="from jko_cvx.refine import remap"),
+      setup="from jko_cvx.mesh.refine import remap"),
     C("transport_step: xgrid not a PeriodicGrid", "transport_step(xg.points, v, F, 0.01)", ["xgrid"],
       setup=PG + "from jko_cvx.transport import transport_step"),
     C("transport_step: f wrong shape", "transport_step(xg, v, F[:, :-1], 0.01)", ["f"],

@@ -40,11 +40,11 @@ from typing import Any
 
 import numpy as np
 
-from jko_cvx.reproduce.gamma1p5 import COLLAPSE_SPREAD, QUICK_T_END, gamma1p5_scene
-from jko_cvx.reproduce.inhomogeneous import inhomogeneous_scene
-from jko_cvx.reproduce.records import record_run
-from jko_cvx.simulate import simulate
-from jko_cvx.sweep import run_sweep
+from jko_cvx.engine.loop import simulate
+from jko_cvx.studies.reproduce.gamma1p5 import COLLAPSE_SPREAD, QUICK_T_END, gamma1p5_scene
+from jko_cvx.studies.reproduce.inhomogeneous import inhomogeneous_scene
+from jko_cvx.studies.reproduce.records import record_run
+from jko_cvx.studies.sweep import run_sweep
 
 ROOT = Path(__file__).resolve().parent
 VARIANTS = [

@@ -1,7 +1,7 @@
 """How long regenerating the paper's numerical section takes (issue 15, item 5).
 
 Runs ``jko-cvx reproduce NAME --fresh`` for every entry of
-:data:`jko_cvx.reproduce.REPRODUCTIONS` (full forms unless ``--quick``), one after another
+:data:`jko_cvx.studies.reproduce.REPRODUCTIONS` (full forms unless ``--quick``), one after another
 (``summary`` last: it reads the others' files), each in its own process, into
 ``SCRATCH/reproduce`` (the shipped results are not touched; the study scripts' files that
 the summary reads from ``..`` are copied into ``SCRATCH``),
@@ -15,7 +15,7 @@ are skipped; ``--again`` times them anew).  The Markdown report sums the entries
 compares the total with the goal of 20 minutes on 2 cores.
 
 ``--section`` times ``jko-cvx reproduce section --fresh`` instead: every entry in one process
-sharing one pool (:mod:`jko_cvx.reproduce.section`), the way to regenerate the whole section;
+sharing one pool (:mod:`jko_cvx.studies.reproduce.section`), the way to regenerate the whole section;
 it writes ``regenerate_timing_section.{csv,md}`` (per entry: when it started and finished in
 the shared run) beside the entry-by-entry timing.
 
@@ -39,8 +39,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from jko_cvx.reproduce import REPRODUCTIONS
-from jko_cvx.sweep import code_identity
+from jko_cvx.studies.reproduce import REPRODUCTIONS
+from jko_cvx.studies.sweep import code_identity
 from jko_cvx.threads import THREAD_ENV_KEYS
 
 RESULTS = Path(__file__).parent / "results"
@@ -91,7 +91,7 @@ def _copy_claim_sources(scratch: Path) -> None:
     (built from a sweep cache by ``studies/grid_convergence_partial.py``) and kept archives
     (a previous code's table): the summary of a scratch regeneration reads them as shipped.
     """
-    from jko_cvx.reproduce.summary import CLAIMS
+    from jko_cvx.studies.reproduce.summary import CLAIMS
 
     shipped = RESULTS / "reproduce"
     for name in sorted({c.file for c in CLAIMS}):

@@ -1,6 +1,6 @@
 """Regenerate one of the paper's tables or figures: ``python studies/reproduce.py NAME [--quick]``.
 
-The same as ``jko-cvx reproduce NAME [--quick]`` (see :mod:`jko_cvx.reproduce`); writes to
+The same as ``jko-cvx reproduce NAME [--quick]`` (see :mod:`jko_cvx.studies.reproduce`); writes to
 ``studies/results/reproduce/`` unless ``--out`` says otherwise.
 """
 

@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from jko_cvx.scene import shipped_scene
-from jko_cvx.simulate import simulate
+from jko_cvx.engine.loop import simulate
+from jko_cvx.scene.model import shipped_scene
 
 OUT = Path(__file__).parent / "results"
 BASE = {"refine": None, "v.n": 41, "x.n": 32, "t_end": 0.4, "collision.beta": 100.0}

@@ -8,10 +8,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from jko_cvx.benchmarks import extremes_matrix, work_precision_run
-from jko_cvx.benchmarks.cost import cost_growth, fit_exponent
-from jko_cvx.benchmarks.extremes import _PACKAGE, default_solvers, extreme_cases
-from jko_cvx.benchmarks.workprecision import run_point
+from jko_cvx.studies.solvers import extremes_matrix, work_precision_run
+from jko_cvx.studies.solvers.cost import cost_growth, fit_exponent
+from jko_cvx.studies.solvers.extremes import _PACKAGE, default_solvers, extreme_cases
+from jko_cvx.studies.solvers.workprecision import run_point
 
 
 def test_whole_run_error_is_first_order_in_dt_and_the_fisher_bias_shows(tmp_path):

@@ -6,8 +6,8 @@ import numpy as np
 import pandas as pd
 
 from jko_cvx.cli import main
-from jko_cvx.scene import load_scene
-from jko_cvx.simulate import simulate
+from jko_cvx.engine.loop import simulate
+from jko_cvx.scene.model import load_scene
 
 SCENE = """
 name = "cli_tiny"

@@ -8,10 +8,10 @@ import pytest
 
 from jko_cvx import CollisionProblem, Grid, PowerKernel
 from jko_cvx.cli import main
-from jko_cvx.compare import compare_solvers, problem_from_scene
-from jko_cvx.scene import default_scene, load_scene
+from jko_cvx.scene.model import default_scene, load_scene
+from jko_cvx.studies.compare import compare_solvers, problem_from_scene
 
-SCENES = Path(__file__).parent.parent / "jko_cvx" / "scenes"
+SCENES = Path(__file__).parent.parent / "jko_cvx" / "scene" / "shipped"
 
 
 def test_comparison_table_certifies_every_row():

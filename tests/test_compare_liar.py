@@ -8,7 +8,7 @@ row silently wrong; an honest tight Newton row must come out certified.
 import numpy as np
 
 from jko_cvx import CollisionProblem, Grid, PowerKernel, solve_collision
-from jko_cvx.compare import Configuration, compare_solvers
+from jko_cvx.studies.compare import Configuration, compare_solvers
 
 
 def test_a_planted_liar_is_reported_silently_wrong():

@@ -5,7 +5,7 @@
 * The conic reference starts cold: the same problem gives the same answer whatever was
   solved before, and its wall time is bounded (``time_limit``).
 * The package's structure: the explicit step is public, no module imports another's
-  private names, statuses are compared as enum members, and ``import jko_cvx.scene``
+  private names, statuses are compared as enum members, and ``import jko_cvx.scene.model``
   does not import CVXPY.
 """
 
@@ -168,7 +168,7 @@ def test_statuses_are_compared_as_enum_members_not_names():
 
 
 def test_importing_the_scene_module_does_not_import_cvxpy():
-    code = "import sys, jko_cvx, jko_cvx.scene, jko_cvx.collision; assert 'cvxpy' not in sys.modules, 'cvxpy'"
+    code = "import sys, jko_cvx, jko_cvx.scene.model, jko_cvx.collision; assert 'cvxpy' not in sys.modules, 'cvxpy'"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=PACKAGE.parent)
     assert out.returncode == 0, out.stderr
 

@@ -13,12 +13,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from jko_cvx.reproduce.ibu import bump_positions
-from jko_cvx.scene import SceneError, default_scene, load_scene, scene_from_dict, with_overrides
-from jko_cvx.simulate import simulate
-from jko_cvx.verdict import StopReason
+from jko_cvx.engine.loop import simulate
+from jko_cvx.engine.verdict import StopReason
+from jko_cvx.scene.model import SceneError, default_scene, load_scene, scene_from_dict, with_overrides
+from jko_cvx.studies.reproduce.ibu import bump_positions
 
-SCENES = Path(__file__).parent.parent / "jko_cvx" / "scenes"
+SCENES = Path(__file__).parent.parent / "jko_cvx" / "scene" / "shipped"
 
 BASE = {
     "gamma": 1.0,
@@ -163,7 +163,7 @@ def test_killed_run_resumes_to_the_uninterrupted_result(tmp_path):
 
 
 def test_step_policies():
-    from jko_cvx.stepping import CFLStep, FixedStep, HalvingStep
+    from jko_cvx.engine.stepping import CFLStep, FixedStep, HalvingStep
 
     assert FixedStep(0.01).first(1e-3, None, 2.0, None) == 0.01 and FixedStep(0.01).retry(0.01) is None
     h = HalvingStep(0.01, eps_t=0.002, reset=True)
@@ -283,7 +283,7 @@ def test_the_density_stopping_rule_stops_at_the_first_step_below_its_threshold()
 
 def test_refine_v_conserve_energy_reaches_the_remap(monkeypatch):
     """refine.v.conserve_energy is passed to the v-remap (restore_three_moments); refine.x refuses it."""
-    import jko_cvx.simulate as sim
+    import jko_cvx.engine.loop as sim
 
     seen = []
     real = sim.remap
@@ -318,7 +318,7 @@ def test_the_engine_certifies_every_method_at_its_threshold(method, expected):
     """A run's steps are certified at 1e-8 (ACCEPT_KKT) whatever the method's single-step default kkt_tol
     (1e-6 for conic and nlp); a scene's own collision.options.kkt_tol wins; the paper's SQP is judged by its
     exit flag and keeps its default."""
-    from jko_cvx.simulate import ACCEPT_KKT, Stepper
+    from jko_cvx.engine.loop import ACCEPT_KKT, Stepper
 
     fisher = "perspective" if method == "conic" else "log"
     s = dataclasses.replace(default_scene(), method=method, fisher=fisher, conserve_momentum=method != "sqp")

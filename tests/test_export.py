@@ -1,4 +1,4 @@
-"""Runs as data: load_run, Run.to_xarray, jko-cvx export, jko_cvx.plot, and the run summary."""
+"""Runs as data: load_run, Run.to_xarray, jko-cvx export, jko_cvx.engine.plot, and the run summary."""
 
 import dataclasses
 import json
@@ -12,17 +12,17 @@ import pytest
 
 import jko_cvx
 from jko_cvx.cli import main
-from jko_cvx.plot import exact_max_f, plot_records, plot_solution, refinement_switches, save_figures
-from jko_cvx.run import Run
-from jko_cvx.runstate import RunDirError
-from jko_cvx.scene import default_scene, load_scene
-from jko_cvx.simulate import simulate
-from jko_cvx.verdict import StopReason
+from jko_cvx.engine.loop import simulate
+from jko_cvx.engine.plot import exact_max_f, plot_records, plot_solution, refinement_switches, save_figures
+from jko_cvx.engine.run import Run
+from jko_cvx.engine.state import RunDirError
+from jko_cvx.engine.verdict import StopReason
+from jko_cvx.scene.model import default_scene, load_scene
 
 xr = pytest.importorskip("xarray")
 
 ROOT = Path(__file__).parent.parent
-SCENES = ROOT / "jko_cvx" / "scenes"
+SCENES = ROOT / "jko_cvx" / "scene" / "shipped"
 
 
 def _inhomogeneous():
@@ -123,7 +123,7 @@ def test_the_netcdf_extra_is_declared_and_tested():
     assert set(extras["netcdf"]) <= set(extras["test"])
 
 
-# --- jko_cvx.plot -------------------------------------------------------------------------------
+# --- jko_cvx.engine.plot -------------------------------------------------------------------------------
 
 
 def test_records_figure_of_a_loaded_run_shows_thresholds_exact_law_and_blowup(tmp_path):

@@ -78,7 +78,7 @@ def test_bad_input_is_rejected_by_name():
 
 def test_study_errors_w2_of_a_translate_is_the_shift():
     """The study W2 (quantile functions) against the exact quantile: 0 for the exact solution, |shift| for a shift."""
-    from jko_cvx.benchmarks.peer import CASES, errors
+    from jko_cvx.studies.solvers.peer import CASES, errors
 
     case = CASES["smooth_g2"]
     cells = Cells(case.lo, case.hi, 3000)
@@ -100,7 +100,7 @@ def test_study_errors_w2_of_a_translate_is_the_shift():
 
 @pytest.mark.slow
 def test_work_precision_peer_quick(tmp_path):
-    from jko_cvx.benchmarks.peer import work_precision_peer
+    from jko_cvx.studies.solvers.peer import work_precision_peer
 
     df = work_precision_peer(tmp_path, quick=True)
     for suffix in (".csv", ".md", ".png", "_time_order.csv", "_time_order.png"):

@@ -10,8 +10,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from jko_cvx.reproduce import REPRODUCTIONS
-from jko_cvx.reproduce.grid_convergence import (
+from jko_cvx.studies.reproduce import REPRODUCTIONS
+from jko_cvx.studies.reproduce.grid_convergence import (
     G2BU_N_V,
     GRIDS,
     T_END,
@@ -19,7 +19,7 @@ from jko_cvx.reproduce.grid_convergence import (
     convergence,
     reproduce_grid_convergence,
 )
-from jko_cvx.reproduce.paper import TAB_G2BU
+from jko_cvx.studies.reproduce.paper import TAB_G2BU
 
 
 @pytest.mark.parametrize("p", [0.5, 1.0, 2.0, 3.7])
@@ -127,8 +127,8 @@ def test_partial_report_refuses_a_checkout_whose_code_it_cannot_name(tmp_path, m
 def test_the_shipped_report_is_consistent_with_its_runs():
     """The shipped convergence table follows from the shipped runs; the report covers every point of the
     sweep; every shipped run conserved mass and momentum."""
-    from jko_cvx.reproduce.grid_convergence import _gamma1p5_convergence
-    from jko_cvx.reproduce.summary import RESULTS
+    from jko_cvx.studies.reproduce.grid_convergence import _gamma1p5_convergence
+    from jko_cvx.studies.reproduce.summary import RESULTS
 
     rows = pd.read_csv(RESULTS / "grid_convergence.csv")
     shipped = pd.read_csv(RESULTS / "grid_convergence_gamma1p5.csv")

@@ -9,16 +9,16 @@ import pytest
 from jko_cvx import CollisionProblem, PowerKernel, Status, solve_collision
 from jko_cvx.collision.newton import _direction, _fused
 from jko_cvx.collision.problem import add_pentadiagonal
-from jko_cvx.conservation import restore_moments
+from jko_cvx.engine.loop import simulate
 from jko_cvx.grid import Grid
-from jko_cvx.refine import remap
-from jko_cvx.scene import Scene, SceneError, load_scene, scene_from_dict
-from jko_cvx.simulate import simulate
+from jko_cvx.mesh.moments import restore_moments
+from jko_cvx.mesh.refine import remap
+from jko_cvx.scene.model import Scene, SceneError, load_scene, scene_from_dict
 from jko_cvx.testing import random_problem
 
 from .test_engine import BASE
 
-SCENES = Path(__file__).parent.parent / "jko_cvx" / "scenes"
+SCENES = Path(__file__).parent.parent / "jko_cvx" / "scene" / "shipped"
 
 
 def _constrained(prob: CollisionProblem) -> CollisionProblem:

@@ -14,8 +14,8 @@ from .paper_tex import blowup_table, paper_available, paper_source
 
 def test_reproduction_and_study_names_are_wired_to_their_functions():
     """Mutations ``reproductions-registry``, ``studies-registry``: a name wired to another entry."""
-    from jko_cvx.benchmarks import STUDIES
-    from jko_cvx.reproduce import REPRODUCTIONS
+    from jko_cvx.studies.reproduce import REPRODUCTIONS
+    from jko_cvx.studies.solvers import STUDIES
 
     for name, func in REPRODUCTIONS.items():
         assert func.__name__ == f"reproduce_{name}", name
@@ -25,7 +25,7 @@ def test_reproduction_and_study_names_are_wired_to_their_functions():
 
 def test_pareto_front_keeps_exactly_the_points_no_faster_point_beats():
     """Mutation ``pareto-sorted-by-error``: the front must be walked in order of time."""
-    from jko_cvx.benchmarks.figures import pareto_front
+    from jko_cvx.studies.solvers.figures import pareto_front
 
     t = np.array([3.0, 1.0, 2.0, 4.0, 5.0])
     e = np.array([0.5, 2.0, 1.0, 0.7, 0.1])
@@ -35,7 +35,7 @@ def test_pareto_front_keeps_exactly_the_points_no_faster_point_beats():
 
 def test_gamma1p5_sweep_point_is_n_by_n():
     """Mutation ``gamma1p5-x-n-ignored`` (the default n = 121 is the shipped x.n, so only other n show it)."""
-    from jko_cvx.reproduce.gamma1p5 import gamma1p5_scene
+    from jko_cvx.studies.reproduce.gamma1p5 import gamma1p5_scene
 
     for case in ("before", "after"):
         scene = gamma1p5_scene(case, 41)
@@ -44,7 +44,7 @@ def test_gamma1p5_sweep_point_is_n_by_n():
 
 def test_an_unshipped_lambda_has_strength_lambda_over_2_like_the_shipped_ones():
     """Mutation ``inhom-strength-lambda``: eqn:gke's collision term is lambda/2 Q(f, f)."""
-    from jko_cvx.reproduce.inhomogeneous import inhomogeneous_scene
+    from jko_cvx.studies.reproduce.inhomogeneous import inhomogeneous_scene
 
     assert inhomogeneous_scene(4.0).strength == 2.0  # shipped TOML
     assert inhomogeneous_scene(3.0).strength == 1.5  # built by the override
@@ -52,7 +52,7 @@ def test_an_unshipped_lambda_has_strength_lambda_over_2_like_the_shipped_ones():
 
 def test_gk1_records_run_with_the_policy_they_name(monkeypatch):
     """Mutation ``records-reset-not-halving``: the halving_reset records ran with the fixed step."""
-    from jko_cvx.reproduce import records
+    from jko_cvx.studies.reproduce import records
 
     class Built(Exception):
         pass
@@ -72,7 +72,7 @@ def test_gk1_records_run_with_the_policy_they_name(monkeypatch):
 @pytest.mark.skipif(not paper_available(), reason="the paper's LaTeX is not available")
 def test_gk1_final_scene_has_the_captions_map_parameters():
     """Mutation ``gk1-final-map-params``: delta and delta0 read from fig:gk1_final's caption."""
-    from jko_cvx.reproduce.gk1_final import gk1_final_scene
+    from jko_cvx.studies.reproduce.gk1_final import gk1_final_scene
 
     tex = paper_source()
     caption = tex[: tex.index(r"\label{fig:gk1_final}")].rsplit(r"\caption{", 1)[1]
@@ -85,7 +85,7 @@ def test_gk1_final_scene_has_the_captions_map_parameters():
 @pytest.mark.skipif(not paper_available(), reason="the paper's LaTeX is not available")
 def test_beta_scan_puts_the_papers_entry_of_each_dt_beside_ours(monkeypatch, tmp_path):
     """Mutation ``beta-scan-paper-column``: the paper's number comes from its LaTeX table here."""
-    from jko_cvx.reproduce import beta_scan
+    from jko_cvx.studies.reproduce import beta_scan
 
     def sweep(func, points, *args, **kwargs):  # planted results: no runs (one run per column of eps_v)
         rows = []
@@ -108,7 +108,7 @@ def test_fisher_width_error_is_relative_so_equal_for_every_width_without_fisher(
     """Mutation ``fisher-width-absolute``.  Without the Fisher term the problem on [-8w, 8w] is the
     width-1 problem rescaled (W = |v|: W' * f scales with the mass, d/dv with 1/w), so the relative
     L1 error is the same for every width and the absolute one scales with w."""
-    from jko_cvx.reproduce.fisher_width import fisher_width_error
+    from jko_cvx.studies.reproduce.fisher_width import fisher_width_error
 
     wide, narrow = fisher_width_error(0.5, np.inf, "log"), fisher_width_error(0.125, np.inf, "log")
     assert wide["completed"] and narrow["completed"]
@@ -118,7 +118,7 @@ def test_fisher_width_error_is_relative_so_equal_for_every_width_without_fisher(
 
 def test_g2bu_loglog_plots_every_lambda_of_the_table_once(tmp_path):
     """Mutation ``panels-loglog-finest``: the lambda sweep is complete on the coarsest grid only."""
-    from jko_cvx.reproduce.panels import reproduce_g2bu_loglog
+    from jko_cvx.studies.reproduce.panels import reproduce_g2bu_loglog
 
     table = pd.DataFrame(
         {
@@ -136,7 +136,7 @@ def test_g2bu_loglog_plots_every_lambda_of_the_table_once(tmp_path):
 
 def test_the_extremes_matrix_calls_a_planted_liar_silently_wrong():
     """Mutation ``extremes-kkt-unchecked``: the matrix recomputes the residual whatever the status says."""
-    from jko_cvx.benchmarks.extremes import ExtremeCase, extremes_matrix
+    from jko_cvx.studies.solvers.extremes import ExtremeCase, extremes_matrix
 
     grid = Grid.uniform(-2.0, 2.0, 41)
     prob = CollisionProblem(grid, PowerKernel(1.0), np.exp(-2 * grid.points**2), 0.01, beta=3.0)

@@ -9,8 +9,8 @@ import pytest
 from jko_cvx import Grid, PowerKernel
 from jko_cvx.collision import CollisionProblem, Status, solve_collision, solve_nlp
 from jko_cvx.collision import nlp as nlp_module
-from jko_cvx.scene import load_scene
-from jko_cvx.simulate import simulate
+from jko_cvx.engine.loop import simulate
+from jko_cvx.scene.model import load_scene
 from jko_cvx.testing import random_problem
 
 pytest.importorskip("cyipopt")
@@ -210,7 +210,7 @@ def test_whole_run_with_nlp_matches_newton():
 
 
 def test_scene_accepts_nlp_with_allow_listed_ipopt_options():
-    from jko_cvx.scene import SceneError, scene_from_dict
+    from jko_cvx.scene.model import SceneError, scene_from_dict
 
     d = {
         "gamma": 1.0,

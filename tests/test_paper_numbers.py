@@ -1,6 +1,6 @@
-"""The package's copy of the paper's numbers (jko_cvx.reproduce.paper) against the LaTeX source."""
+"""The package's copy of the paper's numbers (jko_cvx.studies.reproduce.paper) against the LaTeX source."""
 
-from jko_cvx.reproduce import paper
+from jko_cvx.studies.reproduce import paper
 
 from .paper_tex import blowup_table, g2bu_table, paper_source
 

@@ -1,4 +1,4 @@
-"""Every number studies/README.md quotes comes from a shipped result file (``jko_cvx.reproduce.summary``)."""
+"""Every number studies/README.md quotes comes from a shipped result file (``jko_cvx.studies.reproduce.summary``)."""
 
 import re
 from pathlib import Path
@@ -7,7 +7,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from jko_cvx.reproduce.summary import CLAIMS, RESULTS, claim_values, reproduce_summary, within
+from jko_cvx.studies.reproduce.summary import CLAIMS, RESULTS, claim_values, reproduce_summary, within
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -5,7 +5,7 @@ import pytest
 
 from jko_cvx import Grid
 from jko_cvx.grid import PeriodicGrid
-from jko_cvx.refine import OneBumpMap, TwoBumpMap, periodic_map_grid, remap, remap_periodic
+from jko_cvx.mesh.refine import OneBumpMap, TwoBumpMap, periodic_map_grid, remap, remap_periodic
 
 S = np.linspace(-1, 1, 2001)
 
@@ -166,7 +166,7 @@ def test_energy_restoring_remap_keeps_mass_momentum_second_moment_and_positivity
 
 
 def test_three_moment_tilt_reports_an_unreachable_target():
-    from jko_cvx.conservation import restore_three_moments
+    from jko_cvx.mesh.moments import restore_three_moments
 
     g = Grid.uniform(-1, 1, 21)
     f = np.exp(-(g.points**2))
@@ -190,7 +190,7 @@ def test_energy_conserving_remap_of_a_narrow_slice_keeps_the_floor():
 
 
 def test_quadrant_set_is_the_papers_and_empty_for_the_two_bump_phase_datum():
-    from jko_cvx.refine import quadrant_set
+    from jko_cvx.mesh.refine import quadrant_set
 
     x = np.linspace(-4, 4, 81)
     v = np.linspace(-4, 4, 81)
@@ -208,7 +208,7 @@ def test_quadrant_set_is_the_papers_and_empty_for_the_two_bump_phase_datum():
 
 
 def _phase_scene(c, d, concentration_set, bumps_v=1, t_end=0.1):
-    from jko_cvx.scene import scene_from_dict
+    from jko_cvx.scene.model import scene_from_dict
 
     return scene_from_dict(
         {
@@ -244,7 +244,7 @@ def _quadrant_extent(x, v, f, delta0):
 
 def test_quadrant_rule_on_eqn_f0_at_t0_keeps_the_uniform_grids():
     """eqn:f0 (bumps at (-c, d), (c, -d)) has no point of its set in x > 0, v > 0: the uniform grids."""
-    from jko_cvx.simulate import initial_state
+    from jko_cvx.engine.loop import initial_state
 
     scene = _phase_scene(1.0, 1.0, "quadrant")
     st = initial_state(scene)
@@ -259,7 +259,7 @@ def test_quadrant_rule_on_eqn_f0_at_t0_keeps_the_uniform_grids():
 def test_quadrant_rule_builds_each_map_from_the_sets_extent_on_its_axis(bumps_v):
     """c = -1, d = 1 puts a bump at (x, v) = (1, 1): the maps are those of the set's extents (one bump:
     r = its largest point, capped at L delta; two bumps: [min, max], through TwoBumpMap.from_extent)."""
-    from jko_cvx.simulate import initial_state
+    from jko_cvx.engine.loop import initial_state
 
     scene = _phase_scene(-1.0, 1.0, "quadrant", bumps_v)
     x, v = scene.xgrid().points, scene.vgrid().points

@@ -8,7 +8,8 @@ import pandas as pd
 import pytest
 
 from jko_cvx.cli import main
-from jko_cvx.reproduce import (
+from jko_cvx.scene.model import load_scene
+from jko_cvx.studies.reproduce import (
     reproduce_explicit,
     reproduce_gk1_records,
     reproduce_ibu,
@@ -16,13 +17,12 @@ from jko_cvx.reproduce import (
     reproduce_tab_bu,
     reproduce_tab_bu_tb2,
 )
-from jko_cvx.reproduce.blowup_tables import TAB_BU_BETA, TAB_BU_TB2_BETA, blowup_scene
-from jko_cvx.reproduce.ibu import ibu_scene
-from jko_cvx.scene import load_scene
+from jko_cvx.studies.reproduce.blowup_tables import TAB_BU_BETA, TAB_BU_TB2_BETA, blowup_scene
+from jko_cvx.studies.reproduce.ibu import ibu_scene
 
 from .paper_tex import blowup_table, paper_available
 
-SCENES = Path(__file__).parent.parent / "jko_cvx" / "scenes"
+SCENES = Path(__file__).parent.parent / "jko_cvx" / "scene" / "shipped"
 
 
 def _is_figure(path: Path) -> bool:
@@ -106,7 +106,7 @@ def test_explicit_ode1_matches_the_closed_forms_and_the_threshold(tmp_path):
     """sec: explicit: DOP853 on ode1 against rhot / mt (independent), and the width rho/m -> 0 iff
     lambda rho0 T / 2 > 1 (threshold thres, lambda ~ 309.8 for the sec:sp_inhom_gamma_2 data)."""
 
-    from jko_cvx.reproduce.explicit import RHO0, T, closed_form, solve_ode1
+    from jko_cvx.studies.reproduce.explicit import RHO0, T, closed_form, solve_ode1
 
     df = reproduce_explicit(tmp_path, quick=True)
     assert (tmp_path / "explicit.md").read_text().count("|") > 10 and _is_figure(tmp_path / "explicit.png")
@@ -123,7 +123,7 @@ def test_explicit_ode1_matches_the_closed_forms_and_the_threshold(tmp_path):
 
 def test_mesh_maps_put_delta_n_points_in_the_set(tmp_path):
     """fig:mr_demon / fig:mr_demon_mu2: about delta N = 0.5 N points in {f > delta0 max f}, remap mass exact."""
-    from jko_cvx.reproduce import reproduce_mesh_maps
+    from jko_cvx.studies.reproduce import reproduce_mesh_maps
 
     df = reproduce_mesh_maps(tmp_path)
     assert _is_figure(tmp_path / "fig_mr_demon.png") and _is_figure(tmp_path / "fig_mr_demon_mu2.png")
@@ -134,7 +134,7 @@ def test_mesh_maps_put_delta_n_points_in_the_set(tmp_path):
 
 @pytest.mark.parametrize("case", ["before", "after"])
 def test_gamma1p5_scenes_are_the_shipped_ones(case):
-    from jko_cvx.reproduce.gamma1p5 import gamma1p5_scene
+    from jko_cvx.studies.reproduce.gamma1p5 import gamma1p5_scene
 
     shipped, built = load_scene(SCENES / f"inhom_gamma1p5_{case}.toml"), gamma1p5_scene(case)
     for f in dataclasses.fields(shipped):
@@ -147,7 +147,7 @@ def test_quick_gamma1p5_blows_up_in_v(tmp_path):
     """Quick form (41 x 41, 61 x 61 and a uniform 41 x 81 reference): blow-up in v, mass conserved,
     the density's velocity spread on the mapped grids follows the map-free uniform run, and the
     right-moving bump's centre of mass moves at its exact speed d until the bumps overlap."""
-    from jko_cvx.reproduce import reproduce_inhom_gamma1p5
+    from jko_cvx.studies.reproduce import reproduce_inhom_gamma1p5
 
     df = reproduce_inhom_gamma1p5(tmp_path, quick=True, executor="serial", progress=False)
     assert df.blowup.all() and df.B_v.all() and not df.B_x.any()
@@ -171,7 +171,7 @@ def test_quick_gamma1p5_blows_up_in_v(tmp_path):
 
 
 def test_g2bu_scene_is_the_shipped_one():
-    from jko_cvx.reproduce.g2bu import g2bu_scene
+    from jko_cvx.studies.reproduce.g2bu import g2bu_scene
 
     shipped, built = load_scene(SCENES / "inhom_gamma2_lambda310.toml"), g2bu_scene(310.0)
     for f in dataclasses.fields(shipped):
@@ -181,7 +181,7 @@ def test_g2bu_scene_is_the_shipped_one():
 
 def test_level_set_components_count_intervals_per_slice():
 
-    from jko_cvx.reproduce.g2bu import level_set_components, secondary_peaks
+    from jko_cvx.studies.reproduce.g2bu import level_set_components, secondary_peaks
 
     v = np.linspace(-1, 1, 201)
     one = np.exp(-10 * v**2)
@@ -198,7 +198,7 @@ def test_level_set_components_count_intervals_per_slice():
 @pytest.mark.slow
 def test_quick_tab_g2bu_blows_up_near_T(tmp_path):
     """Quick form (lambda = 220, 310 at 121 x 201, ~80 s): blow-up in x within 0.005 of the paper's T_b."""
-    from jko_cvx.reproduce import reproduce_tab_g2bu
+    from jko_cvx.studies.reproduce import reproduce_tab_g2bu
 
     df = reproduce_tab_g2bu(tmp_path, quick=True, executor="serial", progress=False)
     assert df.blowup.all() and df.B_x.all()
@@ -212,7 +212,7 @@ def test_mesh_rule_time_is_what_our_solver_reports_for_g1():
     """The exact solution with the paper's mesh rule fires before T, later for smaller eps_v;
     our run at the finest step of tab:bu fires within 0.005 of it (an independent check of
     the solver through the exact Burgers solution)."""
-    from jko_cvx.reproduce.blowup_tables import blowup_time, mesh_rule_time
+    from jko_cvx.studies.reproduce.blowup_tables import blowup_time, mesh_rule_time
 
     times = [mesh_rule_time("g1", e) for e in (1e-3, 2.5e-4, 6.25e-5)]
     assert times[0] < times[1] < times[2] < 0.5

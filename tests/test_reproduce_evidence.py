@@ -6,13 +6,13 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from jko_cvx.reproduce.blowup_tables import blowup_time
-from jko_cvx.reproduce.explicit import RHO0, T
-from jko_cvx.reproduce.explicit_figures import characteristic_eq, characteristic_eqgamma
-from jko_cvx.reproduce.gk1_final import reproduce_gk1_final
-from jko_cvx.reproduce.inhomogeneous import inhomogeneous_scene
-from jko_cvx.reproduce.property_budget import property_budget
-from jko_cvx.reproduce.tab_bu_traces import trace_entry
+from jko_cvx.studies.reproduce.blowup_tables import blowup_time
+from jko_cvx.studies.reproduce.explicit import RHO0, T
+from jko_cvx.studies.reproduce.explicit_figures import characteristic_eq, characteristic_eqgamma
+from jko_cvx.studies.reproduce.gk1_final import reproduce_gk1_final
+from jko_cvx.studies.reproduce.inhomogeneous import inhomogeneous_scene
+from jko_cvx.studies.reproduce.property_budget import property_budget
+from jko_cvx.studies.reproduce.tab_bu_traces import trace_entry
 
 
 def test_a_trace_reproduces_its_table_entry():
@@ -54,7 +54,7 @@ def test_gk1_final_quick_concentrates_and_conserves(tmp_path):
 
 @pytest.mark.slow
 def test_quick_beta_scan_reproduces_the_shipped_target_entries(tmp_path):
-    from jko_cvx.reproduce.beta_scan import reproduce_tab_bu_beta_scan
+    from jko_cvx.studies.reproduce.beta_scan import reproduce_tab_bu_beta_scan
 
     quick = reproduce_tab_bu_beta_scan(tmp_path, quick=True, executor="serial", progress=False).set_index("beta")
     shipped = pd.read_csv(Path(__file__).parents[1] / "studies/results/reproduce/tab_bu_beta_scan_summary.csv")

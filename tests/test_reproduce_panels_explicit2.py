@@ -4,8 +4,8 @@ import numpy as np
 import pandas as pd
 from scipy.integrate import solve_ivp
 
-from jko_cvx.reproduce.explicit import RHO0, T, closed_form
-from jko_cvx.reproduce.explicit_sketch import reproduce_explicit2_sketch
+from jko_cvx.studies.reproduce.explicit import RHO0, T, closed_form
+from jko_cvx.studies.reproduce.explicit_sketch import reproduce_explicit2_sketch
 
 
 def _characteristic_ode(x: float, v: float, lam: float, t: np.ndarray) -> np.ndarray:

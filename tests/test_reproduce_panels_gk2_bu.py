@@ -5,9 +5,9 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from jko_cvx.reproduce.g2bu import g2bu_scene
-from jko_cvx.reproduce.gk2_bu import LAMBDAS, reproduce_gk2_bu
-from jko_cvx.simulate import simulate
+from jko_cvx.engine.loop import simulate
+from jko_cvx.studies.reproduce.g2bu import g2bu_scene
+from jko_cvx.studies.reproduce.gk2_bu import LAMBDAS, reproduce_gk2_bu
 
 SHIPPED = Path(__file__).parents[1] / "studies/results/reproduce"
 

@@ -6,9 +6,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from jko_cvx.reproduce.gk3_panels import FIGURES, reproduce_gk3_panels
-from jko_cvx.reproduce.inhomogeneous import PAPER_TIMES
-from jko_cvx.reproduce.phase_views import zoom_window
+from jko_cvx.studies.reproduce.gk3_panels import FIGURES, reproduce_gk3_panels
+from jko_cvx.studies.reproduce.inhomogeneous import PAPER_TIMES
+from jko_cvx.studies.reproduce.phase_views import zoom_window
 
 SHIPPED = Path(__file__).parents[1] / "studies/results/reproduce"
 

@@ -9,9 +9,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from jko_cvx.reproduce import g2bu, panels
-from jko_cvx.reproduce.g2bu import RECORDS, g2bu_scene
-from jko_cvx.simulate import simulate
+from jko_cvx.engine.loop import simulate
+from jko_cvx.studies.reproduce import g2bu, panels
+from jko_cvx.studies.reproduce.g2bu import RECORDS, g2bu_scene
 
 
 def test_the_records_are_the_runs_diagnostics(tmp_path):
@@ -58,7 +58,7 @@ def test_the_full_form_asks_for_tab_g2bus_point(monkeypatch, tmp_path):
 
 def test_ibu_and_ibu_panels_ask_for_one_point(monkeypatch, tmp_path):
     """``fig:gk3``'s panels are drawn from ``ibu``'s run: one sweep point, which a section run computes once."""
-    from jko_cvx.reproduce import ibu
+    from jko_cvx.studies.reproduce import ibu
 
     asked = asked_points(monkeypatch, tmp_path, (ibu,), (ibu.reproduce_ibu, panels.reproduce_ibu_panels))
     assert asked["ibu"] == asked["ibu_panels"] and len(asked["ibu"]) == 1

@@ -14,13 +14,13 @@ import numpy as np
 import pandas as pd
 import pytest
 
-import jko_cvx.rundir as rundir_module
+import jko_cvx.engine.rundir as rundir_module
 from jko_cvx import load_run
 from jko_cvx.cli import main
-from jko_cvx.rundir import RunDir, scene_differences, scene_fingerprint
-from jko_cvx.runstate import RunDirError
-from jko_cvx.scene import load_scene, scene_from_dict
-from jko_cvx.simulate import simulate
+from jko_cvx.engine.loop import simulate
+from jko_cvx.engine.rundir import RunDir, scene_differences, scene_fingerprint
+from jko_cvx.engine.state import RunDirError
+from jko_cvx.scene.model import load_scene, scene_from_dict
 
 SMALL = {
     "name": "small",

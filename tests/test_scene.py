@@ -12,7 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from jko_cvx.scene import (
+from jko_cvx.scene.limits import Limits, estimate_size
+from jko_cvx.scene.model import (
     Scene,
     SceneError,
     load_scene,
@@ -21,11 +22,10 @@ from jko_cvx.scene import (
     shipped_scene_names,
     with_overrides,
 )
-from jko_cvx.scene_limits import Limits, estimate_size
-from jko_cvx.scene_options import METHOD_OPTIONS
+from jko_cvx.scene.options import METHOD_OPTIONS
 
 ROOT = Path(__file__).parent.parent
-SCENES = ROOT / "jko_cvx" / "scenes"
+SCENES = ROOT / "jko_cvx" / "scene" / "shipped"
 
 # Every value distinct from every other, so that a key read into the wrong field fails.
 BASE = {
@@ -460,7 +460,7 @@ def test_memory_estimate_counts_dense_hessians_only_where_newton_forms_them():
     """gamma = 3 uses the structured O(N) Newton solve (no per-slice dense Hessian): the 1025 x 1025 step of
     studies/results/bench_scale.md (0.57 GiB measured) passes the default limit; gamma = 3/2 still counts
     one dense Hessian per slice and is refused."""
-    from jko_cvx.scene import shipped_scene
+    from jko_cvx.scene.model import shipped_scene
 
     big = {"v.n": 1025, "x.n": 1025}
     assert shipped_scene("inhom_gamma3_lambda4", big).v_n == 1025

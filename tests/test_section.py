@@ -11,8 +11,8 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from jko_cvx.reproduce import REPRODUCTIONS, section
-from jko_cvx.sweep import holding, run_sweep
+from jko_cvx.studies.reproduce import REPRODUCTIONS, section
+from jko_cvx.studies.sweep import holding, run_sweep
 
 
 def square_point(x: float, pause: float = 0.0, marks: str = "") -> dict:
@@ -151,7 +151,7 @@ def test_a_point_two_entries_share_runs_once(monkeypatch, tmp_path):
 
 
 def test_shared_points_blocks_do_not_nest():
-    from jko_cvx.sweep import shared_points
+    from jko_cvx.studies.sweep import shared_points
 
     with shared_points(), pytest.raises(RuntimeError, match="do not nest"), shared_points():
         pass

@@ -15,7 +15,7 @@ from scipy.interpolate import PchipInterpolator
 
 from jko_cvx import conservation
 from jko_cvx.grid import Grid, PeriodicGrid, _spacing_terms, pchip_coefficients, pchip_ppoly, pchip_terms
-from jko_cvx.refine import OneBumpMap, TwoBumpMap, periodic_map_grid, remap, remap_periodic
+from jko_cvx.mesh.refine import OneBumpMap, TwoBumpMap, periodic_map_grid, remap, remap_periodic
 from jko_cvx.transport import transport_step
 
 
@@ -230,7 +230,7 @@ def test_tilt_exponent_is_the_old_loop(seed: int) -> None:
 def test_remaps_and_transport_are_the_scipy_path(seed: int, monkeypatch: pytest.MonkeyPatch) -> None:
     """remap, remap_periodic and transport_step through the old SciPy interpolants, end to end."""
     import jko_cvx.grid as grid_mod
-    import jko_cvx.refine as refine_mod
+    import jko_cvx.mesh.refine as refine_mod
 
     rng = np.random.default_rng(500 + seed)
     vg, vg2 = Grid.uniform(-5.0, 5.0, 41), TwoBumpMap(L=5.0, r1=1.0, r2=2.0, delta=0.3).grid(41)

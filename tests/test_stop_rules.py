@@ -16,8 +16,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from jko_cvx.scene import scene_from_dict
-from jko_cvx.simulate import simulate
+from jko_cvx.engine.loop import simulate
+from jko_cvx.scene.model import scene_from_dict
 
 # 16 velocity points on [-1.5, 1.5]: dv = 0.2; 10 cell-centred x-points on [-4, 4): dx = 0.8.
 DV, DX = 0.2, 0.8

@@ -10,8 +10,8 @@ import time
 import numpy as np
 import pytest
 
-from jko_cvx.reproduce.blowup_tables import blowup_time
-from jko_cvx.sweep import cached_entries, point_key, run_sweep
+from jko_cvx.studies.reproduce.blowup_tables import blowup_time
+from jko_cvx.studies.sweep import cached_entries, point_key, run_sweep
 
 POINTS = [{"data": d, "eps_v": 1e-3, "dt": dt} for d in ("g1", "g3") for dt in (0.02, 0.01)]
 COLUMNS = ["data", "eps_v", "dt", "T_b", "steps", "failed_steps"]
@@ -33,8 +33,8 @@ def test_serial_process_pool_and_dask_give_identical_tables(tmp_path):
 
 _SCRIPT = """
 import sys
-from jko_cvx.reproduce.blowup_tables import blowup_time
-from jko_cvx.sweep import run_sweep
+from jko_cvx.studies.reproduce.blowup_tables import blowup_time
+from jko_cvx.studies.sweep import run_sweep
 points = [{"data": "g1", "eps_v": 1e-3, "dt": dt} for dt in (0.0025, 0.002, 0.0015, 0.00125, 0.001, 0.00075)]
 run_sweep(blowup_time, points, sys.argv[1], executor="serial", progress=False)
 """
@@ -113,7 +113,7 @@ def test_two_functions_at_one_point_have_distinct_keys(tmp_path):
 
 def test_key_covers_package_code_and_version(tmp_path, monkeypatch):
     import jko_cvx
-    import jko_cvx.sweep as sweep
+    import jko_cvx.studies.sweep as sweep
 
     mod = _point_module(tmp_path, "pts_pkg", "2")
     key = point_key(mod.double, {"a": 1.0})
@@ -135,7 +135,7 @@ def test_key_covers_package_code_and_version(tmp_path, monkeypatch):
     ],
 )
 def test_damaged_entry_is_recomputed_with_a_warning_naming_the_file(tmp_path, damage, reason):
-    from jko_cvx.sweep import StaleCacheWarning
+    from jko_cvx.studies.sweep import StaleCacheWarning
 
     mod = _point_module(tmp_path, "pts_damaged", "2")
     run_sweep(mod.double, [{"a": 1.0}], tmp_path / "c", "serial", progress=False)
@@ -176,7 +176,7 @@ def test_code_provenance_adds_the_checkouts_commit_to_the_code_identity():
     import subprocess
     from pathlib import Path
 
-    from jko_cvx.sweep import code_identity, code_provenance
+    from jko_cvx.studies.sweep import code_identity, code_provenance
 
     prov = code_provenance(code_identity)
     assert {k: prov[k] for k in code_identity(code_identity)} == code_identity(code_identity)

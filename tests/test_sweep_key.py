@@ -1,6 +1,6 @@
 """The sweep cache is keyed by the point *and* the function: two functions never share a result."""
 
-from jko_cvx.sweep import point_key, run_sweep
+from jko_cvx.studies.sweep import point_key, run_sweep
 
 
 def square(x):

@@ -15,15 +15,15 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from jko_cvx.reproduce import beta_scan, blowup_tables
-from jko_cvx.reproduce.blowup_tables import (
+from jko_cvx.engine.verdict import StopReason, Verdict
+from jko_cvx.studies.reproduce import beta_scan, blowup_tables
+from jko_cvx.studies.reproduce.blowup_tables import (
     blowup_time,
     blowup_times,
     replayed_entry,
     table_entries,
     table_points,
 )
-from jko_cvx.verdict import StopReason, Verdict
 
 from .test_reproduce_shared_runs import asked_points
 

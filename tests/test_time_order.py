@@ -155,16 +155,16 @@ def _scene(overrides):
     import tomllib
     from pathlib import Path
 
-    from jko_cvx.scene import scene_from_dict, with_overrides
+    from jko_cvx.scene.model import scene_from_dict, with_overrides
 
-    path = Path(__file__).parent.parent / "jko_cvx" / "scenes" / "inhom_gamma3_lambda4.toml"
+    path = Path(__file__).parent.parent / "jko_cvx" / "scene" / "shipped" / "inhom_gamma3_lambda4.toml"
     return scene_from_dict(with_overrides(tomllib.loads(path.read_text()), overrides))
 
 
 def test_scene_time_order_2_homogeneous_is_the_richardson_run():
     """[time] order = 2 on a homogeneous fixed-grid scene gives evolve_fixed_grid(time_order=2) to rounding,
     and order = 1 the plain run (the loop's wiring, checked against the independent fixed-grid driver)."""
-    from jko_cvx.simulate import simulate
+    from jko_cvx.engine.loop import simulate
 
     homogeneous = {
         "x": None,
@@ -191,7 +191,7 @@ def test_scene_time_order_2_homogeneous_is_the_richardson_run():
 def test_scene_time_order_2_inhomogeneous_is_strang_and_keeps_the_invariants():
     """[time] order = 2 with an x-grid: the first step is T(dt/2) C2(dt) T(dt/2) (Strang with the Richardson
     collision); mass to rounding, momentum to rounding, density positive over a short run."""
-    from jko_cvx.simulate import simulate
+    from jko_cvx.engine.loop import simulate
 
     small = {"refine": None, "v.n": 31, "x.n": 16, "time.dt": 0.1, "time.order": 2, "collision.beta": 100.0}
     s = _scene({**small, "t_end": 0.3})

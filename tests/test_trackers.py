@@ -8,10 +8,9 @@ import pandas as pd
 import pytest
 
 from jko_cvx.diagnostics import diagnostics
-from jko_cvx.grid import Grid, PeriodicGrid
-from jko_cvx.interrupts import InterruptGuard
-from jko_cvx.runstate import RunDirError, RunState
-from jko_cvx.trackers import (
+from jko_cvx.engine.interrupts import InterruptGuard
+from jko_cvx.engine.state import RunDirError, RunState
+from jko_cvx.engine.trackers import (
     Checkpoints,
     Diagnostics,
     EpsV,
@@ -22,7 +21,8 @@ from jko_cvx.trackers import (
     SpreadV,
     StepInfo,
 )
-from jko_cvx.verdict import StopReason, Verdict
+from jko_cvx.engine.verdict import StopReason, Verdict
+from jko_cvx.grid import Grid, PeriodicGrid
 
 
 def _state(t=0.0, step=0, inhomogeneous=False, verdict=None):

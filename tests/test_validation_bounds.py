@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from jko_cvx import CollisionProblem, Grid, PowerKernel, Status, solve_collision
-from jko_cvx.scene import SceneError, scene_from_dict
+from jko_cvx.scene.model import SceneError, scene_from_dict
 
 G = Grid.uniform(-2.0, 2.0, 21)
 F = np.exp(-2 * G.points**2)

@@ -30,9 +30,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .checks import check_bool, check_unit
-from .problem import CollisionProblem, KKTResidual
-from .result import Status
+from jko_cvx.collision.checks import check_bool, check_unit
+from jko_cvx.collision.problem import CollisionProblem, KKTResidual
+from jko_cvx.collision.result import Status
 
 __all__ = ["Certificate", "certify"]
 

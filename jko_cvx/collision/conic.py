@@ -53,11 +53,11 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
-from .certify import certify
-from .checks import check_bool, check_choice, check_int, check_options_dict, check_unit
-from .explicit import explicit_step
-from .problem import CollisionProblem
-from .result import CollisionResult, Status
+from jko_cvx.collision.certify import certify
+from jko_cvx.collision.checks import check_bool, check_choice, check_int, check_options_dict, check_unit
+from jko_cvx.collision.explicit import explicit_step
+from jko_cvx.collision.problem import CollisionProblem
+from jko_cvx.collision.result import CollisionResult, Status
 
 __all__ = ["ConicModel", "ConicOptions", "clear_model_cache", "conic_solvers", "model_cache_size", "solve_conic"]
 
@@ -187,7 +187,7 @@ def _no_file_options(options: dict[str, Any]) -> dict[str, Any]:
 
     A collision step writes nothing: SCS's ``write_data_filename`` / ``log_csv_filename``,
     MOSEK's ``save_file``, Gurobi's ``LogFile`` and the like (any key containing "file")
-    are refused.  Scenes pass a stricter allow-list (:mod:`jko_cvx.scene_options`).
+    are refused.  Scenes pass a stricter allow-list (:mod:`jko_cvx.scene.options`).
     """
     bad = sorted(k for k in options if "file" in k.lower())
     if bad:

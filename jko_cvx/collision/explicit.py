@@ -24,9 +24,9 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.linalg import lapack
 
-from .linalg import divergence, divergence_adjoint, solve_sym_tridiagonal
-from .problem import CollisionProblem
-from .terms import FISHER_TERMS, wasserstein_derivatives
+from jko_cvx.collision.linalg import divergence, divergence_adjoint, solve_sym_tridiagonal
+from jko_cvx.collision.problem import CollisionProblem
+from jko_cvx.collision.terms import FISHER_TERMS, wasserstein_derivatives
 
 __all__ = ["diagonal_hessian", "explicit_step", "gradient_and_sqp_step", "sqp_step", "sqp_stepper"]
 

@@ -51,22 +51,28 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.linalg import lapack
 
-from ..kernels import FluxBlock
-from ..threads import blas_limited  # h15
-from .certify import certify
-from .checks import check_bool, check_choice, check_int, check_unit
-from .explicit import explicit_step
-from .linalg import (
+from jko_cvx.collision.certify import certify
+from jko_cvx.collision.checks import check_bool, check_choice, check_int, check_unit
+from jko_cvx.collision.explicit import explicit_step
+from jko_cvx.collision.linalg import (
     divergence,
     divergence_adjoint,
     pentadiagonal_cholesky,
     pentadiagonal_cholesky_batch,
     pentadiagonal_solve_batch,
 )
-from .problem import CollisionProblem, TermParts, add_pentadiagonal
-from .result import CollisionResult, Status
-from .structured import dense_kernel_direction  # h15
-from .terms import FISHER_TERMS, band_coefficients, reduced_bands, wasserstein_derivatives, wasserstein_value
+from jko_cvx.collision.problem import CollisionProblem, TermParts, add_pentadiagonal
+from jko_cvx.collision.result import CollisionResult, Status
+from jko_cvx.collision.structured import dense_kernel_direction  # h15
+from jko_cvx.collision.terms import (
+    FISHER_TERMS,
+    band_coefficients,
+    reduced_bands,
+    wasserstein_derivatives,
+    wasserstein_value,
+)
+from jko_cvx.kernels import FluxBlock
+from jko_cvx.threads import blas_limited  # h15
 
 __all__ = ["NewtonOptions", "NewtonState", "solve_newton"]
 

@@ -50,12 +50,12 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
-from .certify import certify
-from .checks import check_bool, check_int, check_unit
-from .explicit import explicit_step
-from .linalg import divergence
-from .problem import CollisionProblem, KKTResidual
-from .result import CollisionResult, Status
+from jko_cvx.collision.certify import certify
+from jko_cvx.collision.checks import check_bool, check_int, check_unit
+from jko_cvx.collision.explicit import explicit_step
+from jko_cvx.collision.linalg import divergence
+from jko_cvx.collision.problem import CollisionProblem, KKTResidual
+from jko_cvx.collision.result import CollisionResult, Status
 
 __all__ = ["IPOPT_STATUS", "NlpModel", "nlp_available", "solve_nlp"]
 

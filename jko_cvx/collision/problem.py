@@ -75,11 +75,11 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import ArrayLike, NDArray
 
-from ..conservation import restore_moments
-from ..grid import Grid
-from ..kernels import EnergyOperator, PowerKernel
-from .linalg import divergence, divergence_adjoint, solve_sym_tridiagonal
-from .terms import FISHER_TERMS, reduced_bands, wasserstein_derivatives, wasserstein_value
+from jko_cvx.collision.linalg import divergence, divergence_adjoint, solve_sym_tridiagonal
+from jko_cvx.collision.terms import FISHER_TERMS, reduced_bands, wasserstein_derivatives, wasserstein_value
+from jko_cvx.grid import Grid
+from jko_cvx.kernels import EnergyOperator, PowerKernel
+from jko_cvx.mesh.moments import restore_moments
 
 __all__ = ["CollisionProblem", "FisherForm", "KKTResidual"]
 
@@ -345,7 +345,7 @@ class CollisionProblem:
 
         Used on solver outputs (conic solvers return entries around -1e-13 and satisfy
         the constraint only to their tolerance).  The result conserves mass (and, with
-        ``conserve_momentum``, momentum: see :func:`jko_cvx.conservation.restore_moments`)
+        ``conserve_momentum``, momentum: see :func:`jko_cvx.mesh.moments.restore_moments`)
         to machine precision.  A flux through an emptied edge (:math:`f_k = f_{k+1} = 0`)
         is set to 0: the cumulative sum leaves rounding noise there (1e-17), which
         would cost an infinite Wasserstein term; what it removes from the constraint

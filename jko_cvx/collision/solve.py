@@ -10,13 +10,13 @@ from typing import Any
 
 import numpy as np
 
-from ..threads import blas_limits
-from .conic import solve_conic
-from .newton import solve_newton
-from .nlp import solve_nlp
-from .problem import CollisionProblem
-from .result import CollisionResult
-from .sqp import solve_sqp
+from jko_cvx.collision.conic import solve_conic
+from jko_cvx.collision.newton import solve_newton
+from jko_cvx.collision.nlp import solve_nlp
+from jko_cvx.collision.problem import CollisionProblem
+from jko_cvx.collision.result import CollisionResult
+from jko_cvx.collision.sqp import solve_sqp
+from jko_cvx.threads import blas_limits
 
 __all__ = ["METHODS", "solve_collision"]
 

@@ -53,13 +53,13 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
-from ..conservation import check_floor
-from .certify import certify
-from .checks import check_bool, check_callable, check_choice, check_int, check_unit
-from .explicit import diagonal_hessian, sqp_step, sqp_stepper
-from .linalg import divergence
-from .problem import CollisionProblem
-from .result import CollisionResult, Status
+from jko_cvx.collision.certify import certify
+from jko_cvx.collision.checks import check_bool, check_callable, check_choice, check_int, check_unit
+from jko_cvx.collision.explicit import diagonal_hessian, sqp_step, sqp_stepper
+from jko_cvx.collision.linalg import divergence
+from jko_cvx.collision.problem import CollisionProblem
+from jko_cvx.collision.result import CollisionResult, Status
+from jko_cvx.mesh.moments import check_floor
 
 __all__ = ["SAFEGUARDS", "solve_sqp"]
 

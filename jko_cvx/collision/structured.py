@@ -83,9 +83,9 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.linalg import lapack
 
-from ..kernels import EnergyOperator, FluxBlock
-from ..threads import map_chunks
-from .linalg import pentadiagonal_cholesky
+from jko_cvx.collision.linalg import pentadiagonal_cholesky
+from jko_cvx.kernels import EnergyOperator, FluxBlock
+from jko_cvx.threads import map_chunks
 
 __all__ = [
     "LINALG_ENV",

@@ -1,0 +1,438 @@
+"""The time loop: ``simulate(scene)`` (``alg:MR_JKO_ver2`` homogeneous, ``alg:SPMCSL-JKO`` inhomogeneous).
+
+Each step: choose dt (policy), transport in x (inhomogeneous scenes only), collision in v
+(batched over x-slices), retry with a halved dt on solver failure (halving policy; which
+failures halve it: ``time.halve_on``), mesh refinement in v and x with mass-conserving
+remapping (the maps' sets: ``refine.concentration_set``).  The loop carries one
+:class:`~jko_cvx.engine.state.RunState`; after each accepted step the trackers
+(:mod:`jko_cvx.engine.trackers`) record the diagnostics, apply the blow-up rules (min dv < eps_v:
+B_v; min dx < eps_x: B_x; min_spread_v < spread_v where the scene sets ``stop.spread_v``:
+B_v), keep snapshots and write checkpoints; a solver failure the policy cannot cure is
+``e_f`` (counted as B_v when ``stop.on_solver_failure``).  The outcome is a
+:class:`~jko_cvx.engine.verdict.Verdict`.
+
+With ``out`` the run lives in a directory (:mod:`jko_cvx.engine.rundir`: provenance, lock,
+resume and overwrite rules): scene, metadata, diagnostics.csv, snapshots (every K steps and
+at the first step reaching each of the scene's ``snapshot_times``), a checkpoint every K
+steps and the verdict, all written atomically, so a killed run loses at most K steps and
+``resume=True`` continues it to exactly the result of an uninterrupted run (the loop is
+deterministic and the checkpoint holds the whole state).  SIGINT / SIGTERM write a
+checkpoint of the last accepted step and raise
+:class:`~jko_cvx.engine.interrupts.RunInterrupted`.
+"""
+
+from __future__ import annotations
+
+import signal
+import time
+from contextlib import nullcontext
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from jko_cvx.collision import CollisionProblem, Status, solve_collision
+from jko_cvx.collision.checks import check_bool
+from jko_cvx.engine.interrupts import InterruptGuard, RunInterrupted
+from jko_cvx.engine.run import Run, load_run
+from jko_cvx.engine.rundir import RunDir
+from jko_cvx.engine.state import RunState
+from jko_cvx.engine.trackers import Snapshots, SolverFailure, StepInfo, Tracker, default_trackers
+from jko_cvx.engine.verdict import StopReason, Verdict
+from jko_cvx.grid import Grid, PeriodicGrid
+from jko_cvx.kernels import PowerKernel
+from jko_cvx.mesh.refine import OneBumpMap, TwoBumpMap, periodic_map_grid, quadrant_set, remap, remap_periodic
+from jko_cvx.scene.limits import check_limits
+from jko_cvx.scene.model import Scene
+from jko_cvx.time_order import collision_step_order2, strang_step
+from jko_cvx.transport import transport_step
+
+__all__ = ["Run", "load_run", "simulate", "snapshot_record"]
+
+ACCEPT_KKT = 1e-8
+"""A step is accepted when every slice is certified at this KKT threshold (see :meth:`Stepper.accepted`)."""
+NEWTON_MAX_ITER = 500
+"""Newton's iteration budget in a run (``NewtonOptions`` defaults to 100 for one solve).  The
+populated log-Fisher slices of a run need 100-111 iterations at times (inhom_gamma3 lambda = 4
+on 61 x 61 near t = 0.8: damped by the positivity of the tails, then steady full steps), and
+a failure should mean a step out of reach, not a short budget (as for the SQP's I_max);
+stalls end earlier anyway, on Newton's jam and rounding-floor rules."""
+
+
+def _map_params(mu) -> np.ndarray:
+    """The extent of the concentration set a map was built for: (r,) or (r1, r2)."""
+    return np.array([mu.r] if isinstance(mu, OneBumpMap) else [mu.r1, mu.r2])
+
+
+UNIFORM_EXTENT = np.zeros(1)
+"""The extent recorded for an empty quadrant set (the uniform grid): r = 0, which no map has (r > 0),
+and non-empty, so a checkpoint (where an empty array means None) reads it back as itself."""
+
+
+def _is_uniform(extent: np.ndarray | None) -> bool:
+    return extent is not None and extent.size == 1 and extent[0] == 0
+
+
+def _moved(spec, old: np.ndarray | None, new: np.ndarray) -> bool:
+    """Remesh when the set's extent moved by more than ``spec.tol`` times its width (always if tol = 0).
+
+    From one empty quadrant set (:data:`UNIFORM_EXTENT`) to the next nothing moves.
+    """
+    if _is_uniform(old) and _is_uniform(new):
+        return False
+    if old is None or old.size != new.size or spec.tol == 0:
+        return True
+    width = new[-1] - (new[0] if new.size == 2 else 0.0)
+    return bool(np.abs(new - old).max() > spec.tol * width)
+
+
+def _refine_v(scene: Scene, vgrid: Grid, f: np.ndarray, params):
+    spec = scene.refine_v
+    fv = f if f.ndim == 1 else f.max(axis=0)
+    cls = OneBumpMap if spec.bumps == 1 else TwoBumpMap
+    mu = cls.from_density(vgrid, fv, spec.delta0, spec.delta)
+    new = _map_params(mu)
+    if not _moved(spec, params, new):
+        return f, vgrid, params
+    grid = mu.grid(vgrid.n)
+    f = remap(vgrid, f, grid, axis=-1, conserve_momentum=scene.conserve_momentum, conserve_energy=spec.conserve_energy)
+    return f, grid, new
+
+
+def _floor_v(scene: Scene, vgrid: Grid, f: np.ndarray) -> np.ndarray:
+    """``v.floor_every_step``: ``eqn:mass_conserv_v`` on the unchanged v-grid.
+
+    :math:`f \\leftarrow \\max(f, 10^{-10})\\, M/M'` per x-slice (with the slice's momentum,
+    and energy where ``refine.v.conserve_energy``, restored as the v-remap restores them):
+    the remap of the paper's algorithm onto a grid that did not move.  Without it a fixed
+    v-grid keeps whatever the collision leaves at the edges: on the uniform 481 x 481
+    gamma = 3/2 grid the edge lines in v drained to 1e-17, and Newton could not certify the
+    slices that carried them (``studies/results/grid_convergence_failure*.json``).
+    """
+    energy = scene.refine_v is not None and scene.refine_v.conserve_energy
+    return remap(vgrid, f, vgrid, axis=-1, conserve_momentum=scene.conserve_momentum, conserve_energy=energy)
+
+
+def _refine_x(scene: Scene, xgrid: PeriodicGrid, f: np.ndarray, params):
+    spec = scene.refine_x
+    cls = OneBumpMap if spec.bumps == 1 else TwoBumpMap
+    fx = f.max(axis=1)
+    proxy = _x_proxy(scene, xgrid)
+    mu = cls.from_density(proxy, np.concatenate([[fx[0]], fx, [fx[-1]]]), spec.delta0, spec.delta)
+    new = _map_params(mu)
+    if not _moved(spec, params, new):
+        return f, xgrid, params
+    grid = periodic_map_grid(mu, xgrid.n, xgrid.period)
+    return remap_periodic(xgrid, f, grid, axis=0, conserve_moment=scene.conserve_x_moment), grid, new
+
+
+def _x_proxy(scene: Scene, xgrid: PeriodicGrid) -> Grid:
+    """The maps assume [-L, L]; x-grids are periodic cell-centred grids inside it."""
+    return Grid(np.concatenate([[-scene.x_L], xgrid.points, [scene.x_L]]))
+
+
+def _map_from_extent(spec, grid: Grid, lo: float, hi: float):
+    """The axis map for a set spanning [lo, hi] on the positive half of ``grid``."""
+    if spec.bumps == 1:
+        return OneBumpMap.from_extent(grid, hi, spec.delta)
+    return TwoBumpMap.from_extent(grid, lo, hi, spec.delta)
+
+
+def _refine_quadrant(scene: Scene, vgrid: Grid, xgrid: PeriodicGrid, f: np.ndarray, f_star: np.ndarray, vp, xp):
+    """``refine.concentration_set = "quadrant"``: both maps from one set (``alg:SPMCSL-JKO`` step 4).
+
+    :math:`S = \\{(x_i, v_j): f^*_{ij} > \\delta_0 \\max f^*, x_i > 0, v_j > 0\\}` from ``f_star``, the
+    density entering the collision step on the step's grids, with each axis's own delta0; each
+    map from S's extent on its axis.  An empty S (``eqn:f0`` at t = 0; the paper is silent)
+    gives the axis the uniform grid (extent :data:`UNIFORM_EXTENT`).  ``f`` (after the collision) is remapped,
+    v first, then x.  Returns ``(f, vgrid, xgrid, v extent, x extent)``.
+    """
+    spec_v, spec_x = scene.refine_v, scene.refine_x
+    sets = {axis: quadrant_set(xgrid.points, vgrid.points, f_star, spec.delta0)
+            for axis, spec in (("v", spec_v), ("x", spec_x)) if spec is not None}  # fmt: skip
+    if spec_v is not None:
+        s = sets["v"]
+        mu = None if s is None else _map_from_extent(spec_v, vgrid, *s[1])
+        new = UNIFORM_EXTENT if mu is None else _map_params(mu)
+        if _moved(spec_v, vp, new):
+            grid = scene.vgrid() if mu is None else mu.grid(vgrid.n)
+            f = remap(vgrid, f, grid, axis=-1, conserve_momentum=scene.conserve_momentum,
+                      conserve_energy=spec_v.conserve_energy)  # fmt: skip
+            vgrid, vp = grid, new
+    if spec_x is not None:
+        s = sets["x"]
+        mu = None if s is None else _map_from_extent(spec_x, _x_proxy(scene, xgrid), *s[0])
+        new = UNIFORM_EXTENT if mu is None else _map_params(mu)
+        if _moved(spec_x, xp, new):
+            grid = scene.xgrid() if mu is None else periodic_map_grid(mu, xgrid.n, xgrid.period)
+            f = remap_periodic(xgrid, f, grid, axis=0, conserve_moment=scene.conserve_x_moment)
+            xgrid, xp = grid, new
+    return f, vgrid, xgrid, vp, xp
+
+
+def initial_state(scene: Scene) -> RunState:
+    """f0 on the scene's grids, refined first where the scene refines (as the algorithms start).
+
+    With ``concentration_set = "quadrant"`` the set comes from f0 (no transport yet), and the
+    scene's grids count as uniform-grid maps (an empty set leaves them as they are).
+    """
+    vgrid, xgrid = scene.vgrid(), scene.xgrid()
+    f = scene.initial_density(xgrid, vgrid)
+    v_params = x_params = None  # extent of the set each refined grid was built for
+    if scene.concentration_set == "quadrant":
+        u = UNIFORM_EXTENT
+        f, vgrid, xgrid, v_params, x_params = _refine_quadrant(scene, vgrid, xgrid, f, f, u, u)
+        return RunState(0.0, 0, f, vgrid, xgrid, v_params, x_params, [], Verdict())
+    if scene.refine_v is not None:
+        f, vgrid, v_params = _refine_v(scene, vgrid, f, None)
+    if scene.refine_x is not None:
+        f, xgrid, x_params = _refine_x(scene, xgrid, f, None)
+    return RunState(0.0, 0, f, vgrid, xgrid, v_params, x_params, [], Verdict())
+
+
+@dataclass
+class _Outcome:
+    dt: float
+    res: Any
+    ok: bool
+    retries: int = 0
+    f: np.ndarray | None = None  # the density after the whole step (Strang: after the second half transport)
+    f_star: np.ndarray | None = None  # the density entering the collision step (alg:SPMCSL-JKO's f*)
+    stop: str | None = None  # a failure that ends the run whatever stop.on_solver_failure says (halve_on)
+
+
+def _failed_statuses(res) -> list[str]:
+    """The distinct failure statuses of a collision result's slices, sorted by name."""
+    return sorted({s.name for s in np.ravel(np.atleast_1d(res.status)) if not s.success})
+
+
+class Stepper:
+    """One time step of a scene: dt from the policy, transport, collision, retries, refinement.
+
+    ``attempts`` (a list, optional) receives one record per collision attempt that was not
+    accepted: ``{"t", "dt", "statuses", "then"}`` with ``then`` one of ``"halved"`` (retried at
+    dt/2), ``"stopped"`` (not a halving failure under ``time.halve_on = "max_iterations"``) or
+    ``"given up"`` (the policy has no smaller step).
+    """
+
+    def __init__(self, scene: Scene, attempts: list[dict[str, Any]] | None = None) -> None:
+        self.scene = scene
+        self.attempts = attempts
+        self._f_star: np.ndarray | None = None
+        self.kernel = PowerKernel(scene.gamma)
+        self.policy = scene.step_policy()
+        self.opts = dict(scene.options)
+        if scene.method == "newton":
+            # Steps certified to 1e-8.  Momentum does not depend on it when the scene conserves
+            # it (the constraint holds to rounding at every iterate); without the constraint
+            # the drift comes from the step itself, not from the tolerance (measured on
+            # inhom_gamma3_lambda4: tol 1e-11 costs 50 % more and only lowers it 3e-9 -> 6e-10).
+            self.opts.setdefault("tol", ACCEPT_KKT)
+            self.opts.setdefault("max_iter", NEWTON_MAX_ITER)
+        if scene.method in ("conic", "nlp"):
+            # one certificate for the engine: a step is a success only at the engine's threshold
+            # (their own default kkt_tol, 1e-6, suits a single-step check, not a run).  The paper's
+            # SQP keeps its own default: its failures are its exit flag (alg:non_uni_JKO).
+            self.opts.setdefault("kkt_tol", ACCEPT_KKT)
+
+    @staticmethod
+    def accepted(res) -> bool:
+        """Every slice certified at ``ACCEPT_KKT``: floored near-vacuum slices stall (NOT_CERTIFIED)
+        near 1e-10 while the tight target tol matters for the populated ones (momentum symmetry)."""
+        return bool(np.all(res.success)) or bool(
+            np.all(np.atleast_1d(res.kkt_residual) <= ACCEPT_KKT)
+            and all(st in (Status.CONVERGED, Status.NOT_CERTIFIED) for st in np.ravel(np.atleast_1d(res.status)))
+        )
+
+    def solve(self, state: RunState) -> _Outcome:
+        """Transport and collision from ``state`` with the policy's dt, halved while the policy allows."""
+        sc = self.scene
+        xg = state.xgrid
+        carried = state.rows[-1]["dt"] if state.step > 0 else None  # the last accepted step
+        dt = self.policy.first(
+            float(state.vgrid.dv.min()), None if xg is None else float(xg.dx.min()), sc.v_L, sc.x_L, carried
+        )
+        dt = min(dt, sc.t_end - state.t)
+        retries = 0
+        while True:
+            f_new, res = self.step(state, dt)
+            if self.accepted(res):
+                return _Outcome(dt, res, True, retries, f_new, self._f_star)
+            statuses = _failed_statuses(res)
+            stop = self._not_halving(statuses)
+            retry = None if stop is not None else self.policy.retry(dt)
+            if self.attempts is not None:
+                then = "stopped" if stop is not None else "given up" if retry is None else "halved"
+                self.attempts.append({"t": state.t, "dt": dt, "statuses": statuses, "then": then})
+            if retry is None:
+                return _Outcome(dt, res, False, retries, f_new, self._f_star, stop)
+            dt, retries = retry, retries + 1
+
+    def _not_halving(self, statuses: list[str]) -> str | None:
+        """Under ``time.halve_on = "max_iterations"``: the stop reason for a failure that is not the
+        exit flag e_f (only ``MAX_ITERATIONS`` halves the step in alg:MR_JKO_ver2); else None."""
+        other = [st for st in statuses if st != Status.MAX_ITERATIONS.name]
+        if self.scene.halve_on != "max_iterations" or not other:
+            return None
+        return (
+            f"{StopReason.SOLVER_FAILURE.value} ({', '.join(statuses)}): not the exit flag e_f "
+            "(MAX_ITERATIONS), the only failure that halves the step under time.halve_on = 'max_iterations'"
+        )
+
+    def step(self, state: RunState, dt: float) -> tuple[np.ndarray, Any]:
+        """Transport and collision over ``dt`` from ``state``: the new density and the collision result.
+
+        ``time.order = 1``: transport, then one JKO step (``alg:SPMCSL-JKO``).  ``time.order = 2``:
+        the Richardson-extrapolated collision step of :mod:`jko_cvx.time_order`, and for
+        inhomogeneous scenes Strang splitting (half transport, collision, half transport).
+        """
+        sc, xg, vg = self.scene, state.xgrid, state.vgrid
+        secs = state.seconds
+
+        def transport(g: np.ndarray, h: float) -> np.ndarray:
+            t0 = time.perf_counter()
+            out = transport_step(xg, vg.points, g, h, conserve_moment=sc.conserve_x_moment)
+            secs["transport"] += time.perf_counter() - t0
+            return out
+
+        def problem(g: np.ndarray, h: float) -> CollisionProblem:
+            return CollisionProblem(vg, self.kernel, g, h, sc.strength, sc.beta, sc.fisher, sc.conserve_momentum)
+
+        def collide(g: np.ndarray, h: float):
+            self._f_star = g  # alg:SPMCSL-JKO's f*, for refine.concentration_set = "quadrant"
+            t0 = time.perf_counter()
+            if sc.time_order == 2:
+                res = collision_step_order2(problem, g, h, method=sc.method, **self.opts)
+            else:
+                res = solve_collision(problem(g, h), method=sc.method, **self.opts)
+            secs["collision"] += time.perf_counter() - t0
+            return res
+
+        if xg is None:
+            res = collide(state.f, dt)
+            return res.f, res
+        if sc.time_order == 2:
+            return strang_step(transport, collide, state.f, dt)
+        res = collide(transport(state.f, dt), dt)
+        return res.f, res
+
+    def commit(self, state: RunState, out: _Outcome) -> StepInfo:
+        """Advance ``state`` by the solved step: refine, then t and step."""
+        t2 = time.perf_counter()
+        f, vgrid, xgrid, vp, xp = out.f, state.vgrid, state.xgrid, state.v_params, state.x_params
+        if self.scene.concentration_set == "quadrant":
+            f, vgrid, xgrid, vp, xp = _refine_quadrant(self.scene, vgrid, xgrid, f, out.f_star, vp, xp)
+        else:
+            if self.scene.refine_v is not None:
+                f, vgrid, vp = _refine_v(self.scene, vgrid, f, vp)
+            if self.scene.refine_x is not None:
+                f, xgrid, xp = _refine_x(self.scene, xgrid, f, xp)
+        if self.scene.v_floor_every_step and vgrid is state.vgrid:
+            f = _floor_v(self.scene, vgrid, f)
+        state.seconds["refine"] += time.perf_counter() - t2
+        state.f, state.vgrid, state.xgrid, state.v_params, state.x_params = f, vgrid, xgrid, vp, xp
+        state.t += out.dt
+        state.step += 1
+        it = np.atleast_1d(out.res.iterations)
+        return StepInfo(out.dt, int(it.max()), int(np.sum(~np.atleast_1d(out.res.success))), out.retries)
+
+
+def _loop(scene: Scene, stepper: Stepper, state: RunState, trackers: list[Tracker], guard: InterruptGuard) -> None:
+    failure = SolverFailure(scene.stop_on_solver_failure)
+    while not state.done(scene.t_end):
+        out = stepper.solve(state)
+        if out.stop is not None:  # never accepted, whatever stop.on_solver_failure says
+            state.verdict = state.verdict.stopped(StopReason.SOLVER_FAILURE, state.t + out.dt, out.stop)
+            break
+        if not out.ok and failure.record(state, _failed_statuses(out.res), out.dt):
+            break
+        with guard.deferred():
+            info = stepper.commit(state, out)
+            for tr in trackers:
+                tr.handle(state, info)
+
+
+def simulate(
+    scene: Scene,
+    out: str | Path | None = None,
+    resume: bool = False,
+    progress: bool = False,
+    overwrite: bool = False,
+    attempts: list[dict[str, Any]] | None = None,
+) -> Run:
+    """Run a scene; see the module docstring.
+
+    Parameters
+    ----------
+    scene : Scene
+    out : str or Path, optional
+        The run directory (none: nothing is written).
+    resume : bool
+        Continue the run in ``out`` from its checkpoint (same scene and package version).
+    progress : bool
+        Show a progress bar.
+    overwrite : bool
+        Replace a run already in ``out`` (otherwise refused).
+    attempts : list, optional
+        Receives one record per collision attempt that was not accepted (time, dt, failure
+        statuses and what followed: see :class:`Stepper`); in memory only.
+
+    Raises
+    ------
+    SceneError
+        The scene's step count or memory estimate is beyond the limits of
+        :mod:`jko_cvx.scene.limits` (nothing has been written).
+    RunDirError
+        ``out`` cannot be used as asked (see :mod:`jko_cvx.engine.rundir`); nothing has been run.
+    RunInterrupted
+        SIGINT / SIGTERM arrived (only with ``out``, from the main thread); the checkpoint holds
+        the last accepted step.
+    """
+    if not isinstance(scene, Scene):
+        raise TypeError(
+            f"scene must be a jko_cvx.scene.Scene (from jko_cvx.scene.load_scene(path)), got {type(scene).__name__}"
+        )
+    for name, flag in (("resume", resume), ("overwrite", overwrite), ("progress", progress)):
+        check_bool(name, flag)
+    if out is None and (resume or overwrite):
+        raise ValueError("resume and overwrite need a run directory: pass out=")
+    # a Scene built in code (dataclasses.replace) bypasses the loader: check its size here too,
+    # before anything is written
+    check_limits(scene)
+    if attempts is not None and not isinstance(attempts, list):
+        raise TypeError(f"attempts must be a list (it receives the failed attempts), got {type(attempts).__name__}")
+    stepper = Stepper(scene, attempts)
+    with RunDir.open(out, scene, resume=resume, overwrite=overwrite) if out is not None else nullcontext() as rd:
+        state = rd.state if rd is not None and rd.state is not None else initial_state(scene)
+        trackers, snaps = default_trackers(scene, rd, [] if rd is None else rd.snapshots, progress)
+        with InterruptGuard() if rd is not None else nullcontext(InterruptGuard()) as guard:
+            try:
+                with guard.deferred():
+                    for tr in trackers:
+                        tr.start(state)
+                _loop(scene, stepper, state, trackers, guard)
+                guard.hold()  # the loop has ended: a signal from here on is ignored
+                return _finish(scene, state, trackers, snaps, rd)
+            except KeyboardInterrupt as exc:
+                if rd is None:
+                    raise
+                guard.hold()
+                rd.save_state(state)
+                raise RunInterrupted(rd.path, state.step, state.t, getattr(exc, "signum", signal.SIGINT)) from None
+
+
+def _finish(scene: Scene, state: RunState, trackers: list[Tracker], snaps: Snapshots, rd: RunDir | None) -> Run:
+    for tr in trackers:
+        tr.finish(state)
+    run = Run(scene, pd.DataFrame(state.rows), snaps.snapshots, state.f, state.vgrid, state.xgrid, state.t,
+              state.verdict, state.seconds)  # fmt: skip
+    if rd is not None:
+        rd.write_verdict(state)
+    return run
+
+
+def snapshot_record(snap: dict[str, Any]) -> dict[str, Any]:
+    """A snapshot as plain JSON data (t as a float, the grids and f as nested lists), e.g. for sweep caches."""
+    return {"t": float(snap["t"]), **{k: snap[k].tolist() for k in ("x", "v", "f") if k in snap}}

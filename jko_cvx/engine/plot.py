@@ -1,0 +1,136 @@
+"""Figures of a run (returned by ``simulate`` or read back with :func:`jko_cvx.load_run`).
+
+* :func:`plot_solution`: the final density (homogeneous: f(v) and a zoom at its maximum;
+  inhomogeneous: f(x, v) on the run's last grids);
+* :func:`plot_records`: the blow-up records against t (min dv, min dx, max f; min spread_v
+  where the scene stops on it) with the scene's thresholds (eps_v, eps_x, spread_v) as
+  horizontal lines, the refinement switches (steps at which the mesh map changed the grid)
+  marked on the mesh records, T_b where a rule fired, and the exact law where one is known:
+  for gamma = 1 in the homogeneous equation ``eqn: gke_hom`` (W = |v|, strength s) f obeys
+  df/dt = 2 s f^2 along characteristics, so max f(t) = M0 / (1 - 2 s M0 t) with M0 = max f0,
+  and the blow-up time is T = 1 / (2 s M0) (Table ``tab:bu``);
+* :func:`save_figures`: both, as ``solution.png`` and ``records.png`` (the CLI's figures).
+
+Matplotlib is imported when a function is called; pass ``ax`` to draw into your own axes.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from jko_cvx.engine.run import Run
+
+__all__ = ["exact_max_f", "plot_records", "plot_solution", "refinement_switches", "save_figures"]
+
+
+def exact_max_f(run: Run) -> tuple[np.ndarray, np.ndarray, float] | None:
+    """``(t, max f(t), T)`` of the exact gamma = 1 homogeneous solution (None for other scenes).
+
+    M0 is max f0 on the run's initial grid (the diagnostics' step-0 row).
+    """
+    sc = run.scene
+    if not (sc.homogeneous and sc.gamma == 1.0):
+        return None
+    m0 = float(run.diagnostics["max_f"].iloc[0])
+    T = 1.0 / (2.0 * sc.strength * m0)
+    t = np.linspace(0.0, min(float(run.diagnostics["t"].iloc[-1]), T), 400)
+    with np.errstate(divide="ignore"):
+        law = m0 / (1.0 - 2.0 * sc.strength * m0 * t)
+    return t[np.isfinite(law)], law[np.isfinite(law)], T
+
+
+def refinement_switches(run: Run, axis: str = "v") -> np.ndarray:
+    """Steps (rows of the diagnostics) at which refinement changed the ``axis`` grid.
+
+    Read from the records: the smallest spacing of a grid that was not rebuilt is the same
+    number, bit for bit, as at the previous step.  Empty for an axis the scene does not refine.
+    """
+    spec = run.scene.refine_v if axis == "v" else run.scene.refine_x
+    if spec is None:
+        return np.array([], dtype=int)
+    col = run.diagnostics[f"min_d{axis}"].to_numpy()
+    changed = np.flatnonzero(col[1:] != col[:-1]) + 1
+    return run.diagnostics["step"].to_numpy()[changed]
+
+
+def _new_axes(ax, ncols: int = 1, figsize=(6, 4)):
+    import matplotlib.pyplot as plt
+
+    if ax is not None:
+        return ax.figure if ncols == 1 else np.ravel(ax)[0].figure, ax
+    return plt.subplots(1, ncols, figsize=figsize)
+
+
+def plot_solution(run: Run, ax=None):
+    """The final density; returns the figure (homogeneous runs use two axes: give a pair as ``ax``)."""
+    if run.xgrid is None:
+        fig, (a, b) = _new_axes(ax, 2, (10, 4))
+        v = run.vgrid.points
+        a.plot(v, run.f, ".-", ms=2)
+        a.set_xlabel("v"), a.set_ylabel("f"), a.set_title(f"f at t = {run.t:.4g}")
+        k = int(np.argmax(run.f))
+        sel = np.abs(v - v[k]) <= max(20 * run.vgrid.dv.min(), 1e-3)
+        b.plot(v[sel], run.f[sel], ".-", ms=3)
+        b.set_xlabel("v"), b.set_title("zoom at the maximum")
+    else:
+        fig, a = _new_axes(ax)
+        X, V = np.meshgrid(run.xgrid.points, run.vgrid.points, indexing="ij")
+        pc = a.pcolormesh(X, V, run.f, shading="auto")
+        fig.colorbar(pc, ax=a)
+        a.set_xlabel("x"), a.set_ylabel("v"), a.set_title(f"f(t = {run.t:.4g}, x, v)")
+    fig.tight_layout()
+    return fig
+
+
+def plot_records(run: Run, ax=None):
+    """The blow-up records against t with thresholds, refinement switches, T_b and the exact law; returns the figure."""
+    fig, a = _new_axes(ax)
+    d, sc = run.diagnostics, run.scene
+    t = d["t"].to_numpy()
+    series = [("min dv", "min_dv", sc.eps_v, "eps_v", "v"), ("max f", "max_f", 0.0, "", "")]
+    if run.xgrid is not None:
+        series.insert(1, ("min dx", "min_dx", sc.eps_x, "eps_x", "x"))
+    if sc.spread_v > 0:
+        series.append(("min spread_v", "min_spread_v", sc.spread_v, "spread_v", ""))
+    for label, col, eps, eps_label, axis in series:
+        (line,) = a.semilogy(t, d[col], label=label)
+        if eps > 0:
+            a.axhline(eps, ls=":", color=line.get_color(), label=f"{eps_label} = {eps:.3g}")
+        if axis:
+            steps = refinement_switches(run, axis)
+            rows = d["step"].isin(steps).to_numpy()
+            if rows.any():
+                a.plot(t[rows], d[col][rows], "|", ms=8, color=line.get_color(), label=f"{axis}-grid remeshed")
+    exact = exact_max_f(run)
+    if exact is not None:
+        te, law, T = exact
+        a.semilogy(te, law, "k--", lw=1, label="exact max f = M0 / (1 - 2 s M0 t)")
+        a.axvline(T, color="k", ls="--", lw=0.8, label=f"exact T = {T:.4g}")
+    if run.blowup:
+        a.axvline(run.verdict.T_b, color="r", lw=0.8, label=f"T_b = {run.verdict.T_b:.4g}")
+    a.set_xlabel("t"), a.legend(fontsize=7)
+    a.set_title(f"{sc.name}: " + (f"blow-up at T_b = {run.verdict.T_b:.4g}" if run.blowup else "no blow-up"))
+    fig.tight_layout()
+    return fig
+
+
+def save_figures(run: Run, out: str | Path, dpi: int = 110) -> list[Path]:
+    """Write ``solution.png`` and ``records.png`` into ``out``; returns their paths.
+
+    The figures are drawn without pyplot (no backend is chosen or changed).
+    """
+    from matplotlib.figure import Figure
+
+    two = run.xgrid is None  # the homogeneous solution figure has two panels
+    sol = Figure(figsize=(10, 4) if two else (6, 4))
+    rec = Figure(figsize=(6, 4))
+    plot_solution(run, ax=sol.subplots(1, 2) if two else sol.subplots())
+    plot_records(run, ax=rec.subplots())
+    paths = [Path(out) / "solution.png", Path(out) / "records.png"]
+    for fig, path in zip((sol, rec), paths, strict=True):
+        fig.savefig(path, dpi=dpi)
+    return paths

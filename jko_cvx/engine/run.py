@@ -1,0 +1,235 @@
+"""A finished run as data: :class:`Run` (what ``simulate`` returns), :func:`load_run`, ``Run.to_xarray``.
+
+``load_run(path)`` rebuilds, from a run directory, the :class:`Run` that ``simulate``
+returned when it wrote that directory: the same scene, diagnostics, snapshots, final
+state, verdict and timings.
+
+``Run.to_xarray()`` lays the run out as an :class:`xarray.Dataset` (optional extra
+``jko_cvx[netcdf]``):
+
+* diagnostics over the dimension ``t`` (one entry per accepted step, from t = 0), one
+  variable per column of ``diagnostics.csv`` (``step``, ``dt``, ``mass``, ``min_dv``, ...);
+* snapshots over ``(t_snap, ix, iv)`` (homogeneous scenes: ``(t_snap, iv)``), with the grids
+  as two-dimensional coordinates ``v(t_snap, iv)`` and ``x(t_snap, ix)``: mesh refinement
+  moves the grid points between snapshots, so ``iv`` / ``ix`` are point indices and each
+  snapshot carries its own grid (no interpolation); ``step_snap(t_snap)`` is the step number;
+* attributes: the scene (canonical JSON) and its SHA-256, the package version, the verdict
+  (booleans as 0/1, ``T_b`` NaN without blow-up) and the timings.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from jko_cvx import __version__
+from jko_cvx.engine.state import RunDirError, RunState, read_npz
+from jko_cvx.engine.verdict import StopReason, Verdict
+from jko_cvx.grid import Grid, PeriodicGrid
+from jko_cvx.scene.model import RefineSpec, Scene, scene_from_dict
+
+__all__ = ["Run", "load_run"]
+
+
+@dataclass
+class Run:
+    """The result of :func:`~jko_cvx.engine.loop.simulate` (always returned, also when blow-up stops the run)."""
+
+    scene: Scene
+    diagnostics: pd.DataFrame
+    snapshots: list[dict[str, Any]]
+    f: np.ndarray
+    vgrid: Grid
+    xgrid: PeriodicGrid | None
+    t: float
+    verdict: Verdict
+    seconds: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def blowup(self) -> bool:
+        return self.verdict.blowup
+
+    @property
+    def steps(self) -> int:
+        """Accepted time steps (the step-0 row of the diagnostics is the initial state, not a step)."""
+        return int(self.diagnostics["step"].iloc[-1])
+
+    @property
+    def failed_steps(self) -> int:
+        """Steps with a failed collision solve: accepted steps with a failed slice, and the step a
+        solver failure stopped the run on (it has no diagnostics row)."""
+        stopped = self.verdict.stop is StopReason.SOLVER_FAILURE
+        return int((self.diagnostics["failed"] > 0).sum()) + int(stopped)
+
+    def snapshots_at(self, times) -> list[dict[str, Any]]:
+        """The first snapshot at or after each of ``times`` (distinct; times past the run's end are skipped).
+
+        Exact for the scene's ``snapshot_times``: the run took a snapshot at the first step
+        reaching each of them.
+        """
+        ts = np.array([s["t"] for s in self.snapshots])
+        picked = []
+        for tk in times:
+            later = np.flatnonzero(ts >= tk - 1e-12 * max(tk, 1.0))
+            if later.size and int(later[0]) not in picked:
+                picked.append(int(later[0]))
+        return [self.snapshots[i] for i in sorted(picked)]
+
+    def summary(self) -> str:
+        """One line: time reached, steps, verdict."""
+        v = self.verdict
+        where = ", ".join(k for k in ("B_x", "B_v") if v[k]) or "none"
+        return (
+            f"{self.scene.name}: t = {self.t:.6g}, steps = {self.steps}, "
+            f"blow-up = {v.blowup} (direction: {where}; {v.reason})" + (f", T_b = {v.T_b:.6g}" if v.blowup else "")
+        )
+
+    def records_line(self) -> str:
+        """Conservation and extremes over the run: mass and momentum drift, max f, min dv (min dx)."""
+        d = self.diagnostics
+        return (
+            f"mass drift {abs(d.mass.iloc[-1] - d.mass.iloc[0]) / d.mass.iloc[0]:.1e} (relative), "
+            f"momentum drift {abs(d.momentum.iloc[-1] - d.momentum.iloc[0]):.1e}, "
+            f"max f over the run {d.max_f.max():.4g}, min dv {d.min_dv.min():.3g}"
+            + ("" if self.xgrid is None else f", min dx {d.min_dx.min():.3g}")
+        )
+
+    def to_xarray(self):
+        """The run as an :class:`xarray.Dataset` (see the module docstring for the layout)."""
+        xr = _require("xarray")
+        snaps = [s for i, s in enumerate(self.snapshots) if i == 0 or s["step"] != self.snapshots[i - 1]["step"]]
+        d = self.diagnostics
+        ds = xr.Dataset(
+            {c: ("t", d[c].to_numpy(), {"long_name": c}) for c in d.columns if c != "t"},
+            coords={"t": ("t", d["t"].to_numpy(), {"long_name": "time of the step's end (diagnostics)"})},
+        )
+        f_dims = ("t_snap", "iv") if self.xgrid is None else ("t_snap", "ix", "iv")
+        ds["f"] = (f_dims, np.stack([s["f"] for s in snaps]), {"long_name": "f at the grid points"})
+        ds = ds.assign_coords(
+            t_snap=("t_snap", np.array([float(s["t"]) for s in snaps]), {"long_name": "snapshot time"}),
+            step_snap=("t_snap", np.array([int(s["step"]) for s in snaps])),
+            v=(("t_snap", "iv"), np.stack([s["v"] for s in snaps]), {"long_name": "velocity grid of the snapshot"}),
+        )
+        if self.xgrid is not None:
+            x = np.stack([s["x"] for s in snaps])
+            ds = ds.assign_coords(x=(("t_snap", "ix"), x, {"long_name": "space grid of the snapshot"}))
+        ds.attrs = _attrs(self)
+        return ds
+
+
+def _attrs(run: Run) -> dict[str, Any]:
+    from jko_cvx.engine.rundir import canonical_scene, scene_fingerprint
+
+    v = run.verdict
+    return {
+        "scene": canonical_scene(run.scene),
+        "scene_sha256": scene_fingerprint(run.scene),
+        "jko_cvx": __version__,
+        "t_final": float(run.t),
+        "stop": v.stop.name,
+        "reason": v.reason,
+        "blowup": int(v.blowup),
+        "T_b": float("nan") if v.T_b is None else float(v.T_b),
+        **{k: int(v[k]) for k in ("B_x", "B_v", "e_f")},
+        **{f"seconds_{k}": float(s) for k, s in run.seconds.items()},
+    }
+
+
+def _require(module: str):
+    import importlib
+
+    try:
+        return importlib.import_module(module)
+    except ImportError:
+        raise ImportError(
+            f"{module} is needed for runs as xarray / netCDF data: install the optional extra "
+            "jko_cvx[netcdf] (pip install 'jko_cvx[netcdf]': xarray and h5netcdf)"
+        ) from None
+
+
+def export_netcdf(run: Run, path: str | Path) -> Path:
+    """Write :meth:`Run.to_xarray` to a netCDF-4 file with h5netcdf (extra ``jko_cvx[netcdf]``)."""
+    ds = run.to_xarray()
+    _require("h5netcdf")
+    path = Path(path)
+    ds.to_netcdf(path, engine="h5netcdf")
+    return path
+
+
+def _scene_from_record(record: dict[str, Any], fingerprint: str, where: Path) -> Scene:
+    """Rebuild the scene recorded in ``scene.json``; it must reproduce the recorded fingerprint."""
+    from jko_cvx.engine.rundir import scene_fingerprint
+
+    candidates = []
+    try:  # a record in the TOML layout
+        candidates.append(scene_from_dict(record))
+    except (ValueError, TypeError, KeyError, AttributeError):
+        pass
+    try:  # a record of the dataclass fields (Scene.to_dict = dataclasses.asdict)
+        kw = {f.name: record[f.name] for f in dataclasses.fields(Scene) if f.name in record}
+        for k in ("refine_v", "refine_x"):
+            if isinstance(kw.get(k), dict):
+                kw[k] = RefineSpec(**kw[k])
+        if "snapshot_times" in kw:
+            kw["snapshot_times"] = tuple(kw["snapshot_times"])
+        candidates.append(Scene(**kw))
+    except (ValueError, TypeError, KeyError):
+        pass
+    for scene in candidates:
+        if scene_fingerprint(scene) == fingerprint:
+            return scene
+    raise RunDirError(f"{where} does not rebuild the scene the run's checkpoint was made from (fingerprint differs)")
+
+
+def load_run(path: str | Path, *, allow_partial: bool = False) -> Run:
+    """The :class:`Run` that :func:`~jko_cvx.engine.loop.simulate` returned when it wrote the run directory ``path``.
+
+    Parameters
+    ----------
+    path : str or Path
+        A run directory (``jko-cvx run --out``, or ``simulate(..., out=path)``).
+    allow_partial : bool
+        Also load a run that has not ended (no ``verdict.json``: killed or interrupted) as
+        it stood at its last checkpoint (its verdict is then provisional).
+
+    Raises
+    ------
+    RunDirError
+        ``path`` is not a run directory, a file in it is missing or damaged (named), or the
+        run has not ended and ``allow_partial`` is false.
+    """
+    path = Path(path)
+    if not path.is_dir():
+        raise RunDirError(f"run directory {path} does not exist")
+    if not (path / "scene.json").exists():
+        raise RunDirError(f"{path} is not a run directory: it has no scene.json")
+    try:
+        record = json.loads((path / "scene.json").read_text())
+    except (OSError, ValueError) as exc:
+        raise RunDirError(f"{path / 'scene.json'} does not read ({type(exc).__name__}: {exc})") from None
+    ck = path / "checkpoint.npz"
+    fingerprint = str(read_npz(ck, "checkpoint", ("scene_sha256",))["scene_sha256"])
+    scene = _scene_from_record(record, fingerprint, path / "scene.json")
+    state, _ = RunState.load(ck, None if scene.homogeneous else scene.xgrid().period)
+    verdict_file = path / "verdict.json"
+    if verdict_file.exists():
+        try:
+            json.loads(verdict_file.read_text())["stop"]
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise RunDirError(f"{verdict_file} does not read ({type(exc).__name__}: {exc})") from None
+    elif not allow_partial:
+        raise RunDirError(
+            f"the run in {path} has not ended (no verdict.json; checkpoint at step {state.step}, t = {state.t:g}): "
+            "resume it (jko-cvx run SCENE --out DIR --resume) or pass allow_partial=True"
+        )
+    from jko_cvx.engine.rundir import read_snapshots
+
+    snaps = read_snapshots(path, state.step)
+    diag = pd.DataFrame(state.rows)
+    return Run(scene, diag, snaps, state.f, state.vgrid, state.xgrid, state.t, state.verdict, state.seconds)

@@ -1,0 +1,1 @@
+"""Adaptive mesh refinement (``sec:mr``): the mesh maps, PCHIP remapping and moment restoration."""

@@ -1,0 +1,99 @@
+"""Size limits of a scene: refuse, before anything is allocated or written, a run that cannot fit.
+
+Two estimates, both cheap arithmetic on the scene:
+
+* **steps**: ``t_end / dt`` for the fixed and halving policies (halving only adds steps);
+  for the CFL rule of ``alg:SPMCSL-JKO``, ``t_end / min(dt, 0.9 dv / L_v, 0.9 dx / L_x)`` on
+  the uniform grids (refinement makes the cells, hence the steps, smaller still).
+* **memory** (bytes): ``8 (4 B N_v^2 + 40 B N_v + S B N_v)`` with ``B = N_x`` (1 when
+  homogeneous): the dense N_v x N_v blocks of the energy and of the (batched) Newton
+  Hessians and their factors, about forty work arrays of the density's size, and the
+  ``S`` snapshots a run keeps (``steps / output.every`` plus ``output.times``).  For
+  gamma = 1, 2 and 3 Newton forms no dense Hessian (banded, rank one, or the exact
+  banded-plus-rank-two solve of :mod:`jko_cvx.collision.structured`), so the dense part is
+  the energy matrix and one factor per thread, ``8 (4 N_v^2)``: measured 0.57 GiB at
+  1025 x 1025, gamma = 3 (``studies/results/bench_scale.md``), where the per-slice count
+  gave 32 GiB.
+
+The limits are :data:`DEFAULT_MAX_STEPS` steps and :data:`DEFAULT_MAX_GIB` GiB, raised
+(or lowered) with the environment variables ``JKO_CVX_MAX_STEPS`` and ``JKO_CVX_MAX_GIB``
+or a :class:`Limits` passed to :func:`jko_cvx.scene.scene_from_dict`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+from jko_cvx.limits import GIB_ENV, STEPS_ENV, Limits
+from jko_cvx.scene.schema import SceneError
+
+if TYPE_CHECKING:
+    from jko_cvx.scene.model import Scene
+
+__all__ = ["SizeEstimate", "check_limits", "estimate_size"]
+
+_GIB = 2.0**30
+
+@dataclass(frozen=True)
+class SizeEstimate:
+    """Estimated steps and bytes of a run, with the parts of the memory estimate."""
+
+    steps: float
+    dense_bytes: float
+    work_bytes: float
+    snapshot_bytes: float
+
+    @property
+    def bytes(self) -> float:
+        return self.dense_bytes + self.work_bytes + self.snapshot_bytes
+
+
+def estimate_size(scene: Scene) -> SizeEstimate:
+    """Steps and memory of ``scene`` (see the module docstring for the formulas)."""
+    dt = scene.dt
+    if scene.policy == "cfl":
+        dt = min(dt, 0.9 * (2 * scene.v_L / (scene.v_n - 1)) / scene.v_L)
+        if scene.x_n is not None:
+            dt = min(dt, 0.9 * (2 * scene.x_L / scene.x_n) / scene.x_L)
+    steps = math.ceil(scene.t_end / dt) if scene.t_end / dt < 1e300 else math.inf
+    B, N = float(scene.x_n or 1), float(scene.v_n)
+    snapshots = min(steps + 1, steps / scene.every + 2) + len(scene.snapshot_times)
+    return SizeEstimate(
+        steps=float(steps),
+        dense_bytes=8 * 4 * (1.0 if scene.gamma in (1.0, 2.0, 3.0) else B) * N * N,
+        work_bytes=8 * 40 * B * N,
+        snapshot_bytes=8 * snapshots * B * N,
+    )
+
+
+def _size(nbytes: float) -> str:
+    for unit, scale in (("TiB", 2.0**40), ("GiB", _GIB), ("MiB", 2.0**20)):
+        if nbytes >= scale:
+            return f"{nbytes / scale:.3g} {unit}"
+    return f"{nbytes / 1024:.3g} KiB"
+
+
+def check_limits(scene: Scene, limits: Limits | None = None) -> SizeEstimate:
+    """Refuse ``scene`` when its step count or memory estimate exceeds ``limits`` (default: from the environment)."""
+    if limits is None:
+        try:
+            limits = Limits.from_env()
+        except ValueError as exc:
+            raise SceneError(str(exc)) from None
+    est = estimate_size(scene)
+    if est.steps > limits.max_steps:
+        raise SceneError(
+            f"time.dt = {scene.dt:g} with t_end = {scene.t_end:g} (policy {scene.policy!r}) needs about "
+            f"{est.steps:.3g} steps, above the limit of {limits.max_steps:.3g}; raise it with the environment "
+            f"variable {STEPS_ENV} if that is intended"
+        )
+    if est.bytes > limits.max_gib * _GIB:
+        grid = f"v.n = {scene.v_n}" + ("" if scene.x_n is None else f", x.n = {scene.x_n}")
+        raise SceneError(
+            f"{grid} needs an estimated {_size(est.bytes)} (dense N_v x N_v blocks {_size(est.dense_bytes)}, "
+            f"snapshots {_size(est.snapshot_bytes)}), above the limit of {limits.max_gib:g} GiB; raise it with "
+            f"the environment variable {GIB_ENV} if the machine has the memory"
+        )
+    return est

@@ -1,0 +1,407 @@
+"""The scene: a validated dataclass built from a TOML document, and the ways to load one."""
+
+from __future__ import annotations
+
+import copy
+import math
+import tomllib
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from jko_cvx.engine.stepping import CFLStep, FixedStep, HalvingStep
+from jko_cvx.grid import Grid, PeriodicGrid
+from jko_cvx.scene.limits import Limits, check_limits
+from jko_cvx.scene.options import parse_options
+from jko_cvx.scene.schema import (
+    CONCENTRATION_SETS,
+    INITIAL_KINDS,
+    CollisionTable,
+    OutputTable,
+    RefineTable,
+    Rule,
+    SceneError,
+    SceneTable,
+    StopTable,
+    TimeTable,
+    VTable,
+    XTable,
+    check_known,
+    parse_table,
+    require_table,
+)
+
+__all__ = [
+    "Scene",
+    "SceneError",
+    "default_scene",
+    "load_scene",
+    "scene_from_dict",
+    "shipped_scene",
+    "shipped_scene_names",
+    "with_overrides",
+]
+
+
+@dataclass(frozen=True)
+class RefineSpec:
+    """Mesh refinement on one axis: map type, delta0, delta, and the remeshing tolerance.
+
+    ``tol = 0`` remeshes every step (the paper's Algorithm ``alg:one_step_MR_JKO``); ``tol > 0``
+    remeshes only when the concentration set's extent has moved by more than ``tol`` times
+    its width.  Measured (``ibu_gamma3``): remeshing every step moves the bumps inward by as
+    much as their own motion per step (PCHIP remap bias), so the peaks ran ahead of the
+    point-mass law 1/(2Mt) after t ~ 5; with ``tol = 0.1`` they follow it to t = 20.
+    """
+
+    bumps: int = 1
+    delta0: float = 0.5
+    delta: float = 0.5
+    tol: float = 0.0
+    conserve_energy: bool = False
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A validated scene (see the module docstring for the TOML layout).
+
+    Two switches between the paper's algorithms as written and this package's rule (measured in
+    ``studies/results/reproduce/paper_variants.md``):
+
+    * ``halve_on`` (``time.halve_on``, halving policies): ``"any_failure"`` (default) halves the
+      step after any collision solve the engine does not accept (not certified, non-convex,
+      numerical error, iteration limit); ``"max_iterations"`` follows ``alg:MR_JKO_ver2`` /
+      ``alg:non_uni_JKO``: only the exit flag ``e_f`` (``MAX_ITERATIONS``) halves it, and any
+      other failure stops the run as a solver failure (``e_f``, whatever
+      ``stop.on_solver_failure`` says: an uncertified step is never used as a solution).
+    * ``concentration_set`` (``refine.concentration_set``, inhomogeneous scenes):
+      ``"projections"`` (default) builds the v-map from the post-collision f maximised over x
+      and the x-map from it maximised over v; ``"quadrant"`` follows ``alg:SPMCSL-JKO`` step 4:
+      one set :math:`S = \\{f^* > \\delta_0 \\max f^*, x > 0, v > 0\\}` from the density entering
+      the collision step (:func:`jko_cvx.mesh.refine.quadrant_set`), each map from its extent on
+      its axis (with the one-bump map's ``r = max`` rule of :mod:`jko_cvx.mesh.refine`); where S is
+      empty (``eqn:f0`` at t = 0; the paper is silent) both refined axes take the uniform grid.
+    """
+
+    name: str
+    gamma: float
+    t_end: float
+    v_L: float
+    v_n: int
+    initial: dict[str, Any]
+    dt: float
+    policy: str = "fixed"
+    eps_t: float = 1e-6
+    halve_on: str = "any_failure"
+    time_order: int = 1
+    strength: float = 1.0
+    x_L: float | None = None
+    x_n: int | None = None
+    conserve_x_moment: bool = True
+    v_floor_every_step: bool = False
+    refine_v: RefineSpec | None = None
+    refine_x: RefineSpec | None = None
+    concentration_set: str = "projections"
+    method: str = "newton"
+    beta: float = math.inf
+    fisher: str | None = "perspective"
+    conserve_momentum: bool = True
+    options: dict[str, Any] = field(default_factory=dict)
+    eps_v: float = 0.0
+    eps_x: float = 0.0
+    spread_v: float = 0.0
+    stop_on_solver_failure: bool = True
+    every: int = 10
+    snapshot_times: tuple[float, ...] = ()
+    checkpoint_every: int = 10
+    description: str = ""
+
+    @property
+    def homogeneous(self) -> bool:
+        """True when the scene has no x-grid (no transport)."""
+        return self.x_n is None
+
+    def vgrid(self) -> Grid:
+        return Grid.uniform(-self.v_L, self.v_L, self.v_n)
+
+    def xgrid(self) -> PeriodicGrid | None:
+        return None if self.homogeneous else PeriodicGrid.uniform(self.x_L, self.x_n)
+
+    def step_policy(self):
+        if self.policy == "fixed":
+            return FixedStep(self.dt)
+        if self.policy in ("halving", "halving_reset"):
+            return HalvingStep(self.dt, self.eps_t, reset=self.policy == "halving_reset")
+        return CFLStep(self.dt)
+
+    def initial_density(self, xgrid: PeriodicGrid | None, vgrid: Grid) -> NDArray[np.float64]:
+        """f0 on the grids, shape (Nv,) or (Nx, Nv)."""
+        p = self.initial
+        v = vgrid.points
+        if p["kind"] == "gaussians":
+            fv = sum(
+                A * np.exp(-a * (v - c) ** 2) for A, a, c in zip(p["amplitudes"], p["rates"], p["centres"], strict=True)
+            )
+            return fv if xgrid is None else np.tile(fv, (xgrid.n, 1))
+        x = xgrid.points[:, None]
+        if p["kind"] == "two_bump_phase":  # eqn:f0
+            a, b, c, d = p["a"], p["b"], p["c"], p["d"]
+            return np.exp(-a * (x + c) ** 2) * np.exp(-b * (v - d) ** 2) + np.exp(-a * (x - c) ** 2) * np.exp(
+                -b * (v + d) ** 2
+            )
+        a, b, x1 = p["a"], p["b"], p["x1"]  # eqn:ic_g2
+        base = np.exp(-a * (b * x + v) ** 2) / np.sqrt(2 * np.pi)
+        cut = np.where(np.abs(x) <= x1, 1.0, np.exp(-1000 * (np.abs(x) - x1) ** 2))
+        return base * cut
+
+    def to_dict(self) -> dict[str, Any]:
+        """The scene's fields as plain JSON data, canonical: keys sorted at every level, every
+        default filled in, tuples as lists.  Equal scenes give equal dicts (and equal JSON)."""
+        return _canonical(asdict(self))
+
+
+def _canonical(obj: Any) -> Any:
+    if isinstance(obj, Mapping):
+        return {str(k): _canonical(obj[k]) for k in sorted(obj, key=str)}
+    if isinstance(obj, list | tuple):
+        return [_canonical(v) for v in obj]
+    return obj
+
+
+def scene_from_dict(d: Mapping[str, Any], limits: Limits | None = None) -> Scene:
+    """Validate a scene given as nested dicts (as parsed from TOML) and build it.
+
+    Parameters
+    ----------
+    d : mapping
+        The TOML document: top-level keys and the tables ``v``, ``x``, ``initial``,
+        ``time``, ``refine``, ``collision``, ``stop``, ``output``.
+    limits : Limits, optional
+        Step and memory limits (default: :meth:`Limits.from_env`).
+
+    Raises
+    ------
+    SceneError
+        Naming the dotted key, for an unknown key anywhere, a section that is not a table,
+        a value of the wrong type or range, an inconsistent combination, or a scene
+        beyond the limits.
+    """
+    top = parse_table(SceneTable, require_table(d, "scene"), "")
+    v = parse_table(VTable, top.v, "v")
+    x = None if top.x is None else parse_table(XTable, top.x, "x")
+    initial = _parse_initial(top.initial, x is not None)
+    t = parse_table(TimeTable, top.time, "time")
+    refine = _parse_refine(top.refine, x is not None)
+    c = parse_table(CollisionTable, {} if top.collision is None else top.collision, "collision")
+    options = {} if c.options is None else parse_options(c.method, c.options)
+    s = parse_table(StopTable, {} if top.stop is None else top.stop, "stop")
+    o = parse_table(OutputTable, {} if top.output is None else top.output, "output")
+    _check_combinations(top, v, x, t, c, s, o)
+    scene = Scene(
+        name=top.name,
+        gamma=top.gamma,
+        t_end=top.t_end,
+        v_L=v.L,
+        v_n=v.n,
+        initial=initial,
+        dt=t.dt,
+        policy=t.policy,
+        eps_t=t.eps_t,
+        halve_on=t.halve_on,
+        time_order=t.order,
+        strength=top.strength,
+        x_L=None if x is None else x.L,
+        x_n=None if x is None else x.n,
+        conserve_x_moment=True if x is None else x.conserve_moment,
+        v_floor_every_step=v.floor_every_step,
+        refine_v=refine.get("v"),
+        refine_x=refine.get("x"),
+        concentration_set=refine.get("concentration_set", "projections"),
+        method=c.method,
+        beta=c.beta,
+        fisher=None if c.fisher == "none" else c.fisher,
+        # Momentum: the collision operator conserves it on each x-slice; the constrained step
+        # does so exactly (CollisionProblem.conserve_momentum).  The paper's SQP has no such
+        # constraint, so it defaults to false there.
+        conserve_momentum=c.method != "sqp" if c.conserve_momentum is None else c.conserve_momentum,
+        options=options,
+        eps_v=s.eps_v,
+        eps_x=s.eps_x,
+        spread_v=s.spread_v,
+        stop_on_solver_failure=s.on_solver_failure,
+        every=o.every,
+        snapshot_times=tuple(sorted(o.times)),
+        checkpoint_every=o.checkpoint_every,
+        description=top.description,
+    )
+    check_limits(scene, limits)  # before anything of the run's size is allocated
+    f0 = scene.initial_density(scene.xgrid(), scene.vgrid())
+    if not (np.all(np.isfinite(f0)) and f0.max() > 0):
+        raise SceneError("initial: f0 is zero or not finite on the grid (check its parameters against v.L and x.L)")
+    return scene
+
+
+def _parse_initial(data: Any, has_x: bool) -> dict[str, Any]:
+    data = require_table(data, "initial")
+    if "kind" not in data:
+        raise SceneError(f"initial.kind is required, one of {sorted(INITIAL_KINDS)}")
+    kind = Rule("str", choices=tuple(INITIAL_KINDS)).parse(data["kind"], "initial.kind")
+    table = parse_table(INITIAL_KINDS[kind], {k: val for k, val in data.items() if k != "kind"}, "initial")
+    if kind != "gaussians" and not has_x:
+        raise SceneError(f"initial.kind = {kind!r} is a phase-space datum and needs an [x] grid")
+    return {"kind": kind, **{k: (list(val) if isinstance(val, tuple) else val) for k, val in asdict(table).items()}}
+
+
+def _parse_refine(data: Any, has_x: bool) -> dict[str, Any]:
+    """``{"v": RefineSpec, "x": RefineSpec, "concentration_set": str}``, each where the scene sets it."""
+    if data is None:
+        return {}
+    data = require_table(data, "refine")
+    check_known(data, ("v", "x", "concentration_set"), "refine")
+    if "x" in data and not has_x:
+        raise SceneError("refine.x needs an [x] grid")
+    specs: dict[str, Any] = {
+        axis: RefineSpec(**asdict(parse_table(RefineTable, data[axis], f"refine.{axis}")))
+        for axis in ("v", "x")
+        if axis in data
+    }
+    if "x" in specs and specs["x"].conserve_energy:
+        raise SceneError("refine.x.conserve_energy must be false: the kinetic energy is a moment in v (refine.v only)")
+    if "concentration_set" in data:
+        rule = Rule("str", choices=CONCENTRATION_SETS)
+        specs["concentration_set"] = rule.parse(data["concentration_set"], "refine.concentration_set")
+        if specs["concentration_set"] == "quadrant" and not has_x:
+            raise SceneError(
+                'refine.concentration_set = "quadrant" is the phase-space set of alg:SPMCSL-JKO and needs an '
+                '[x] grid (a homogeneous scene uses "projections", the set of eqn:Sr)'
+            )
+        if specs["concentration_set"] == "quadrant" and not ("v" in specs or "x" in specs):
+            raise SceneError('refine.concentration_set = "quadrant" needs [refine.v] or [refine.x] (a map to build)')
+    return specs
+
+
+def _check_combinations(top, v, x, t, c, s, o) -> None:
+    """Cross-table checks: values fine alone that are wrong together."""
+    # W(v) = |v|^gamma / gamma on |v| <= 2 L_v (differences of grid points) must be finite:
+    # at most max((2 L_v)^gamma, 1) / gamma
+    if max(top.gamma * math.log(2 * v.L), 0.0) - math.log(top.gamma) > math.log(1e300):
+        raise SceneError(
+            f"gamma = {top.gamma:g} makes the kernel |v|^gamma/gamma overflow on the velocity grid "
+            f"(|v| up to 2 v.L = {2 * v.L:g})"
+        )
+    if math.isfinite(c.beta) and t.dt / c.beta > 1e150:
+        raise SceneError(
+            f"collision.beta = {c.beta:g} with time.dt = {t.dt:g}: the Fisher weight (dt/beta)^2 overflows; "
+            "beta must be a number > 0 well above dt * 1e-150 (inf allowed)"
+        )
+    if t.policy in ("halving", "halving_reset") and not t.eps_t < t.dt:
+        raise SceneError(f"time.eps_t must be < time.dt = {t.dt:g} (the halving floor), got {t.eps_t:g}")
+    if t.halve_on != "any_failure" and t.policy not in ("halving", "halving_reset"):
+        raise SceneError(
+            f"time.halve_on = {t.halve_on!r} needs time.policy 'halving' or 'halving_reset' "
+            f"(policy {t.policy!r} never halves the step)"
+        )
+    if x is None and s.eps_x > 0:
+        raise SceneError("stop.eps_x needs an [x] grid (a homogeneous scene has no x-cells)")
+    if any(tk > top.t_end for tk in o.times):
+        raise SceneError(f"output.times must be a list of numbers in [0, t_end = {top.t_end:g}], got {list(o.times)!r}")
+
+
+def with_overrides(data: Mapping[str, Any], overrides: Mapping[str, Any] | None) -> dict[str, Any]:
+    """A deep copy of the scene document ``data`` with dotted keys set (``{"time.dt": 0.005}``).
+
+    A value ``None`` removes the key (``{"x": None}`` drops the x-grid).  The result is not
+    validated here; :func:`scene_from_dict` does that, so a misspelt override is refused
+    like a misspelt key in a file.
+    """
+    out = copy.deepcopy(dict(data))
+    for dotted, val in (overrides or {}).items():
+        *parents, leaf = str(dotted).split(".")
+        node = out
+        for i, part in enumerate(parents):
+            nxt = node.setdefault(part, {})
+            if not isinstance(nxt, dict):
+                raise SceneError(f"override {dotted!r}: {'.'.join(parents[: i + 1])} is not a table")
+            node = nxt
+        if val is None:
+            node.pop(leaf, None)
+        else:
+            node[leaf] = copy.deepcopy(val)
+    return out
+
+
+def _read_toml(path: Path) -> dict[str, Any]:
+    if path.is_dir():
+        raise SceneError(f"scene path {str(path)!r} is a directory, not a TOML file")
+    try:
+        with path.open("rb") as fh:
+            return tomllib.load(fh)
+    except FileNotFoundError:
+        hint = f" (shipped scenes: {', '.join(shipped_scene_names())})" if path.suffix != ".toml" else ""
+        raise SceneError(f"scene file not found: {str(path)!r}{hint}") from None
+    except OSError as exc:
+        raise SceneError(f"cannot read scene file {str(path)!r}: {exc.strerror or exc}") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise SceneError(f"scene file {str(path)!r} is not valid TOML: {exc}") from None
+
+
+def load_scene(path: str | Path, overrides: Mapping[str, Any] | None = None, limits: Limits | None = None) -> Scene:
+    """Read and validate a TOML scene file (parsed as data with ``tomllib``).
+
+    ``path`` may also be the name of a shipped scene (``"tab_bu_g1"``) when no such file
+    exists.  ``overrides`` sets dotted keys before validation (:func:`with_overrides`).
+    """
+    p = Path(path)
+    if not p.exists() and str(path) in shipped_scene_names():
+        return shipped_scene(str(path), overrides, limits)
+    return scene_from_dict(with_overrides(_read_toml(p), overrides), limits)
+
+
+_SHIPPED = resources.files("jko_cvx.scene") / "shipped"
+
+
+def shipped_scene_names() -> list[str]:
+    """Names of the scenes shipped as package data (``jko_cvx/scene/shipped/*.toml``)."""
+    return sorted(p.name[: -len(".toml")] for p in _SHIPPED.iterdir() if p.name.endswith(".toml"))
+
+
+def shipped_scene(name: str, overrides: Mapping[str, Any] | None = None, limits: Limits | None = None) -> Scene:
+    """A shipped scene (package data) by name, with dotted-key ``overrides`` applied before validation.
+
+    >>> shipped_scene("tab_bu_g1", {"time.dt": 0.005}).dt
+    0.005
+    """
+    names = shipped_scene_names()
+    if name not in names:
+        raise SceneError(f"no shipped scene {name!r}; shipped: {names}")
+    data = tomllib.loads((_SHIPPED / f"{name}.toml").read_text(encoding="utf-8"))
+    return scene_from_dict(with_overrides(data, overrides), limits)
+
+
+def default_scene() -> Scene:
+    """The built-in default: homogeneous gamma = 1, g1 = exp(-2 v^2), Table tab:bu set-up (dt = 0.01,
+    N_v = 121, delta = delta0 = 0.5, eps_v = 1e-3/4), run to blow-up (exact T = 0.5)."""
+    return scene_from_dict(
+        {
+            "name": "default_tab_bu_g1",
+            "description": "homogeneous gamma = 1, g1 = exp(-2 v^2), mesh refinement, fixed dt (Table tab:bu)",
+            "gamma": 1.0,
+            "strength": 1.0,
+            "t_end": 1.0,
+            "v": {"L": 2.0, "n": 121},
+            "initial": {"kind": "gaussians", "amplitudes": [1.0], "rates": [2.0], "centres": [0.0]},
+            "time": {"policy": "fixed", "dt": 0.01},
+            "refine": {"v": {"bumps": 1, "delta0": 0.5, "delta": 0.5}},
+            # log-Fisher (the paper's form: a barrier that keeps Newton's iterates interior) with
+            # beta = 1000: weak enough not to cap the concentration (beta = 10 / 100 saturate
+            # max f at 9.6 / 42); measured T_b = 0.51, as in Table tab:bu.
+            "collision": {"method": "newton", "beta": 1000.0, "fisher": "log"},
+            "stop": {"eps_v": 1e-3 / 4, "on_solver_failure": False},
+            "output": {"every": 5, "checkpoint_every": 5},
+        }
+    )

@@ -1,0 +1,1754 @@
+"""The numbers ``studies/README.md`` and README.md's rows touched by issue 18 quote, from the result files.
+
+Every claim is (key, result file, function of that file, quote): the function returns the
+number(s) formatted as the README prints them, and ``quote`` is the README's text with
+``{}`` where they go.  ``jko-cvx reproduce summary`` writes ``summary.md`` (key, value,
+file, how it is computed); ``tests/test_quoted_numbers.py`` checks that every filled-in
+quote appears in the README, so a rerun that changes a number fails the test until the
+prose follows.
+
+Agreement within a tolerance (``tab:bu``, ``tab:bu_tb2``: 0.03) is tested on
+``|ours - paper|`` **rounded to 5 decimals** (the tables print at most 5 significant
+digits, and T_b is a multiple of dt >= 0.00125), so 0.0300000000000002 counts as within;
+a run that never fires (NaN) counts as a difference.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+__all__ = ["CLAIMS", "Claim", "claim_values", "reproduce_summary", "within"]
+
+RESULTS = Path(__file__).resolve().parents[2] / "studies" / "results" / "reproduce"
+
+
+@dataclass(frozen=True)
+class Claim:
+    key: str
+    file: str
+    compute: Callable[[Any], tuple[str, ...]]
+    quote: str
+    how: str
+    readme: str = "studies/README.md"
+
+
+def within(df: pd.DataFrame, tol: float) -> pd.Series:
+    """``|T_b - paper|`` rounded to 5 decimals <= tol (NaN: False)."""
+    return (df.T_b - df.paper).abs().round(5) <= tol
+
+
+def _load(path: Path) -> Any:
+    return pd.read_csv(path) if path.suffix == ".csv" else path.read_text()
+
+
+def _g(x: float, digits: int = 4) -> str:
+    return f"{x:.{digits}g}"
+
+
+def _col(df, data, dt, digits=4):
+    rows = df[(df.data == data) & (df["dt"] == dt)].sort_values("eps_v", ascending=False)
+    return ", ".join(_g(x, digits) for x in rows.T_b)
+
+
+def _entry(df, data, eps, dt, col="T_b"):
+    row = df[(df.data == data) & np.isclose(df.eps_v, eps) & np.isclose(df["dt"], dt)]
+    return float(row[col].iloc[0])
+
+
+def _md_number(pattern: str) -> Callable[[str], tuple[str, ...]]:
+    def get(text: str) -> tuple[str, ...]:
+        m = re.search(pattern, text)
+        if m is None:
+            raise ValueError(f"pattern {pattern!r} not found")
+        return m.groups()
+
+    return get
+
+
+def _trace(df, case):
+    return df[df.case == case]
+
+
+def _g3_paper(d, column: str) -> float:
+    return float(d[(d.case == "gamma3 lambda10 61x61") & (d.v_remap == "paper")][column].iloc[0])
+
+
+def _fisher_width(d) -> tuple[str, ...]:
+    log = d[d.fisher == "log"]
+    ratio = log["error / error(beta = inf)"]
+    need = tuple(f"{log[(log.width == w) & (ratio <= 1.06)].beta.min():g}" for w in (0.5, 0.25, 0.125))
+    return (*need, f"{ratio[(log.width == 0.125) & (log.beta == 30)].iloc[0]:.1f}")
+
+
+def _level_sets(d) -> tuple[str, ...]:
+    d = d[d.n_v == 201]
+    split = d["split slice-steps"].str.split(" /").str[0].astype(int)
+    peak = d["secondary peak"]
+    low, high = d["lambda"] < 280, d["lambda"] >= 280
+    return (
+        *(str(x) for x in split[low]),
+        *(f"{x:.2f}" for x in peak[low]),
+        str(split[high].min()),
+        str(split[high].max()),
+        f"{peak[high].max():.2f}",
+    )
+
+
+def _g2bu_order(d: pd.DataFrame) -> tuple[str, ...]:
+    """tab:g2bu at N_v = 201: T_b at lambda = 220 and 310, the first lambda pair where T_b rises; 310 at 401."""
+    r = d[d.n_v == 201].sort_values("lambda")
+    lam, tb = r["lambda"].to_numpy(), r.T_b.to_numpy()
+    rises = np.flatnonzero(np.diff(tb) > 0)
+    if not rises.size:
+        raise ValueError("tab_g2bu.csv: T_b decreases monotonically in lambda at N_v = 201; the prose says it does not")
+    i = int(rises[0])
+    fine = d[(d.n_v == 401) & (d["lambda"] == 310)].T_b.iloc[0]
+    return (
+        f"{tb[0]:.5f}",
+        f"{tb[-1]:.5f}",
+        f"{lam[i]:g}",
+        f"{tb[i]:.5f}",
+        f"{lam[i + 1]:g}",
+        f"{tb[i + 1]:.5f}",
+        f"{fine:.5f}",
+    )
+
+
+def _seconds(df) -> tuple[str, ...]:
+    return (f"{df.seconds.sum():.0f}",)
+
+
+def _wall(entry: str, minutes: bool = False) -> Callable[[pd.DataFrame], tuple[str, ...]]:
+    """The measured wall time of ``jko-cvx reproduce ENTRY --fresh`` (``regenerate_timing.csv``)."""
+
+    def get(d: pd.DataFrame) -> tuple[str, ...]:
+        wall = float(d.loc[(d.entry == entry) & (d.returncode == 0), "wall_s"].iloc[0])
+        return (f"{wall / 60:.0f}" if minutes else f"{wall:.0f}",)
+
+    return get
+
+
+def _scale_row(d, gamma: float, linalg: str) -> tuple[str, ...]:
+    """A row of README's batched-Newton table: wall (CPU) at N_v = 121, 481, 1025 and the exponents."""
+    rows = d[(d.gamma == gamma) & (d.linalg == linalg)].set_index("N_v")
+    cells = []
+    for n in (121, 481, 1025):
+        if n in rows.index:
+            cells += [_g(rows.median_wall_s[n], 3), _g(rows.median_cpu_s[n], 3)]
+    for col in ("median_wall_s", "median_cpu_s"):
+        cells.append(f"{np.log(rows[col][481] / rows[col][121]) / np.log(481 / 121):.2f}")
+    return tuple(cells)
+
+
+def _scale_step(d) -> tuple[str, ...]:
+    row = d.set_index(["N_x = N_v", "linalg"])
+    s481, s1025 = row.loc[(481, "structured (default)")], row.loc[(1025, "structured (default)")]
+    dense = row.loc[(481, "dense Cholesky")]
+    return (
+        f"{s481.wall_per_step_s:.2f}",
+        f"{s481.cpu_per_step_s:.2f}",
+        f"{dense.wall_per_step_s:.2f}",
+        f"{s1025.wall_per_step_s:.2f}",
+        f"{s1025.cpu_per_step_s:.2f}",
+        f"{s1025.collision_s:.2f}",
+        f"{s1025.refine_s:.2f}",
+        f"{s1025.transport_s:.2f}",
+        f"{s1025.newton_iterations_max:d}",
+        f"{row.peak_rss_gib.max():.2f}",
+    )
+
+
+CLAIMS: tuple[Claim, ...] = (
+    # tab:bu
+    Claim(
+        "tab_bu.within",
+        "tab_bu.csv",
+        lambda d: (str(int(within(d, 0.03).sum())), str(len(d)), str(int((~within(d, 0.03)).sum()))),
+        "**{} of {} entries within 0.03 of the paper's** ({} differences",
+        "count of round(|T_b - paper|, 5) <= 0.03; NaN is a difference",
+    ),
+    Claim(
+        "tab_bu.never",
+        "tab_bu.csv",
+        lambda d: (str(int(d.T_b.isna().sum())),),
+        "runs that never fire: {}",
+        "count of NaN T_b",
+    ),
+    Claim(
+        "tab_bu.target",
+        "tab_bu.csv",
+        lambda d: (_g(_entry(d, "g1", 1e-3 / 16, 0.00125), 5), _g(_entry(d, "g1", 1e-3 / 16, 0.00125, "paper"), 5)),
+        "g1 entry at the smallest eps_v and dt is **{} (exact 0.5, paper {})**",
+        "g1, eps_v = 1e-3/16, dt = 0.00125",
+    ),
+    Claim(
+        "tab_bu.smallest_dt",
+        "tab_bu.csv",
+        lambda d: (_col(d, "g1", 0.00125, 3), _col(d, "g2", 0.00125, 4), _col(d, "g3", 0.00125, 4)),
+        "g1 {}; g2 {} (exact 0.25); g3 {} (exact 0.125)",
+        "T_b at dt = 0.00125, eps_v = 1e-3 ... 1e-3/16",
+    ),
+    Claim(
+        "tab_bu.mesh_rule_g1",
+        "tab_bu.csv",
+        lambda d: (
+            ", ".join(f"{x:.3f}" for x in d[d.data == "g1"].groupby("eps_v", sort=False)["exact + mesh rule"].first()),
+        ),
+        "(g1: {} for eps_v = 1e-3 ... 1e-3/16)",
+        "column exact + mesh rule, g1",
+    ),
+    Claim(
+        "tab_bu.g2_dt0.0025",
+        "tab_bu.csv",
+        lambda d: (_col(d, "g2", 0.0025, 4),),
+        "g2 at dt = 0.0025 ({} for eps_v = 1e-3 ... 1e-3/16)",
+        "T_b, g2, dt = 0.0025",
+    ),
+    Claim(
+        "tab_bu.beta_scan",
+        "tab_bu_beta_scan_summary.csv",
+        lambda d: (
+            "; ".join(
+                f"{b:g}: {w} / {n} / {g:.5g}"
+                for b, w, n, g in zip(
+                    d.beta, d["within 0.03"], d["never fire"], d["g1 at eps_v = 1e-3/16, dt = 0.00125"], strict=True
+                )
+            ),
+        ),
+        "(entries within 0.03 / runs that never fire / the g1 entry at the smallest eps_v and dt): {}.",
+        "tab_bu_beta_scan_summary.csv",
+    ),
+    # traces
+    Claim(
+        "traces.g3",
+        "tab_bu_traces.csv",
+        lambda d: (
+            _g(_trace(d, "g3").T_b.iloc[0], 5),
+            f"{_trace(d, 'g3')['f(upper junction)/max f'].iloc[:-1].max():.2f}",
+            _g(_trace(d, "g3 beta=1000").T_b.iloc[0], 5),
+            f"{_trace(d, 'g3 beta=1000')['f(upper junction)/max f'].iloc[:-1].max():.2f}",
+            f"{_trace(d, 'g2 dt=0.0025')['f(upper junction)/max f'].iloc[:-1].max():.2f}",
+        ),
+        "g3 at dt = 0.00125, eps_v = 1e-3/4 fires at {}; f at the junction reaches {} max f before; "
+        "with beta = 1000 the same entry fires at {} (f at the junction at most {} max f).  g2 at dt = 0.0025, "
+        "eps_v = 1e-3/8: f at the junction reaches {} max f",
+        "tab_bu_traces.csv, cases g3 and g3 beta=1000",
+    ),
+    Claim(
+        "traces.g4",
+        "tab_bu_traces.csv",
+        lambda d: (
+            _g(_trace(d, "g4 dt=0.0025").T_b.iloc[0], 4),
+            f"{_trace(d, 'g4 dt=0.0025')['r1 = min S'].iloc[1]:.4g}",
+        ),
+        "(dt = 0.0025, eps_v = 1e-3/8: {}) the lower end r1 of the set stays at {}",
+        "tab_bu_traces.csv, case g4 dt=0.0025: T_b, r1 after the first step",
+    ),
+    # tab:bu_tb2
+    Claim(
+        "tab_bu_tb2.within",
+        "tab_bu_tb2.csv",
+        lambda d: (str(int(within(d, 0.03).sum())), str(len(d))),
+        "{} of {} entries within 0.03",
+        "count of round(|T_b - paper|, 5) <= 0.03",
+    ),
+    Claim(
+        "tab_bu_tb2.mesh_rule",
+        "tab_bu_tb2.csv",
+        lambda d: (", ".join(f"{x:.3f}" for x in d.groupby("eps_v", sort=False)["exact + mesh rule"].first()),),
+        "two-bump rule fires at {}",
+        "column exact + mesh rule",
+    ),
+    Claim(
+        "tab_bu_tb2.smallest_dt",
+        "tab_bu_tb2.csv",
+        lambda d: (f"{d[d['dt'] == 0.00125].T_b.min():.3f}-{d[d['dt'] == 0.00125].T_b.max():.3f}",),
+        "ours ({}) before it",
+        "range of T_b at dt = 0.00125",
+    ),
+    # ibu
+    Claim(
+        "ibu.fit",
+        "ibu.md",
+        _md_number(
+            r"over t in \[10, 20\]: (-?[0-9.]+); of the bump's centre of mass: (-?[0-9.]+)"
+            r".*?over that range: ([0-9.]+) %"
+        ),
+        "fitted exponent of the peak positions over [10, 20] {} (centre of mass {}; the law's local exponent "
+        "-0.985), bump centres of mass within {} %",
+        "ibu.md",
+    ),
+    # mesh maps
+    Claim(
+        "mesh_maps",
+        "mesh_maps.csv",
+        lambda d: (
+            f"{100 * d['points in set (share)'].min():.0f}-{100 * d['points in set (share)'].max():.0f}",
+            f"{d['remap mass error'].max():.1g}",
+        ),
+        "{} % of the points lie in the set; the remap conserves mass to {}",
+        "mesh_maps.csv",
+    ),
+    # gk1 records
+    Claim(
+        "gk1_records.halving",
+        "gk1_records.csv",
+        lambda d: (
+            *tuple(
+                f"{d[(d.policy == 'halving') & (d.data == 'g1') & (d.delta0 == x)].first_halving_t.iloc[0]:.2f}"
+                for x in (0.05, 0.5)
+            ),
+            f"{d[(d.policy == 'halving') & (d.delta0 == 0.05)].smallest_dt.iloc[0]:.2g}",
+            str(int(d[(d.policy == "halving") & (d.delta0 == 0.05)].retries.iloc[0])),
+            str(int(d[(d.policy == "halving") & (d.data == "g1") & (d.delta0 == 0.5)].retries.iloc[0])),
+            str(int(d[d.policy == "halving_reset"].retries.iloc[0])),
+        ),
+        "first halving at t = {} (delta0 = 0.05) and {} (delta0 = 0.5); the delta0 = 0.05 step falls to {} "
+        "by t = 0.6 ({} failed attempts); delta0 = 0.5 needs {} failed attempts as written and {} with "
+        "`halving_reset`",
+        "gk1_records.csv, halving and halving_reset rows",
+    ),
+    # gamma = 3
+    Claim(
+        "inhom_gamma3.drift",
+        "inhom_gamma3.csv",
+        lambda d: (f"{d['mass drift'].max():.2g}", f"{d['momentum drift'].max():.3g}"),
+        "mass drift <= {}, momentum drift <= {}",
+        "max over lambda",
+    ),
+    Claim(
+        "inhom_gamma3.lambda10",
+        "inhom_gamma3.csv",
+        lambda d: (
+            f"{d[d['lambda'] == 10]['min dx (min)'].iloc[0]:.2g}",
+            f"{d[d['lambda'] == 10]['min dx at end'].iloc[0]:.2g}",
+            f"{d[d['lambda'] == 10]['max f (peak)'].iloc[0]:.4g}",
+        ),
+        "min dx {}, recovering to {} at t = 4, and max f peaking at {}",
+        "lambda = 10 row",
+    ),
+    Claim(
+        "inhom_gamma3.moment2",
+        "inhom_gamma3.csv",
+        lambda d: tuple(str(int(d[d["lambda"] == x]["moment2 increases"].iloc[0])) for x in (8, 10)),
+        "the second moment increases in {} and {} of 80 steps",
+        "moment2 increases, lambda = 8, 10",
+    ),
+    # gamma = 3/2
+    Claim(
+        "inhom_gamma1p5.T_b",
+        "inhom_gamma1p5.csv",
+        lambda d: (f"{d.T_b.iloc[0]:.3f}", f"{d.T_b.iloc[1]:.3f}", f"{d['mass drift'].max():.0e}"),
+        "**T_b = {} (lambda = 10) and {} (lambda = 5), both before the centres meet at c/d = 1**: "
+        "lambda = 10 supports the paper, lambda = 5 does not.  Mass drift <= {}",
+        "inhom_gamma1p5.csv",
+    ),
+    Claim(
+        "inhom_gamma1p5.collapse",
+        "inhom_gamma1p5_resolution.csv",
+        lambda d: tuple(
+            f"{d[(d['lambda'] == lam) & (d.grid == g)]['t(sigma_v < 0.05)'].iloc[0]:.3f}"
+            for lam in (10.0, 5.0)
+            for g in ("121 x 121", "81 x 81")
+        ),
+        "is {} and {} on 121 and 81 (lambda = 10), and {} and {} (lambda = 5)",
+        "t(sigma_v < 0.05) per grid",
+    ),
+    Claim(
+        "inhom_gamma1p5.spread",
+        "inhom_gamma1p5.csv",
+        lambda d: (d["T_b over grids"].iloc[0], d["T_b over grids"].iloc[1]),
+        "the paper's T_b spreads over {} (lambda = 10) and {} (lambda = 5)",
+        "T_b over grids",
+    ),
+    Claim(
+        "inhom_gamma1p5.xbar",
+        "inhom_gamma1p5_resolution.csv",
+        lambda d: tuple(
+            f"{d[(d['lambda'] == 10.0) & (d.grid == g)]['x-bar error (t <= 0.7)'].iloc[0]:.2g}"
+            for g in ("121 x 121", "81 x 81")
+        ),
+        "the lambda = 10 bumps are {} (121) and {} (81) ahead",
+        "x-bar error (t <= 0.7)",
+    ),
+    Claim(
+        "property_budget.dt",
+        "property_budget_summary.csv",
+        lambda d: tuple(
+            f"{d[d.case == c][k].iloc[0]:.2g}" if "sum" in k else str(int(d[d.case == c][k].iloc[0]))
+            for c in ("gamma3 lambda10 61x61 dt=0.025", "gamma3 lambda10 61x61 dt=0.0125")
+            for k in ("entropy: collision wrong-way sum", "entropy: wrong-way steps")
+        ),
+        "to t = 0.8 the collision's decrease of f log f is {} at dt = 0.025 (steps with a net decrease: {}) and {} at "
+        "dt = 0.0125 (steps with a net decrease: {})",
+        "gamma = 3 dt variants",
+    ),
+    # property budget
+    Claim(
+        "property_budget",
+        "property_budget_summary.csv",
+        lambda d: (
+            *tuple(
+                str(int(d[(d.case == c) & (d.v_remap == r)][f"{q}: wrong-way steps"].iloc[0]))
+                for c, q in (("gamma1.5 lambda10 61x61", "moment2"), ("gamma3 lambda10 61x61", "entropy"))
+                for r in ("paper", "energy")
+            ),
+            f"{_g3_paper(d, 'entropy: collision wrong-way sum'):.3g}",
+            f"{_g3_paper(d, 'entropy: x-remap sum'):.3g}",
+            f"{_g3_paper(d, 'entropy: transport sum'):.3g}",
+        ),
+        "the second moment increases in {} steps with the paper's remap and {} with the energy-restoring one; "
+        "f log f decreases in {} and {} steps of the gamma = 3 run (collision {}, x-remap {}, transport {})",
+        "property_budget_summary.csv",
+    ),
+    # Fisher weight against the data's width (README.md guidance row)
+    Claim(
+        "fisher_width",
+        "fisher_width.csv",
+        _fisher_width,
+        "smallest scanned beta with a bias under 6 %: {}, {}, {} for w = 0.5, 0.25, 0.125; beta = 30 multiplies "
+        "the error by {} at w = 0.125",
+        "log form; error / error(beta = inf) <= 1.06",
+        "README.md",
+    ),
+    Claim(
+        "inhom_gamma1p5.grids",
+        "inhom_gamma1p5_resolution.csv",
+        lambda d: tuple(
+            f"{d[(d['lambda'] == lam) & (d.grid == g)][c].iloc[0]:.3f}"
+            for g, c in (
+                ("121 x 201 uniform", "t(sigma_v < 0.05)"),
+                ("41 x 41", "t(sigma_v < 0.05)"),
+                ("61 x 61", "T_b"),
+                ("61 x 61", "sigma_v (end)"),
+            )
+            for lam in (10.0, 5.0)
+        ),
+        "(dv = 0.05, coarser in v than the maps make it) {} and {}.  On 41 x 41 it comes later ({}, {}); "
+        "the 61 x 61 runs stop on the paper's criterion before it (t = {} and {}, sigma_v {} and {})",
+        "per grid: t(sigma_v < 0.05), T_b, sigma_v (end)",
+    ),
+    Claim(
+        "tab_g2bu.level_sets",
+        "tab_g2bu.csv",
+        _level_sets,
+        "(lambda = 220, 260: {} and {} split slice-steps, second peaks {} and {}; lambda >= 280: {}-{} split "
+        "slice-steps, second peaks up to {}; of 2-3.5e4 slice-steps, against a main peak of about 11)",
+        "split slice-steps, secondary peak (n_v = 201)",
+    ),
+    Claim(
+        "tab_g2bu.level_sets_nv",
+        "tab_g2bu.csv",
+        lambda d: (
+            tuple(
+                str(d[(d["lambda"] == 310) & (d.n_v == n)]["split slice-steps"].iloc[0].split(" /")[0])
+                for n in (201, 401)
+            )
+            + tuple(f"{d[(d['lambda'] == 310) & (d.n_v == n)]['secondary peak'].iloc[0]:.2f}" for n in (201, 401))
+        ),
+        "doubling N_v cuts the split slice-steps for lambda = 310 from {} to {} and the largest second peak "
+        "from {} to {}",
+        "lambda = 310, n_v = 201 and 401",
+    ),
+    # README.md, "Reproducing the paper"
+    Claim(
+        "readme.tab_bu",
+        "tab_bu.csv",
+        lambda d: (
+            str(int(within(d, 0.03).sum())),
+            str(len(d)),
+            _g(_entry(d, "g1", 1e-3 / 16, 0.00125), 5),
+            str(len(d.drop_duplicates(["data", "dt"]))),
+            f"{d.drop_duplicates(['data', 'dt']).seconds.sum():.0f}",
+        ),
+        "full `tab_bu` {} of {} entries within 0.03 of the paper's, the g1 entry at the smallest eps_v and dt {} "
+        "against the exact 0.5 (its {} runs, one per data and dt, take {} s in all)",
+        "as tab_bu.within, tab_bu.target; the seconds of each (data, dt) run once (every eps_v of a column is "
+        "read off one run)",
+        "README.md",
+    ),
+    Claim(
+        "readme.inhom_gamma3",
+        "inhom_gamma3.csv",
+        _seconds,
+        "`inhom_gamma3` {} s; full `tab_g2bu`",
+        "sum of seconds",
+        "README.md",
+    ),
+    Claim(
+        "readme.g3_g2bu",
+        "tab_g2bu.csv",
+        lambda d: (f"{d.seconds.sum():.0f}", str(int(d[d.n_v == 201]["within 0.005"].sum()))),
+        "full `tab_g2bu` {} s, {} of 9 blow-up times within 0.005 of the paper's",
+        "sum of seconds; within 0.005 at n_v = 201",
+        "README.md",
+    ),
+    Claim(
+        "gk1_final",
+        "gk1_final.md",
+        _md_number(r"\|\s+0\.5 \|\s+([0-9.]+) \|\s+[0-9.e-]+ \|\s+([0-9.]+) \|\s+([0-9.]+) \|"),
+        "max f {} at t = 0.5, {} of the mass within |v| <= 0.01 and {} within 0.05",
+        "gk1_final.md table",
+    ),
+    Claim(
+        "explicit_figures",
+        "explicit_figures.csv",
+        lambda d: (
+            f"{d['max abs(X numerical - closed form)'].iloc[:2].max():.0e}",
+            f"{d['crossing time (numerical)'].iloc[2]:.5f}",
+            f"{d['crossing time (closed form)'].iloc[2]:.5f}",
+        ),
+        "the numerical characteristics of `eq` follow the closed form to {}; the `eqgamma` one crosses x = 0 "
+        "at t = {} (closed form {})",
+        "explicit_figures.csv",
+    ),
+    # explicit
+    Claim(
+        "explicit.widths",
+        "explicit.csv",
+        lambda d: tuple(
+            f"{d[(d['lambda'] == lam) & np.isclose(d['(T-t)/T'], 1e-8)]['width 1/sqrt(a)'].iloc[0]:.2g}"
+            for lam in (220.0, 280.0, 300.0, 309.8, 320.0, 400.0)
+        ),
+        "The width at (T - t)/T = 1e-8 is {}, {}, {} for lambda = 220, 280, 300 (growing), {} at 309.8 "
+        "(the threshold 20 sqrt(240) = 309.84), {} and {} for 320 and 400 (closing)",
+        "width 1/sqrt(a) at (T-t)/T = 1e-8",
+    ),
+    Claim(
+        "explicit.agreement",
+        "explicit.csv",
+        lambda d: tuple(
+            f"{d[np.isclose(d['(T-t)/T'], e)][['rho rel. diff', 'm rel. diff']].to_numpy().max():.0e}"
+            for e in (0.1, 1e-8)
+        ),
+        "agrees with ``rhot`` and ``mt`` to {} at (T - t)/T = 0.1 and to {} at 1e-8",
+        "max rel. diff over lambda",
+    ),
+    # gamma = 2
+    Claim(
+        "tab_g2bu.T_b",
+        "tab_g2bu.csv",
+        lambda d: (
+            str(int(d[d.n_v == 201]["within 0.005"].sum())),
+            f"{d[d.n_v == 201]['T_b - paper'].max():.4f}",
+            f"{d[d.n_v == 201]['T_b - paper'].min():.4f}",
+            f"{d[(d.n_v == 401)].T_b.iloc[0]:.5f}",
+        ),
+        "**T_b: {} of 9 entries within 0.005 of the paper's** (differences {} to {})",
+        "n_v = 201 rows; and the n_v = 401 entry",
+    ),
+    Claim(
+        "tab_g2bu.order",
+        "tab_g2bu.csv",
+        _g2bu_order,
+        "T_b falls from {} (220) to {} (310), but not monotonically: lambda = {} gives {}, below {} at {}.  At "
+        "twice the velocity resolution (N_v = 401) lambda = 310 gives {}",
+        "T_b at lambda = 220, 310 (N_v = 201), the first pair out of order, and lambda = 310 at N_v = 401",
+    ),
+    Claim(
+        "tab_g2bu.ratio",
+        "tab_g2bu.csv",
+        lambda d: (", ".join(f"{x:.2f}" for x in d[d.n_v == 201]["log ratio at T_b"]),),
+        "and is {} at T_b",
+        "log ratio at T_b, n_v = 201",
+    ),
+    Claim(
+        "scale.newton.gamma3",
+        "../bench_scale_newton.csv",
+        lambda d: _scale_row(d, 3.0, "structured (default)"),
+        "| gamma = 3, structured (default) | {} ({}) | {} ({}) | {} ({}) | {} ({}) |",
+        "medians, wall (CPU), N_v = 121, 481, 1025; exponents log(t481/t121)/log(481/121)",
+        "README.md",
+    ),
+    Claim(
+        "scale.newton.gamma1p5",
+        "../bench_scale_newton.csv",
+        lambda d: _scale_row(d, 1.5, "structured (default)"),
+        "| gamma = 3/2, structured (default) | {} ({}) | {} ({}) | {} ({}) | {} ({}) |",
+        "as scale.newton.gamma3",
+        "README.md",
+    ),
+    Claim(
+        "scale.newton.dense3",
+        "../bench_scale_newton.csv",
+        lambda d: _scale_row(d, 3.0, "dense Cholesky"),
+        "| gamma = 3, dense Cholesky | {} ({}) | {} ({}) | | {} ({}) |",
+        "as scale.newton.gamma3, dense rows",
+        "README.md",
+    ),
+    Claim(
+        "scale.newton.dense1p5",
+        "../bench_scale_newton.csv",
+        lambda d: _scale_row(d, 1.5, "dense Cholesky"),
+        "| gamma = 3/2, dense Cholesky | {} ({}) | {} ({}) | | {} ({}) |",
+        "as scale.newton.gamma3, dense rows",
+        "README.md",
+    ),
+    Claim(
+        "scale.newton.gamma4",
+        "../bench_scale_gamma4_newton.csv",
+        lambda d: _scale_row(d, 4.0, "structured (default)"),
+        "| gamma = 4, structured (default) | {} ({}) | {} ({}) | {} ({}) | {} ({}) |",
+        "as scale.newton.gamma3, gamma = 4 (low-rank path)",
+        "README.md",
+    ),
+    Claim(
+        "scale.newton.dense4",
+        "../bench_scale_gamma4_newton.csv",
+        lambda d: _scale_row(d, 4.0, "dense Cholesky"),
+        "| gamma = 4, dense Cholesky | {} ({}) | {} ({}) | | {} ({}) |",
+        "as scale.newton.gamma3, gamma = 4 dense rows",
+        "README.md",
+    ),
+    Claim(
+        "scale.step",
+        "../bench_scale_step.csv",
+        _scale_step,
+        "at 481 x 481 takes {} s wall ({} s CPU; with the dense Cholesky {} s).  At 1025 x 1025 a step takes "
+        "{} s wall ({} s CPU; collision {} s, refinement {} s, transport {} s; the slowest slice needs {} "
+        "Newton iterations), peak memory {} GiB.",
+        "wall and CPU seconds per step, split, max Newton iterations, peak RSS",
+        "README.md",
+    ),
+    Claim(
+        "scale.loaded",
+        "../bench_scale_loaded_step.csv",
+        lambda d: (f"{d.wall_per_step_s.iloc[0]:.2f}",),
+        "longer wall times: {} s for the 481 x 481 step",
+        "the 481 x 481 structured row of the loaded run",
+        "README.md",
+    ),
+)
+
+
+_TIMED = {  # entry -> the timing file that measured it; not the summary itself (it reads that file)
+    e: "../regenerate_timing.csv"
+    for e in (
+        "tab_bu",
+        "tab_bu_tb2",
+        "ibu",
+        "gk1_records",
+        "inhom_gamma3",
+        "explicit",
+        "mesh_maps",
+        "inhom_gamma1p5",
+        "tab_g2bu",
+        "tab_bu_traces",
+        "property_budget",
+        "tab_bu_beta_scan",
+        "explicit_figures",
+        "gk1_final",
+        "fisher_width",
+        "ibu_panels",
+        "g2bu_loglog",
+        "g2bu_records",
+        "gk3_panels",
+        "gk2_bu",
+        "explicit2_sketch",
+    )
+}
+
+
+def _regenerate_total(d: pd.DataFrame) -> tuple[str, ...]:
+    ok = d[d.returncode == 0]
+    loads = pd.concat([ok.load_before, ok.load_after])
+    return (
+        f"{ok.wall_s.sum():.0f}",
+        f"{ok.wall_s.sum() / 60:.0f}",
+        str(len(ok)),
+        f"{ok.cpu_s.sum():.0f}",
+        f"{loads.min():.0f}-{loads.max():.0f}",
+        f"{ok.cpu_s.sum() / 2 / 60:.0f}",
+    )
+
+
+CLAIMS += (
+    Claim(
+        "regenerate.total",
+        "../regenerate_timing.csv",
+        _regenerate_total,
+        "**Regenerating the section took {} s ({} min) of wall time over {} entries, {} s of CPU**, on this "
+        "2-core machine (1-minute load {}, in the CSV): two idle "
+        "cores need at least half the CPU time, {} min,",
+        "sum of wall_s and cpu_s over the entries that finished; load averages before and after each",
+    ),
+    Claim(
+        "regenerate.readme",
+        "../regenerate_timing.csv",
+        lambda d: (f"{d[d.returncode == 0].wall_s.sum() / 60:.0f}", f"{d[d.returncode == 0].cpu_s.sum() / 60:.0f}"),
+        "every `jko-cvx reproduce` entry, fresh, on 2 workers, took {} min of wall time and {} min of CPU",
+        "sums over the entries",
+        "README.md",
+    ),
+    Claim(
+        "regenerate.inhom_gamma1p5",
+        "../regenerate_timing.csv",
+        lambda d: tuple(f"{d.loc[d.entry == 'inhom_gamma1p5', c].iloc[0]:.0f}" for c in ("wall_s", "cpu_s")),
+        "`inhom_gamma1p5` alone took {} s ({} s CPU)",
+        "its row",
+    ),
+    Claim(
+        "regenerate.crawl",
+        "inhom_gamma1p5_resolution.csv",
+        lambda d: (str(int(d[(d.case == "before") & (d.grid == "121 x 121")].steps.iloc[0])),),
+        "(121 x 121, lambda = 10: {} steps)",
+        "steps of that run",
+    ),
+)
+
+
+def _rounding_sensitivity(before: pd.DataFrame) -> tuple[str, ...]:
+    """T_b of the 121 and 81 mapped runs from the previous code against today's; largest change of a collapse time."""
+    now = pd.read_csv(RESULTS / "inhom_gamma1p5_resolution.csv")
+    tb = {
+        (g, c): float(before[(before.grid == g) & (before.case == c)].T_b.iloc[0])
+        for g in ("121 x 121", "81 x 81")
+        for c in ("before", "after")
+    }
+    tb_now = float(now[(now.grid == "81 x 81") & (now.case == "before")].T_b.iloc[0])
+    collapse = "t(sigma_v < 0.05)"
+    change = (now.set_index(["case", "grid"])[collapse] - before.set_index(["case", "grid"])[collapse]).abs()
+    coarse = change[change.index.get_level_values("grid") == "41 x 41"].max()
+    fine = change[change.index.get_level_values("grid").isin(["81 x 81", "121 x 121"])].max()
+    return (
+        f"{tb[('121 x 121', 'before')]:.3f}",
+        f"{tb[('121 x 121', 'after')]:.3f}",
+        f"{tb[('81 x 81', 'before')]:.4f}",
+        f"{tb_now:.4f}",
+        f"{coarse:.2g}",
+        f"{fine:.2g}",
+    )
+
+
+CLAIMS += (
+    Claim(
+        "inhom_gamma1p5.rounding",
+        "inhom_gamma1p5_resolution_previous_code.csv",
+        _rounding_sensitivity,
+        "gave {} and {} (and {} against {} on 81 x 81), while the density-collapse times changed by at most {} on "
+        "41 x 41 and {} on 81 x 81 and 121 x 121",
+        "the previous code's resolution table (kept beside today's) against today's",
+    ),
+)
+_SECTION_TOTAL = re.compile(
+    r"\*\*Total wall time (\d+) s \(([\d.]+) min\) for (\d+) of (\d+) entries; CPU (\d+) s; "
+    r"exit status (-?\d+)\.\*\*  Goal: 20 min: (met|not met)\."
+)
+
+
+def _section_total(text: str) -> tuple[str, ...]:
+    """``jko-cvx reproduce section --fresh``: wall s, min, entries done, of, CPU s, the goal's verdict.
+
+    Refused unless every entry finished and the command exited 0 (a partial run times nothing).
+    """
+    m = _SECTION_TOTAL.search(text)
+    if m is None:
+        raise ValueError("regenerate_timing_section.md: no total line")
+    wall, minutes, done, of, cpu, status, verdict = m.groups()
+    if done != of or status != "0":
+        raise ValueError(f"regenerate_timing_section.md: {done} of {of} entries, exit status {status}")
+    return wall, f"{float(minutes):.0f}", done, cpu, verdict
+
+
+def _section_code(text: str) -> tuple[str, ...]:
+    """The package hash and the 1-minute loads recorded with the section's timing."""
+    m = re.search(r"code ([0-9a-f]{12}); 1-minute load ([\d.]+) before, ([\d.]+) after", text)
+    if m is None:
+        raise ValueError("regenerate_timing_section.md: no code and load line")
+    return m.group(1), f"{float(m.group(2)):.1f}", f"{float(m.group(3)):.1f}"
+
+
+CLAIMS += (
+    Claim(
+        "regenerate.section",
+        "../regenerate_timing_section.md",
+        _section_total,
+        "**`jko-cvx reproduce section --fresh --workers 2` regenerated the section in {} s ({} min) of wall "
+        "time, {} entries, {} s of CPU; the goal of 20 minutes is {}**",
+        "the total line of the section's timing (refused unless every entry finished)",
+    ),
+    Claim(
+        "regenerate.section.readme",
+        "../regenerate_timing_section.md",
+        _section_total,
+        "`jko-cvx reproduce section --fresh --workers 2` regenerated it in {} s ({} min) of wall time, {} "
+        "entries, {} s of CPU: the goal of 20 minutes is {}",
+        "the total line of the section's timing",
+        "README.md",
+    ),
+    Claim(
+        "regenerate.section.code",
+        "../regenerate_timing_section.md",
+        _section_code,
+        "(package sha256 {}, 1-minute load {} before and {} after",
+        "the record line of the section's timing",
+    ),
+)
+
+
+CLAIMS += (
+    *(
+        Claim(
+            f"regenerate.section.{label}",
+            f"../regenerate_timing_section_2026-12-02T{stamp}.md",
+            _section_total,
+            "{} s ({} min) of wall time, {} entries, {} s of CPU: the goal {}",
+            f"the total line of the section's timing finished at {stamp[:2]}:{stamp[2:]} UTC",
+            "README.md",
+        )
+        for label, stamp in (("earlier", "0549"), ("first_rerun", "0753"))
+    ),
+    Claim(
+        "regenerate.section.earlier_load",
+        "../regenerate_timing_section_2026-12-02T0549.md",
+        lambda text: _section_code(text)[1:2],
+        "(`regenerate_timing_section_2026-12-02T0549.md`, 1-minute load {} before it started)",
+        "the record line of the 05:49 timing",
+        "README.md",
+    ),
+)
+
+
+def _tridiagonal_fix(before: pd.DataFrame) -> tuple[str, ...]:
+    """``tab_g2bu`` before and after the batched tridiagonal fix: rows whose max f moved, the largest
+    relative change, and whether T_b and the step counts moved at all."""
+    now = pd.read_csv(RESULTS / "tab_g2bu.csv")
+    if list(before["lambda"]) != list(now["lambda"]) or list(before.n_v) != list(now.n_v):
+        raise ValueError("tab_g2bu_previous_code.csv: other rows than tab_g2bu.csv")
+    moved = before.max_f != now.max_f
+    rel = ((before.max_f - now.max_f).abs() / now.max_f).max()
+    same = (before.T_b.equals(now.T_b), before.steps.equals(now.steps))
+    return (
+        str(int(moved.sum())),
+        str(len(now)),
+        f"{rel:.0e}",
+        "unchanged" if all(same) else "changed",
+    )
+
+
+CLAIMS += (
+    Claim(
+        "tab_g2bu.tridiagonal_fix",
+        "tab_g2bu_previous_code.csv",
+        _tridiagonal_fix,
+        "max f moved in {} of the {} `tab_g2bu` runs, by at most {} relative; T_b and the step counts {}",
+        "the previous code's tab_g2bu.csv (kept beside today's) against today's",
+    ),
+)
+
+
+def _ab_entry(d: pd.DataFrame) -> tuple[str, ...]:
+    """gk2_bu from the old and the new checkout, interleaved: CPU ranges and the change of the medians."""
+    rows = d[(d.entry == "gk2_bu") & (d.returncode == 0)]
+    old, new = rows[rows.side == "old"].cpu_s, rows[rows.side == "new"].cpu_s
+    if len(old) < 2 or len(new) < 2:
+        raise ValueError("ab_entry.csv: fewer than two runs of each side")
+    return (
+        f"{old.min():.0f}",
+        f"{old.max():.0f}",
+        f"{new.min():.0f}",
+        f"{new.max():.0f}",
+        f"{100 * (1 - new.median() / old.median()):.0f}",
+    )
+
+
+CLAIMS += (
+    Claim(
+        "regenerate.ab",
+        "../ab_entry.csv",
+        _ab_entry,
+        "side by side, interleaved (`results/ab_entry.csv`), the old and the new code's `gk2_bu` took {}-{} and "
+        "{}-{} s of CPU ({} % less)",
+        "cpu_s of the gk2_bu runs by side; 1 - median(new)/median(old)",
+    ),
+)
+# the NAME table of studies/README.md: each entry's measured wall time (fresh full form, 2 workers)
+CLAIMS += tuple(
+    Claim(f"wall.{entry}", file, _wall(entry), f"| `{entry}` | {{}} s |", "wall_s of the entry")
+    for entry, file in _TIMED.items()
+)
+
+
+def _gc_collapse(d: pd.DataFrame, case: str, grid: str) -> tuple[str, ...]:
+    """The density-collapse times of one case and grid kind on n = 121, 241, 481 (a dash where none)."""
+    rows = d[(d.case == case) & (d.grid == grid)].set_index("n")["t(sigma_v < 0.05)"]
+    return tuple("-" if n not in rows.index or np.isnan(rows[n]) else f"{rows[n]:.3f}" for n in (121, 241, 481))
+
+
+def _gc_certified(d: pd.DataFrame) -> tuple[str, ...]:
+    """The number of gamma = 3/2 runs; refused unless each stopped on the density criterion, no slice failed."""
+    if (d["failed slices"] > 0).any() or not d.stop.str.startswith("min spread_v").all():
+        raise ValueError("grid_convergence.csv: a run with failed slices or another stop than the density collapse")
+    return (str(len(d)),)
+
+
+def _gc_g2bu(d: pd.DataFrame) -> tuple[str, ...]:
+    """lambda = 310 on the three grids; the ranges of |T_b(401) - T_b(201)| and |T_b(801) - T_b(401)|; T_b at 801."""
+    r = d.set_index("lambda")
+    t = [f"{r.loc[310, f'T_b (N_v = {n})']:.5f}" for n in (201, 401, 801)]
+    d1 = (r["T_b (N_v = 401)"] - r["T_b (N_v = 201)"]).abs()
+    d2 = (r["T_b (N_v = 801)"] - r["T_b (N_v = 401)"]).abs()
+    fine = r["T_b (N_v = 801)"]
+    ranges = (f"{d1.min():.4f}-{d1.max():.4f}", f"{d2.min():.4f}-{d2.max():.4f}")
+    return (*t, *ranges, f"{fine.min():.4f}", f"{fine.max():.4f}")
+
+
+CLAIMS += (
+    Claim(
+        "grid_convergence.before",
+        "grid_convergence.csv",
+        lambda d: (*_gc_collapse(d, "before", "mapped"), *_gc_collapse(d, "before", "uniform")),
+        "lambda = 10: {}, {}, {} on the mapped grids and {}, {}, {} on the uniform ones",
+        "t(sigma_v < 0.05), n = 121, 241, 481",
+    ),
+    Claim(
+        "grid_convergence.after",
+        "grid_convergence.csv",
+        lambda d: (*_gc_collapse(d, "after", "mapped"), *_gc_collapse(d, "after", "uniform")),
+        "lambda = 5: {}, {}, {} on the mapped grids and {}, {}, {} on the uniform ones",
+        "t(sigma_v < 0.05), n = 121, 241, 481",
+    ),
+    Claim(
+        "grid_convergence.certified",
+        "grid_convergence.csv",
+        _gc_certified,
+        "all {} gamma = 3/2 runs reach the density collapse with every collision step certified",
+        "rows of grid_convergence.csv (failed slices 0, stop = the density criterion)",
+    ),
+    Claim(
+        "grid_convergence.g2bu",
+        "grid_convergence_g2bu.csv",
+        _gc_g2bu,
+        "lambda = 310 gives {}, {}, {} on N_v = 201, 401, 801; over the nine lambda T_b moves by {} from 201 to "
+        "401 and by {} from 401 to 801, and lies in [{}, {}] at 801",
+        "T_b columns of grid_convergence_g2bu.csv",
+    ),
+)
+
+
+def _gc_wall(text: str) -> tuple[str, ...]:
+    """The sweep's wall time in minutes, from the report's last line."""
+    found = re.search(r"Sweep wall time (\d+) s", text)
+    if found is None:
+        raise ValueError("grid_convergence.md: no sweep wall time (a report built from a stopped sweep)")
+    return (f"{float(found.group(1)) / 60:.0f}",)
+
+
+def _gc_gap(d: pd.DataFrame) -> tuple[str, ...]:
+    """lambda = 10: |mapped - uniform| collapse time at n = 121 and 481."""
+    t = d[d.case == "before"].pivot(index="n", columns="grid", values="t(sigma_v < 0.05)")
+    gap = (t["uniform"] - t["mapped"]).abs()
+    return (f"{gap[121]:.3f}", f"{gap[481]:.3f}")
+
+
+def _gc_sigma(d: pd.DataFrame) -> tuple[str, ...]:
+    r = d[(d.case == "before") & (d.grid == "mapped") & (d.quantity == "sigma_v(t=0.1)")].iloc[0]
+    return (*(f"{r[f'n = {n}']:.3f}" for n in (121, 241, 481)), f"{r.order:.1f}")
+
+
+def _gc_failure_detail(text: str) -> tuple[str, ...]:
+    import json
+
+    fail = json.loads(text)["failed solves"][-1]
+    if not fail["largest certified kkt_residual"] < 1e-8:  # the prose says "every other is below 1e-8"
+        raise ValueError("grid_convergence_failure_before_fix.json: a certified slice above 1e-8")
+    return (
+        f"{fail['kkt_residual'][0]:.1e}",
+        str(fail["iterations"][0]),
+        f"{fail['f_star min'][0]:.1e}",
+    )
+
+
+CLAIMS += (
+    Claim(
+        "grid_convergence.gap",
+        "grid_convergence.csv",
+        _gc_gap,
+        "for lambda = 10 the gap falls from {} at 121 to {} at 481",
+        "|uniform - mapped| collapse time",
+    ),
+    Claim(
+        "grid_convergence.sigma",
+        "grid_convergence_gamma1p5.csv",
+        _gc_sigma,
+        "lambda = 10 mapped at t = 0.1: {}, {}, {}, observed order {}",
+        "sigma_v(t=0.1) row and its order",
+    ),
+    Claim(
+        "grid_convergence.wall",
+        "grid_convergence.md",
+        _gc_wall,
+        "The whole sweep ran once on one code, 2 workers, {} min of wall time",
+        "the report's last line, seconds / 60",
+        "README.md",
+    ),
+    Claim(
+        "inhom_gamma1p5.crawl_steps",
+        "inhom_gamma1p5.csv",
+        lambda d: (str(int(d[(d.case == "before") & (d.n == 121)].steps.iloc[0])),),
+        "(121 x 121, lambda = 10: {} steps)",
+        "steps of the lambda = 10 run on 121 x 121",
+    ),
+    Claim(
+        "grid_convergence.wall_table",
+        "grid_convergence.md",
+        _gc_wall,
+        "| `grid_convergence` | {} min (one sweep, below) |",
+        "as grid_convergence.wall",
+    ),
+    Claim(
+        "grid_convergence.cost481",
+        "grid_convergence.csv",
+        lambda d: tuple(
+            f"{d[(d.case == c) & (d.grid == 'mapped') & (d.n == 481)].seconds.iloc[0] / 60:.0f}"
+            for c in ("before", "after")
+        ),
+        "(the mapped 481 x 481 runs: {} min for lambda = 10 and {} min for lambda = 5",
+        "seconds / 60 of that run",
+        "README.md",
+    ),
+    Claim(
+        "grid_convergence.failure_t",
+        "../grid_convergence_failure_before_fix.json",
+        lambda text: (f"{json.loads(text)['t']:.3f}",),
+        "run stopped after t = {} (its last accepted step) on a collision step that Newton did not certify",
+        "t of the failed run's record",
+    ),
+    Claim(
+        "grid_convergence.failure_detail",
+        "../grid_convergence_failure_before_fix.json",
+        _gc_failure_detail,
+        "one slice ends at KKT residual {} after {} Newton iterations while every other is below 1e-8, and its "
+        "f* reaches {}",
+        "the failed solve's record",
+    ),
+)
+
+
+def _gc_no_floor(text: str) -> tuple[str, ...]:
+    """The rerun without the v-floor: where it stopped, and the failed slice's smallest f* and its v-line."""
+    import json
+
+    run = json.loads(text)
+    if run["v.floor_every_step"] or not run["failed solves"]:
+        raise ValueError("grid_convergence_failure_no_floor.json: not a failed run without the v-floor")
+    fail = run["failed solves"][0]
+    return (
+        f"{run['t']:.3f}",
+        f"{fail['f_star min'][0]:.1e}",
+        str(fail["f_star argmin v index"][0]),
+        str(fail["v points"]),
+        f"{fail['v-line mass at that index'][0]:.1e}",
+    )
+
+
+def _gc_floored(text: str) -> tuple[str, ...]:
+    """The rerun with the v-floor: its collapse time; refused unless every solve was certified."""
+    import json
+
+    run = json.loads(text)
+    if not run["v.floor_every_step"] or run["failed solves"] or run["collapse t (sigma_v < 0.05)"] is None:
+        raise ValueError("grid_convergence_failure.json: not a certified run to the collapse with the v-floor")
+    return (f"{run['collapse t (sigma_v < 0.05)']:.3f}", str(run["steps"]))
+
+
+CLAIMS += (
+    Claim(
+        "grid_convergence.no_floor",
+        "../grid_convergence_failure_no_floor.json",
+        _gc_no_floor,
+        "still stops, at t = {}: the failed slice's f* is smallest ({}) at v index {} of {}, an edge line whose "
+        "mass over x is {}",
+        "the rerun with the tilt fixed and no v-floor",
+    ),
+    Claim(
+        "grid_convergence.floored",
+        "../grid_convergence_failure.json",
+        _gc_floored,
+        "the same point then collapses at t = {} after {} steps, every solve certified",
+        "the rerun with v.floor_every_step",
+    ),
+    Claim(
+        "grid_convergence.uniform_order",
+        "grid_convergence_gamma1p5.csv",
+        lambda d: (
+            f"{d[(d.case == 'after') & (d.grid == 'uniform') & (d.quantity == 't(sigma_v < 0.05)')].order.iloc[0]:.1f}",
+        ),
+        "observed order about {}",
+        "order of the lambda = 5 uniform collapse times",
+    ),
+)
+
+
+def _gc_g2bu_steps(d: pd.DataFrame) -> tuple[str, ...]:
+    """The range of d1/d2 over lambda, and whether T_b(801) decreases strictly in lambda."""
+    ratio = d["T_b d1"] / d["T_b d2"]
+    fine = d.sort_values("lambda")["T_b (N_v = 801)"].to_numpy()
+    monotone = "decreases monotonically" if (np.diff(fine) < 0).all() else "does not decrease monotonically"
+    return (f"{ratio.min():.1f}", f"{ratio.max():.1f}", monotone)
+
+
+CLAIMS += (
+    Claim(
+        "grid_convergence.g2bu_steps",
+        "grid_convergence_g2bu.csv",
+        lambda d: _gc_g2bu_steps(d)[:2],
+        "The steps do not shrink (the ratios d1/d2 lie between {} and {}; `grid_convergence_g2bu.csv`)",
+        "T_b d1 / T_b d2 over lambda",
+    ),
+    Claim(
+        "grid_convergence.g2bu_monotone",
+        "grid_convergence_g2bu.csv",
+        lambda d: _gc_g2bu_steps(d)[2:],
+        "At 801 T_b {} in lambda",
+        "the signs of the differences of T_b (N_v = 801) in lambda",
+    ),
+)
+
+
+# --- README's benchmark section (studies/bench_collision.py): every cell of its tables ----------------------
+
+_BENCH_SIZES = (61, 121, 241, 481)
+_BENCH_METHODS = {"perspective": ("conic", "sqp", "newton", "nlp"), "log": ("sqp", "newton", "nlp")}
+
+
+def _opt(x: float, fmt: str) -> str:
+    """``x`` formatted, or empty where the method has no such figure (NaN)."""
+    return "" if pd.isna(x) else format(x, fmt)
+
+
+def _bench_row(d: pd.DataFrame, fisher: str, n: int, method: str) -> tuple[str, ...]:
+    """A row of README's one-step table: median s, iterations, [DC passes,] KKT, build s, in-solver s."""
+    rows = d[(d.fisher == fisher) & (d.N == n) & (d.method == method)]
+    if len(rows) != 1:
+        raise ValueError(f"bench_collision.csv: expected one row for {fisher}, N = {n}, {method}")
+    r = rows.iloc[0]
+    inside = r.clarabel_s if method == "conic" else r.ipopt_s
+    cells = [_g(r.median_s, 3), f"{int(r.iterations)}"]
+    if fisher == "perspective":
+        cells.append(_opt(r.passes, ".0f"))
+    return (*cells, f"{r.kkt_residual:.1e}", _opt(r.compile_s, ".3f"), _opt(inside, ".3f"))
+
+
+def _bench_ratio(d: pd.DataFrame, fisher: str, a: str, b: str) -> str:
+    """The ratios of the medians a / b at N = 61, 121, 241, 481, comma-separated."""
+    piv = d[d.fisher == fisher].pivot(index="N", columns="method", values="median_s")
+    return ", ".join(_g(piv[a][n] / piv[b][n], 3) for n in _BENCH_SIZES)
+
+
+def _bench_ratios(d: pd.DataFrame) -> tuple[str, ...]:
+    return (
+        _bench_ratio(d, "perspective", "conic", "newton"),
+        _bench_ratio(d, "perspective", "sqp", "newton"),
+        _bench_ratio(d, "log", "sqp", "newton"),
+        _bench_ratio(d, "perspective", "nlp", "conic"),
+        _bench_ratio(d, "perspective", "nlp", "sqp"),
+        _bench_ratio(d, "log", "nlp", "sqp"),
+    )
+
+
+def _bench_growth(d: pd.DataFrame, fisher: str, method: str) -> str:
+    """The fitted exponent p of median ~ N^p over N = 61 ... 481."""
+    rows = d[(d.fisher == fisher) & (d.method == method)].sort_values("N")
+    return f"{np.polyfit(np.log(rows.N), np.log(rows.median_s), 1)[0]:.1f}"
+
+
+def _bench_cvxpy(d: pd.DataFrame) -> tuple[str, ...]:
+    """nlp's per-solve reduction chain (ms), nlp's build and conic's compile (s): ranges over the rows."""
+    nlp, conic = d[d.method == "nlp"], d[d.method == "conic"]
+    return (
+        f"{1e3 * nlp.canonicalize_s.min():.1f}",
+        f"{1e3 * nlp.canonicalize_s.max():.1f}",
+        f"{nlp.compile_s.min():.3f}",
+        f"{nlp.compile_s.max():.3f}",
+        f"{conic.compile_s.min():.3f}",
+        f"{conic.compile_s.max():.3f}",
+    )
+
+
+def _bench_nlp(d: pd.DataFrame) -> tuple[str, ...]:
+    """nlp's medians (both forms), nlp / Newton (both forms) and nlp / conic (perspective): ranges over N."""
+    piv = d.pivot_table(index=["fisher", "N"], columns="method", values="median_s")
+    nlp_newton = piv.nlp / piv.newton
+    nlp_conic = (piv.nlp / piv.conic).dropna()
+    return (
+        _g(piv.nlp.min(), 2),
+        _g(piv.nlp.max(), 2),
+        f"{nlp_newton.min():.0f}",
+        f"{nlp_newton.max():.0f}",
+        f"{nlp_conic.min():.1f}",
+        f"{nlp_conic.max():.1f}",
+    )
+
+
+def _single_path(text: str) -> tuple[str, ...]:
+    """The range of branch/main over the one-problem table of ``newton_single_path.md``."""
+    section = text.split("## One problem", 1)[1].split("\n## ", 1)[0]
+    ratios = [float(line.split("|")[6]) for line in section.splitlines() if re.match(r"\| \d", line)]
+    return (f"{min(ratios):.1f}", f"{max(ratios):.1f}")
+
+
+def _bench_beta_row(d: pd.DataFrame, beta: float) -> tuple[str, ...]:
+    r = d.set_index("beta").loc[beta]
+    return (
+        _g(r.conic_s, 3),
+        f"{r.conic_kkt:.1e}",
+        _g(r.sqp_s, 3),
+        f"{int(r.sqp_it)}",
+        _g(r.newton_s, 3),
+        f"{int(r.newton_it)}",
+        _g(r["conic/newton"], 3),
+        _g(r["sqp/newton"], 3),
+    )
+
+
+def _bench_batch(d: pd.DataFrame) -> tuple[str, ...]:
+    r = d.iloc[0]
+    return (
+        f"{r.batched_s:.4f}",
+        f"{int(r.converged)}",
+        f"{int(r.slices)}",
+        f"{r.max_kkt:.1e}",
+        f"{r.one_at_a_time_s:.3f}",
+    )
+
+
+def _bench_growth_newton(d: pd.DataFrame) -> tuple[str, ...]:
+    d = d.sort_values("N")
+    return (
+        ", ".join(f"{1e3 * t:.2f}" for t in d.newton_s),
+        f"{np.polyfit(np.log(d.N), np.log(d.newton_s), 1)[0]:.2f}",
+    )
+
+
+def _bench_claims() -> tuple[Claim, ...]:
+    claims = []
+    for fisher, methods in _BENCH_METHODS.items():
+        cols = 6 if fisher == "perspective" else 5
+        for n in _BENCH_SIZES:
+            for method in methods:
+                claims.append(
+                    Claim(
+                        f"bench.{fisher}.{n}.{method}",
+                        "../bench_collision.csv",
+                        lambda d, f=fisher, n=n, m=method: _bench_row(d, f, n, m),
+                        f"| {n} | {method} |" + " {} |" * cols,
+                        f"{fisher} Fisher, N = {n}, {method}: median s, iterations, "
+                        + ("DC passes, " if fisher == "perspective" else "")
+                        + "KKT, build s, in-solver s",
+                        "README.md",
+                    )
+                )
+    claims += [
+        Claim(
+            "bench.ratios",
+            "../bench_collision.csv",
+            _bench_ratios,
+            "Ratios of the medians at N = 61, 121, 241, 481: conic / Newton {} (perspective); SQP / Newton {} "
+            "(perspective) and {} (log); nlp / conic {} (perspective); nlp / SQP {} (perspective) and {} (log).",
+            "medians per solve, bench_collision.csv",
+            "README.md",
+        ),
+        Claim(
+            "bench.growth",
+            "../bench_collision.csv",
+            lambda d: tuple(
+                _bench_growth(d, f, m) for f, m in (("perspective", "nlp"), ("log", "nlp"), ("perspective", "sqp"))
+            ),
+            "nlp's time grows like N^{} (perspective) and N^{} (log) over N = 61 ... 481, the SQP's like N^{}",
+            "least-squares slope of log median against log N",
+            "README.md",
+        ),
+        Claim(
+            "bench.cvxpy",
+            "../bench_collision.csv",
+            _bench_cvxpy,
+            "CVXPY's reduction chain costs nlp {}-{} ms per solve (`canonicalize_s`); nlp's build ({}-{} s) is "
+            "cheaper than conic's compile ({}-{} s)",
+            "ranges over the N and Fisher forms",
+            "README.md",
+        ),
+        Claim(
+            "bench.nlp",
+            "../bench_collision.csv",
+            _bench_nlp,
+            "{}-{} s per solve at N = 61-481, {}-{}x Newton and {}-{}x the conic re-solve (benchmark below)",
+            "ranges over N = 61 ... 481 and both Fisher forms (conic: perspective only)",
+            "README.md",
+        ),
+        Claim(
+            "bench.nlp_iterations",
+            "../bench_collision.csv",
+            lambda d: (f"{d[d.method == 'nlp'].iterations.min()}", f"{d[d.method == 'nlp'].iterations.max()}"),
+            "nlp's iteration count stays between {} and {}",
+            "nlp's iterations over N and both Fisher forms",
+            "README.md",
+        ),
+        Claim(
+            "bench.sqp_iterations",
+            "../bench_newton.csv",
+            lambda d: tuple(f"{int(x)}" for x in d.sort_values("beta").sqp_it),
+            "SQP iterations {} / {} / {} / {} for beta = 1 / 3 / 10 / 30",
+            "sqp_it of bench_newton.csv",
+            "README.md",
+        ),
+        *(
+            Claim(
+                f"bench.beta.{beta:g}",
+                "../bench_newton.csv",
+                lambda d, b=beta: _bench_beta_row(d, b),
+                f"| {beta:g} |" + " {} |" * 8,
+                f"beta = {beta:g}: conic s, KKT, sqp s, iterations, newton s, iterations, ratios",
+                "README.md",
+            )
+            for beta in (1.0, 3.0, 10.0, 30.0)
+        ),
+        Claim(
+            "bench.batch",
+            "../bench_newton_batch.csv",
+            _bench_batch,
+            "Batched Newton, 121 slices of N = 121: {} s ({} of {} slices converged, max KKT {}; one slice at a "
+            "time: {} s).",
+            "median of the batched solve; the loop over slices",
+            "README.md",
+        ),
+        Claim(
+            "bench.single_path",
+            "../newton_single_path.md",
+            _single_path,
+            "(a batch of one, {}-{}x slower per small solve than the former scalar path",
+            "branch/main over the one-problem table",
+            "README.md",
+        ),
+        Claim(
+            "bench.newton_growth",
+            "../bench_newton_growth.csv",
+            _bench_growth_newton,
+            "Newton time per solve against N = 61, 121, 241, 481: {} ms, fitted exponent {}",
+            "medians; least-squares slope of log time against log N",
+            "README.md",
+        ),
+    ]
+    return tuple(claims)
+
+
+CLAIMS += _bench_claims()
+
+
+
+# --- README's cost-growth paragraph and solver-table rows (jko-cvx study cost_growth) --------------------------
+
+
+def _exponent(d: pd.DataFrame, what: str) -> str:
+    rows = d[d.what == what]
+    if len(rows) != 1:
+        raise ValueError(f"cost_growth_exponents.csv: expected one row {what!r}")
+    return f"{rows.exponent.iloc[0]:.1f}"
+
+
+def _step_at(d: pd.DataFrame, gamma: float, method: str, n: int = 961) -> float:
+    rows = d[(d.gamma == gamma) & (d.method == method) & (d.N_v == n)]
+    if len(rows) != 1:
+        raise ValueError(f"cost_growth_step.csv: expected one row for gamma = {gamma}, {method}, N_v = {n}")
+    return float(rows.median_s.iloc[0])
+
+
+CLAIMS += (
+    Claim(
+        "cost.exponents",
+        "../cost_growth_exponents.csv",
+        lambda d: tuple(
+            _exponent(d, w)
+            for w in (
+                "collision step, gamma=1, newton",
+                "collision step, gamma=3, newton",
+                "collision step, gamma=1, conic",
+                "collision step, gamma=3, conic",
+                "collision step, gamma=1, sqp",
+                "collision step, gamma=3, sqp",
+                "time step vs N_x",
+                "time step vs N_v",
+            )
+        ),
+        "one Newton step grows like N^{} for gamma = 1 (banded) and N^{} for gamma = 3 (the exact O(N) "
+        "semiseparable solve); the conic re-solve like N^{} and N^{}; the paper's SQP like N^{} and N^{} (its "
+        "iteration count grows with N).  A whole inhomogeneous time step (gamma = 3) grows like N_x^{} (batched "
+        "collision plus transport) and N_v^{}",
+        "fitted exponents, cost_growth_exponents.csv",
+        "README.md",
+    ),
+    Claim(
+        "cost.at961",
+        "../cost_growth_step.csv",
+        lambda d: (
+            _g(_step_at(d, 3.0, "sqp"), 2),
+            _g(_step_at(d, 1.0, "sqp"), 2),
+            _g(_step_at(d, 3.0, "newton"), 2),
+            _g(_step_at(d, 1.0, "newton"), 2),
+        ),
+        "{} s (gamma = 3) and {} s (gamma = 1) per step at N = 961 against Newton's {} s and {} s (`cost_growth.md`)",
+        "medians of one collision step at N_v = 961",
+        "README.md",
+    ),
+    Claim(
+        "cost.batch",
+        "../cost_growth_batch.csv",
+        lambda d: (f"{d.speedup.min():.1f}", f"{d.speedup.max():.1f}", f"{d.B.min()}", f"{d.B.max()}"),
+        "{}-{}x faster than B single calls (B = {}-{}, gamma = 3, N = 121): `cost_growth.md`",
+        "one-at-a-time / batched over B",
+        "README.md",
+    ),
+)
+
+
+
+# --- README's "Bad input" table (studies/misuse_probe.py): every row ---------------------------------------
+
+
+_MISUSE_ROWS = 43  # rows of misuse_scene_cli.csv; _misuse_row refuses a file with another count
+
+
+def _misuse_row(d: pd.DataFrame, i: int) -> tuple[str, ...]:
+    """Row ``i`` of README's misuse table: class, input, the outcome before, the message now.
+
+    Pipes are escaped for Markdown; a message longer than 170 characters is cut at 167 and
+    marked with an ellipsis.
+    """
+    if len(d) != _MISUSE_ROWS:
+        raise ValueError(f"misuse_scene_cli.csv has {len(d)} rows, the README's table {_MISUSE_ROWS}")
+    r = d.iloc[i]
+    msg = str(r["message (now)"]).removeprefix("jko-cvx: error: ")
+    msg = msg if len(msg) <= 170 else msg[:167] + "..."
+    before = "clear" if bool(r["clear (before)"]) else str(r["outcome (before)"])
+    return tuple(str(x).replace("|", "\\|") for x in (r["class"], r["input"], before, msg))
+
+
+def _misuse_claims() -> tuple[Claim, ...]:
+    return tuple(
+        Claim(
+            f"misuse.row{i}",
+            "../misuse_scene_cli.csv",
+            lambda d, i=i: _misuse_row(d, i),
+            "| {} | `{}` | {} | {} |",
+            f"row {i} of misuse_scene_cli.csv: class, input, before, message now",
+            "README.md",
+        )
+        for i in range(_MISUSE_ROWS)
+    )
+
+
+CLAIMS += _misuse_claims()
+
+
+
+# --- README's measured inhom_gamma3 runs (the inhom_gamma3 entry) -------------------------------------------
+
+
+def _g3_runs(d: pd.DataFrame) -> tuple[str, ...]:
+    r = d.set_index("lambda")
+    four = r.loc[4.0]
+    return (
+        f"{four.seconds:.1f}",
+        f"{four['mass drift']:.1e}",
+        f"{four['momentum drift']:.1e}",
+        f"{int(four['moment2 increases'])}",
+        ", ".join(f"{r.seconds[lam]:.1f}" for lam in (2.0, 6.0, 8.0, 10.0)),
+        str(int(r["blow-up flagged"].astype(bool).sum())),
+        _g(r.loc[10.0, "min dx (min)"], 2),
+        _g(r.loc[10.0, "min dx at end"], 2),
+        f"{r.loc[10.0, 'max f (peak)']:.1f}",
+    )
+
+
+CLAIMS += (
+    Claim(
+        "readme.inhom_gamma3_runs",
+        "inhom_gamma3.csv",
+        _g3_runs,
+        "lambda = 4 took {} s in its run, no blow-up (the paper's conclusion), mass drift {}, momentum drift {}, "
+        "second moment increasing at {} steps.  The other gamma = 3 runs (lambda = 2, 6, 8, 10): {} s; {} of the "
+        "five flag blow-up; for lambda = 10 min dx falls to {} and recovers to {} at t = 4 while max f peaks at {}",
+        "the lambda rows of inhom_gamma3.csv",
+        "README.md",
+    ),
+    Claim(
+        "readme.momentum_drift",
+        "inhom_gamma3.csv",
+        lambda d: (f"{d['momentum drift'].max():.1e}",),
+        "Momentum drift over the `inhom_gamma3` runs (121 x 121 to t = 4): at most {}",
+        "largest momentum drift of inhom_gamma3.csv",
+        "README.md",
+    ),
+)
+
+
+
+# --- README's `jko-cvx compare` paragraph and solver table (work_precision_step) ----------------------------
+
+
+def _wps_ranges(d: pd.DataFrame) -> tuple[str, ...]:
+    """Median ms ranges over the tolerances, gamma = 1: Newton, the SQP (banded), Clarabel; SCS's KKT at 1e-4."""
+    g1 = d[d.problem == "gamma=1"]
+    out = []
+    for family in ("newton", "sqp:banded", "conic:CLARABEL"):
+        ms = 1e3 * g1[g1.family == family].median_s
+        out += [_g(ms.min(), 2), _g(ms.max(), 2)]
+    scs = g1[(g1.family == "conic:SCS") & (g1.setting == "tol=0.0001")]
+    if len(scs) != 1 or scs.status.iloc[0] != "NOT_CERTIFIED":
+        raise ValueError("work_precision_step.csv: SCS at tol 1e-4 is no longer one NOT_CERTIFIED row")
+    return (*out, f"{scs.kkt.iloc[0]:.1e}")
+
+
+def _sqp_failures(d: pd.DataFrame) -> tuple[str, ...]:
+    failed = d[d.failed_step >= 0]
+    if set(failed.family) != {"sqp"} or failed.beta.nunique() != 1:
+        raise ValueError("work_precision_run.csv: failed runs other than the SQP's at one beta")
+    return (f"{failed.beta.iloc[0]:g}", f"{failed.failed_step.max()}")
+
+
+def _crawl(d: pd.DataFrame) -> tuple[str, ...]:
+    per_slice = d.iterations_sum / d.slices
+    return (
+        f"{d.iterations_max.median():.0f}",
+        f"{d.iterations_max.max()}",
+        f"{per_slice.median():.1f}",
+        f"{d.one_iteration_slices.median():.0f}",
+    )
+
+
+def _default_scene_tb(d: pd.DataFrame) -> tuple[str, ...]:
+    """T_b of the beta-scan run with the default scene's physics (tab_bu_g1 at beta = 1000)."""
+    row = d[(d.data == "g1") & np.isclose(d.eps_v, 2.5e-4) & np.isclose(d["dt"], 0.01) & (d.beta == 1000.0)]
+    if len(row) != 1:
+        raise ValueError("tab_bu_beta_scan.csv: expected one g1 row at eps_v = 2.5e-4, dt = 0.01, beta = 1000")
+    return (_g(row.T_b.iloc[0], 4),)
+
+
+def _default_scene_beta_range(d: pd.DataFrame) -> tuple[str, ...]:
+    rows = d[(d.data == "g1") & np.isclose(d.eps_v, 2.5e-4) & np.isclose(d["dt"], 0.01) & (d.beta >= 1000.0)]
+    return (f"{rows.T_b.min():.2f}", f"{rows.T_b.max():.2f}")
+
+
+CLAIMS += (
+    Claim(
+        "readme.default_beta_range",
+        "tab_bu_beta_scan.csv",
+        _default_scene_beta_range,
+        "beta >= 1000 gives T_b = {}-{} (`tab_bu_beta_scan.csv`)",
+        "g1, eps_v = 1e-3/4, dt = 0.01 over beta >= 1000 (inf included)",
+        "README.md",
+    ),
+    Claim(
+        "readme.default_tb",
+        "tab_bu_beta_scan.csv",
+        _default_scene_tb,
+        "(measured `T_b = {}` with these settings: `tab_bu_beta_scan.csv`, beta = 1000",
+        "the g1, eps_v = 1e-3/4, dt = 0.01, beta = 1000 entry of the beta scan (the default scene's physics)",
+        "README.md",
+    ),
+    Claim(
+        "crawl.iterations",
+        "../bench_crawl.csv",
+        _crawl,
+        "the slowest slice needs {} Newton iterations per solve (median; at most {}), the average slice {}, and {} of "
+        "the 121 slices converge in one",
+        "per-solve medians and the largest, bench_crawl.csv",
+    ),
+    Claim(
+        "readme.sqp_failures",
+        "../work_precision_run.csv",
+        _sqp_failures,
+        "fails on vacuum tails at weak Fisher weight (beta = {} within the first {} steps",
+        "the failed runs of work_precision_run.csv (all SQP, one beta)",
+        "README.md",
+    ),
+    Claim(
+        "readme.compare",
+        "../work_precision_step.csv",
+        _wps_ranges,
+        "Newton {}-{} ms, SQP {}-{} ms, Clarabel {}-{} ms over their tolerances (`work_precision_step.csv`, the "
+        "same step); SCS at tol 1e-4 returns \"optimal\" with KKT {}, which the package reports as NOT_CERTIFIED",
+        "gamma = 1 rows of work_precision_step.csv",
+        "README.md",
+    ),
+)
+
+
+def claim_values(results: Path = RESULTS) -> dict[str, tuple[str, ...]]:
+    """Every claim's formatted number(s), computed from the files under ``results``."""
+    cache: dict[str, Any] = {}
+    out = {}
+    for c in CLAIMS:
+        if c.file not in cache:
+            cache[c.file] = _load(Path(results) / c.file)
+        out[c.key] = tuple(c.compute(cache[c.file]))
+    return out
+
+
+def reproduce_summary(out: Path, quick: bool = False, **_sweep_opts: Any) -> pd.DataFrame:
+    """Write ``summary.md``: every number ``studies/README.md`` quotes, from the result files in ``out``."""
+    out = Path(out)
+    values = claim_values(out)
+    rows = [
+        {"key": c.key, "value": ", ".join(values[c.key]), "file": c.file, "how": c.how, "readme": c.readme}
+        for c in CLAIMS
+    ]
+    df = pd.DataFrame(rows)
+    lines = [
+        "# The numbers studies/README.md quotes, computed from the result files",
+        "",
+        "Generated by `jko-cvx reproduce summary` (`jko_cvx/studies/reproduce/summary.py`); "
+        "`tests/test_quoted_numbers.py` checks the README against it.  Tolerances on T_b "
+        "are applied to |ours - paper| rounded to 5 decimals.",
+        "",
+        "| key | value | file | how | quoted in |",
+        "|:--|:--|:--|:--|:--|",
+    ]
+    lines += [f"| {r['key']} | {r['value']} | `{r['file']}` | {r['how']} | {r['readme']} |" for r in rows]
+    (out / "summary.md").write_text("\n".join(lines) + "\n")
+    return df
+
+
+# --- issue 18 options (studies/paper_variants.py): appended after the claims above ----------------------
+
+
+def _pv_row(d, delta0: float, halve_on: str, safeguard: str, max_iter: int = 20000):
+    rows = d[(d.delta0 == delta0) & (d.halve_on == halve_on) & (d.safeguard == safeguard) & (d.max_iter == max_iter)]
+    if len(rows) != 1:
+        raise ValueError(f"paper_variants.csv: expected one row for {delta0, halve_on, safeguard, max_iter}")
+    return rows.iloc[0]
+
+
+_RECORD = ("first halving t", "retries", "smallest dt", "steps", "t reached", "failed MAX_ITERATIONS")
+
+
+def _pv_same(d) -> str:
+    """ "the same" when the four halve_on x {floor, cut} rows of each delta0 have equal records."""
+    for d0 in (0.5, 0.05):
+        recs = {
+            tuple(_pv_row(d, d0, h, s)[list(_RECORD)].astype(float).round(12).fillna(-1))
+            for h in ("any_failure", "max_iterations")
+            for s in ("floor", "cut")
+        }
+        if len(recs) != 1:
+            return "different"
+    return "the same"
+
+
+def _pv_only_max(d) -> str:
+    """ "every" when no floor / cut row failed with another status than MAX_ITERATIONS."""
+    cols = ["failed NOT_CERTIFIED", "failed NONCONVEX", "failed NUMERICAL_ERROR"]
+    other = d[d.safeguard.isin(("floor", "cut"))][cols]
+    return "every" if int(other.to_numpy().sum()) == 0 else "not every"
+
+
+CLAIMS += (
+    Claim(
+        "paper_variants.halve_on",
+        "paper_variants.csv",
+        lambda d: (
+            _pv_only_max(d),
+            *(str(int(_pv_row(d, d0, "any_failure", "floor")["failed MAX_ITERATIONS"])) for d0 in (0.5, 0.05)),
+            _pv_same(d),
+        ),
+        "on the adaptive g1 runs {} failed attempt is MAX_ITERATIONS ({} for delta0 = 0.5, {} for delta0 = 0.05), "
+        "so both rules give {} records",
+        "failed-attempt counts by status; records compared over halve_on x safeguard in {floor, cut}",
+    ),
+    Claim(
+        "paper_variants.key",
+        "paper_variants.csv",
+        lambda d: (
+            _pv_only_max(d),
+            _pv_same(d),
+            *(f"{_pv_row(d, d0, 'any_failure', 'floor')['first halving t']:.2f}" for d0 in (0.5, 0.05)),
+            *(f"{_pv_row(d, d0, 'any_failure', 'none')['first failure t']:.2f}" for d0 in (0.5, 0.05)),
+        ),
+        "{} failed attempt of both runs is the exit flag (MAX_ITERATIONS), and the paper's halving rule "
+        '(`time.halve_on = "max_iterations"`) and the SQP without the zeta floor (`safeguard = "cut"`) give {} '
+        'records (first halving at t = {} and {}); without the cut (`safeguard = "none"`, Algorithm 1 as written) '
+        "an iterate leaves f > 0 at t = {} and {}",
+        "default rows, the floor/cut comparison and the safeguard = none rows",
+    ),
+    Claim(
+        "paper_variants.imax",
+        "paper_variants.csv",
+        lambda d: tuple(
+            f"{_pv_row(d, 0.5, 'max_iterations', 'floor', k)[c]:{fmt}}"
+            for k in (2000, 200)
+            for c, fmt in (("first halving t", ".2f"), ("T_b", ".4f"))
+        ),
+        "with I_max = 2000 the first halving comes at t = {} and the run ends on eps_t at T_b = {}, with 200 at "
+        "t = {} and T_b = {}",
+        "max_iter rows (delta0 = 0.5, halve_on = max_iterations)",
+    ),
+    Claim(
+        "paper_variants.none",
+        "paper_variants.csv",
+        lambda d: (
+            _pv_same(d),
+            *(f"{_pv_row(d, d0, 'any_failure', 'none')['first failure t']:.2f}" for d0 in (0.5, 0.05)),
+            *(f"{_pv_row(d, d0, 'max_iterations', 'none')['T_b']:.2f}" for d0 in (0.5, 0.05)),
+            *(f"{_pv_row(d, d0, 'any_failure', 'none')['T_b']:.3f}" for d0 in (0.5, 0.05)),
+        ),
+        '`"cut"` gives {} records as `"floor"` on both adaptive g1 runs; `"none"` leaves the domain at t = {} '
+        "(delta0 = 0.5) and {} (0.05): with the paper's halving rule the run stops there (T_b = {}, {}), with "
+        "`any_failure` the step is halved to eps_t by t = {} and {}",
+        "safeguard = none rows",
+    ),
+)
+
+
+def _pc(d, case: str, n: int, rule: str, col: str, fmt: str) -> str:
+    rows = d[(d.case == case) & (d.n == n) & (d.rule == rule)]
+    if len(rows) != 1:
+        raise ValueError(f"paper_variants_concentration.csv: expected one row for {case, n, rule}")
+    return f"{rows.iloc[0][col]:{fmt}}"
+
+
+def _pc_no_blowup(d) -> str:
+    g3 = d[d.case == "gamma3_lambda4"]
+    return "no blow-up either way" if g3.T_b.isna().all() else "blow-up in some run"
+
+
+def _pc_stop(d) -> str:
+    q = d[(d.rule == "quadrant") & d.case.str.startswith("gamma1p5") & (d.n == 61)]
+    return "the density stop fires" if q.verdict.str.startswith("min spread_v").all() else "another rule fires"
+
+
+def _pc_uniform(d) -> str:
+    """ "stay uniform" when no quadrant row of inhom_gamma1p5 ever refined its v-grid."""
+    q = d[(d.rule == "quadrant") & d.case.str.startswith("gamma1p5")]
+    return "stay uniform" if q["first t with a refined v-grid"].isna().all() else "do not stay uniform"
+
+
+CLAIMS += (
+    Claim(
+        "paper_variants.concentration",
+        "paper_variants_concentration.csv",
+        lambda d: (
+            *(_pc(d, "gamma3_lambda4", 121, r, "min dx", ".2g") for r in ("quadrant", "projections")),
+            *(_pc(d, "gamma3_lambda4", 121, r, "min dv", ".3g") for r in ("quadrant", "projections")),
+            *(_pc(d, "gamma3_lambda4", 121, r, "max f (peak)", ".4g") for r in ("quadrant", "projections")),
+            _pc_no_blowup(d),
+            _pc_uniform(d),
+            _pc_stop(d),
+            *(_pc(d, f"gamma1p5_{c}", 61, "quadrant", "T_b", ".2f") for c in ("before", "after")),
+            *(_pc(d, f"gamma1p5_{c}", 61, "projections", "T_b", ".4g") for c in ("before", "after")),
+        ),
+        "inhom_gamma3 lambda = 4 at 121 x 121 to t = 4: min dx {} against {} (the set's x-extent is one bump's, "
+        "not the projection over v), min dv {} against {}, max f {} against {}, {}; "
+        "inhom_gamma1p5 (quick form, 61 x 61): the grids {} to t = 0.6 (the bumps reach x = 0 at t = 1), and "
+        "{} at t = {} (before) and {} (after), where the projections' min dv falls below "
+        "eps_v at t = {} and {}",
+        "quadrant against projections rows",
+    ),
+)

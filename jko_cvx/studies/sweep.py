@@ -1,0 +1,405 @@
+"""Parameter sweeps: pure point functions on any executor, cached per point on disk.
+
+A sweep is a list of parameter points (dicts of JSON-serialisable values) and a
+module-level function ``func(**point) -> dict`` that depends on nothing else.  Each point's
+result is written atomically to ``cache_dir/<hash>.json`` as soon as it arrives, so a
+killed sweep resumes by computing only the points without a file.  Points run on any
+:class:`concurrent.futures.Executor`:
+
+* ``executor="serial"``: in this process, in order (debugging, tests);
+* ``executor="process"`` (default): a local :class:`~concurrent.futures.ProcessPoolExecutor`;
+* ``executor="dask"``: a local Dask cluster (``distributed.LocalCluster``);
+* ``scheduler="tcp://host:8786"``: an existing Dask cluster, through
+  ``distributed.Client(scheduler).get_executor()``;
+* or an ``Executor`` instance.
+
+Dask is optional (``pip install "jko_cvx[dask]"``).  Results do not depend on where a point
+ran: the point functions are deterministic, and the test suite checks that serial, process
+pool and Dask runs give identical tables.
+
+The cache cannot serve stale results.  A point's key (:func:`point_key`) covers the point,
+the function's qualified name, the source of the module that defines it, the package
+version and a hash of every ``.py`` file of the package: after any change of code, old
+entries are simply not found (and the point runs again).  Each entry records its key and
+a SHA-256 digest of its content; an entry that does not parse, records another key or
+point, or fails its digest (truncated, tampered with) is recomputed with a
+:class:`StaleCacheWarning` naming the file.  ``fresh=True`` (``jko-cvx reproduce --fresh``)
+ignores the cache and recomputes every point.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import inspect
+import json
+import os
+import sys
+import tempfile
+import threading
+import warnings
+from collections.abc import Callable, Iterable, Iterator, Mapping
+from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_completed
+from contextlib import ExitStack, contextmanager
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+__all__ = [
+    "StaleCacheWarning",
+    "cached_entries",
+    "code_identity",
+    "holding",
+    "point_key",
+    "run_sweep",
+    "shared_points",
+]
+
+
+class StaleCacheWarning(UserWarning):
+    """A cache entry that could not be trusted (unreadable, another key, a bad digest): recomputed."""
+
+
+def _sha(text: str) -> str:
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+@functools.cache
+def _package_hash() -> str:
+    """SHA-256 over the relative paths and contents of every ``.py`` file of the package."""
+    root = Path(__file__).resolve().parent
+    h = hashlib.sha256()
+    for path in sorted(root.rglob("*.py")):
+        h.update(str(path.relative_to(root)).encode() + b"\0" + path.read_bytes() + b"\0")
+    return h.hexdigest()
+
+
+def _module_source(func: Callable[..., Any]) -> str:
+    """The source of the module defining ``func`` (its helpers change the results too); the function's own
+    source where the module has none."""
+    module = sys.modules.get(getattr(func, "__module__", ""), None)
+    for obj in (module, func):
+        try:
+            return inspect.getsource(obj)
+        except (OSError, TypeError):
+            continue
+    raise TypeError(f"cannot read the source of {func!r}: sweeps cache only functions defined in source files")
+
+
+def code_identity(func: Callable[..., Any]) -> dict[str, str]:
+    """What the results of ``func`` depend on besides the point: name, module source, package version and code."""
+    from jko_cvx import __version__
+
+    return {
+        "func": f"{func.__module__}.{func.__qualname__}",
+        "module_sha256": _sha(_module_source(func)),
+        "package_version": __version__,
+        "package_sha256": _package_hash(),
+    }
+
+
+def code_provenance(func: Callable[..., Any]) -> dict[str, Any]:
+    """:func:`code_identity` plus the git commit of the checkout the package sits in and whether
+    its ``jko_cvx`` files differ from that commit (``None`` and ``None`` outside a git checkout).
+
+    For study scripts that record which code produced a result file; take it before the run,
+    so that a file edited meanwhile cannot change the record.
+    """
+    import subprocess
+
+    def git(*args: str) -> str | None:
+        try:
+            done = subprocess.run(["git", *args], capture_output=True, text=True, cwd=Path(__file__).parent)
+        except OSError:
+            return None
+        return done.stdout.strip() if done.returncode == 0 else None
+
+    commit, status = git("rev-parse", "HEAD"), git("status", "--porcelain", ".")
+    return {
+        **code_identity(func),
+        "git_commit": commit or None,
+        "jko_cvx_modified": None if status is None else bool(status),
+    }
+
+
+def _canonical(obj: Any) -> str:
+    return json.dumps(obj, sort_keys=True, default=float)
+
+
+def point_key(func: Callable[..., Any], point: Mapping[str, Any]) -> str:
+    """Cache key of ``func`` at ``point``: SHA-256 of :func:`code_identity` and the point's canonical JSON."""
+    return _sha(_canonical({"code": code_identity(func), "point": dict(point)}))[:32]
+
+
+def _entry(key: str, point: Mapping[str, Any], result: Mapping[str, Any]) -> str:
+    """The JSON text of a cache entry; ``digest`` covers key, point and result."""
+    body = {"key": key, "point": dict(point), "result": dict(result)}
+    return json.dumps({**body, "digest": _sha(_canonical(body))}, default=float)
+
+
+def _read_entry(path: Path, key: str, point: Mapping[str, Any]) -> dict | None:
+    """The cached result at ``path``, or None (with a warning naming the file) if it cannot be trusted."""
+    try:
+        entry = json.loads(path.read_text())
+        body = {k: entry[k] for k in ("key", "point", "result")}
+        problem = (
+            "records another key"
+            if body["key"] != key
+            else "records another point"
+            if _canonical(body["point"]) != _canonical(dict(point))
+            else "fails its digest (edited or corrupted)"
+            if entry.get("digest") != _sha(_canonical(body))
+            else None
+        )
+    except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError) as exc:
+        problem = f"does not parse ({type(exc).__name__}: {exc})"
+    if problem is None:
+        return entry["result"]
+    warnings.warn(f"sweep cache entry {path} {problem}; recomputing the point", StaleCacheWarning, stacklevel=4)
+    return None
+
+
+def cached_entries(cache_dir: str | Path) -> list[tuple[dict, dict]]:
+    """Every (point, result) in ``cache_dir``, whatever code wrote it, each entry's digest checked.
+
+    For reports built from a stopped sweep's cache (``studies/grid_convergence_partial.py``),
+    which must state the code the entries came from themselves: the key, which covers the
+    code, is not compared here.  Raises ``ValueError`` naming an entry that does not parse
+    or fails its digest (edited or truncated) rather than leaving it out.
+    """
+    entries = []
+    for path in sorted(Path(cache_dir).glob("*.json")):
+        try:
+            entry = json.loads(path.read_text())
+            body = {k: entry[k] for k in ("key", "point", "result")}
+        except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError) as exc:
+            raise ValueError(f"cache entry {path} does not parse ({type(exc).__name__}: {exc})") from None
+        if entry.get("digest") != _sha(_canonical(body)):
+            raise ValueError(f"cache entry {path} fails its digest: refusing to report from it")
+        entries.append((body["point"], body["result"]))
+    return entries
+
+
+def _write_atomic(path: Path, text: str) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
+    try:
+        with os.fdopen(fd, "w") as fh:
+            fh.write(text)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+
+
+def _read_cache(cache: Path, points: Mapping[str, Mapping[str, Any]]) -> dict[str, dict]:
+    """The trusted cached results of ``points`` (by key); damaged entries are left out with a warning."""
+    results = {}
+    for key, point in points.items():
+        path = cache / f"{key}.json"
+        if path.exists():
+            result = _read_entry(path, key, point)
+            if result is not None:
+                results[key] = result
+    return results
+
+
+def _call(func: Callable[..., dict], point: dict) -> dict:
+    return func(**point)
+
+
+_HELD = threading.local()
+
+
+@contextmanager
+def holding(lock: threading.Lock, on_release: Callable[[], None] | None = None) -> Iterator[None]:
+    """Hold ``lock`` in this block, except while :func:`run_sweep` waits for its points.
+
+    Lets several callers share one pool (``jko-cvx reproduce section``): each runs its own
+    code holding the lock, one at a time, and lets the others run while its points are
+    computed.  ``on_release`` is called each time the lock is let go for a wait.
+    """
+    lock.acquire()
+    _HELD.lock, _HELD.on_release = lock, on_release
+    try:
+        yield
+    finally:
+        _HELD.lock = _HELD.on_release = None
+        lock.release()
+
+
+_SHARED: dict[str, Future] | None = None
+_SHARED_LOCK = threading.Lock()
+
+
+@contextmanager
+def shared_points() -> Iterator[None]:
+    """Within the block, a point that another :func:`run_sweep` call has already submitted is not
+    submitted again: the call takes that call's future.
+
+    For callers that share one Executor (``jko-cvx reproduce section``: ``gk2_bu``'s runs are
+    four of ``tab_g2bu``'s, ``tab_bu``'s are a block of the beta scan's).  A point's key
+    (:func:`point_key`) covers the function, the source of its module, the package's code and
+    the parameters, and a point is a deterministic function of them, so its result is the
+    same whichever call computed it; each call still writes it into its own cache.
+    """
+    global _SHARED
+    with _SHARED_LOCK:
+        if _SHARED is not None:
+            raise RuntimeError("shared_points blocks do not nest")
+        _SHARED = {}
+    try:
+        yield
+    finally:
+        with _SHARED_LOCK:
+            _SHARED = None
+
+
+def _submit(pool: Executor, func: Callable[..., dict], key: str, point: dict) -> Future:
+    """``pool.submit`` of one point, or the future of the same point already submitted (:func:`shared_points`)."""
+    with _SHARED_LOCK:
+        if _SHARED is None:
+            return pool.submit(_call, func, point)
+        fut = _SHARED.get(key)
+        if fut is None:
+            fut = _SHARED[key] = pool.submit(_call, func, point)
+        return fut
+
+
+@contextmanager
+def _lock_released() -> Iterator[None]:
+    """Release the lock of :func:`holding` (if this thread holds one) for the block."""
+    lock = getattr(_HELD, "lock", None)
+    if lock is None:
+        yield
+        return
+    lock.release()
+    if _HELD.on_release is not None:
+        _HELD.on_release()
+    try:
+        yield
+    finally:
+        lock.acquire()
+
+
+def run_sweep(
+    func: Callable[..., dict],
+    points: Iterable[Mapping[str, Any]],
+    cache_dir: str | Path,
+    executor: str | Executor = "process",
+    scheduler: str | None = None,
+    workers: int | None = None,
+    progress: bool = True,
+    desc: str = "sweep",
+    fresh: bool = False,
+) -> pd.DataFrame:
+    """Evaluate ``func(**point)`` at every point, reusing cached results; one row per point.
+
+    Parameters
+    ----------
+    func : callable
+        A module-level (picklable) function of the point's keys returning a dict of results.
+    points : iterable of dict
+        The parameter points, JSON-serialisable.  Their order is the order of the rows.
+    cache_dir : str or Path
+        Directory of per-point result files (created if missing).
+    executor : {"process", "serial", "dask"} or Executor, default "process"
+        Where the missing points run (see the module docstring).
+    scheduler : str, optional
+        Address of a Dask scheduler; overrides ``executor``.
+    workers : int, optional
+        Worker count for the local pool or cluster (default: the CPU count).
+    progress : bool, default True
+        Show a tqdm progress bar of points done (cached points count as done).
+    desc : str, default "sweep"
+        Label of the progress bar.
+    fresh : bool, default False
+        Ignore the cache: compute every point and overwrite its entry.
+
+    Returns
+    -------
+    pandas.DataFrame
+        The point's parameters followed by its results, plus ``cached`` (True where the
+        result was read from the cache rather than computed in this call).
+    """
+    if not callable(func):
+        raise TypeError(f"func must be callable, got {type(func).__name__}")
+    points = _checked_points(points)
+    if isinstance(executor, str) and executor not in ("process", "serial", "dask"):
+        raise ValueError(f"executor must be 'process', 'serial', 'dask' or an Executor, got {executor!r}")
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
+        raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
+    if not isinstance(fresh, bool):
+        raise TypeError(f"fresh must be a bool, got {fresh!r}")
+    keys = [point_key(func, p) for p in points]
+    cache = Path(cache_dir)
+    cache.mkdir(parents=True, exist_ok=True)
+    results = {} if fresh else _read_cache(cache, dict(zip(keys, points, strict=True)))
+    cached = set(results)
+    todo = {k: p for k, p in zip(keys, points, strict=True) if k not in results}
+
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=len(set(keys)), initial=len(cached), desc=desc, unit="pt")
+
+    def store(key: str, result: dict) -> None:
+        if not isinstance(result, dict):
+            raise TypeError(f"{func.__qualname__} must return a dict, got {type(result).__name__}")
+        _write_atomic(cache / f"{key}.json", _entry(key, todo[key], result))
+        results[key] = result
+        if bar is not None:
+            bar.update(1)
+
+    try:
+        if todo and (executor == "serial" and scheduler is None):
+            for key, point in todo.items():
+                store(key, _call(func, point))
+        elif todo:
+            with ExitStack() as stack:
+                pool = _open_executor(stack, executor, scheduler, workers)
+                futures: dict[Future, str] = {_submit(pool, func, k, p): k for k, p in todo.items()}
+                with _lock_released():  # other holders of a shared pool run meanwhile (holding)
+                    for fut in as_completed(futures):
+                        store(futures[fut], fut.result())
+    finally:
+        if bar is not None:
+            bar.close()
+    rows = [{**p, **results[k], "cached": k in cached} for k, p in zip(keys, points, strict=True)]
+    return pd.DataFrame(rows)
+
+
+def _checked_points(points: Iterable[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """The points as dicts; ``TypeError`` naming the first that is not a mapping or not JSON."""
+    out = []
+    for i, p in enumerate(points):
+        if not isinstance(p, Mapping):
+            raise TypeError(f"points must be an iterable of mappings (dicts of parameters), got points[{i}] = {p!r}")
+        try:
+            _canonical(dict(p))
+        except (TypeError, ValueError) as exc:
+            raise TypeError(f"points[{i}] = {p!r} is not JSON-serialisable ({exc}): a cache key needs JSON") from None
+        out.append(dict(p))
+    return out
+
+
+def _open_executor(stack: ExitStack, executor, scheduler: str | None, workers: int | None) -> Executor:
+    if scheduler is not None or executor == "dask":
+        try:
+            from distributed import Client, LocalCluster
+        except ImportError as exc:  # optional extra
+            raise ImportError('Dask sweeps need the optional extra: pip install "jko_cvx[dask]"') from exc
+        if scheduler is not None:
+            client = stack.enter_context(Client(scheduler))
+        else:
+            cluster = stack.enter_context(
+                LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True)
+            )
+            client = stack.enter_context(Client(cluster))
+        return client.get_executor()
+    if executor == "process":
+        return stack.enter_context(ProcessPoolExecutor(max_workers=workers))
+    if isinstance(executor, Executor):
+        return executor
+    raise ValueError(f"executor must be 'process', 'serial', 'dask' or an Executor, got {executor!r}")
