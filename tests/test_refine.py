@@ -276,7 +276,7 @@ def test_quadrant_rule_builds_each_map_from_the_sets_extent_on_its_axis(bumps_v)
 def test_quadrant_rule_reads_the_density_entering_the_collision(monkeypatch):
     """alg:SPMCSL-JKO step 4 takes f*, the density after transport and before the collision: the set
     is built from exactly transport_step(f^n) (computed here on its own), not from f^{n+1}."""
-    from jko_cvx import simulate as sim
+    from jko_cvx.engine import loop as sim
     from jko_cvx.transport import transport_step
 
     scene = _phase_scene(-1.0, 1.0, "quadrant", t_end=0.05)
@@ -298,7 +298,7 @@ def test_quadrant_rule_reads_the_density_entering_the_collision(monkeypatch):
 def test_quadrant_rule_state_survives_a_checkpoint_and_resumes_bit_for_bit(tmp_path):
     """The 'uniform grid' extent of an empty quadrant set must read back as itself: a resumed run then
     takes exactly the steps of the uninterrupted one (no extra remap on the uniform grids)."""
-    from jko_cvx import simulate as sim
+    from jko_cvx.engine import loop as sim
 
     scene = _phase_scene(1.0, 1.0, "quadrant", t_end=0.15)
     st = sim.initial_state(scene)
