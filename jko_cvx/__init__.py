@@ -1,22 +1,49 @@
 """jko_cvx: Fisher-regularised JKO collision steps for the granular kinetic equation.
 
-Following Carrillo, Shu, Wang and Xu, "To blow-up or not to blow-up for a granular
-kinetic equation".  The public contract::
+Following Carrillo, Shu, Wang and Xu, "To blow-up or not to blow-up for a granular kinetic
+equation".  What a researcher imports is here; the subpackages hold the rest
+(``docs/architecture.md``):
+
+* the discrete problem: :class:`Grid`, :class:`PeriodicGrid`, :class:`PowerKernel`,
+  :class:`CollisionProblem` (``eqn:non-uniform JKO`` with ``eqn:linear_constraint``);
+* its solvers and their judge: :func:`solve_collision` (methods ``"conic"``, ``"newton"``,
+  ``"nlp"``, ``"sqp"``), :func:`certify`, :func:`explicit_step`, :func:`conic_solvers`, and the
+  results :class:`CollisionResult`, :class:`Status`, :class:`KKTResidual`, :class:`Certificate`;
+* the homogeneous equation on a fixed grid: :func:`evolve_fixed_grid`;
+* scenes and runs: :class:`Scene`, :func:`load_scene`, :func:`shipped_scene`,
+  :func:`default_scene`, :func:`simulate`, :class:`Run`, :func:`load_run`.
+
+::
 
     from jko_cvx import Grid, PowerKernel, CollisionProblem, solve_collision
-    grid = Grid(points)                      # also Grid.uniform(a, b, n)
-    prob = CollisionProblem(grid, PowerKernel(gamma), f_star, dt, strength=1.0, beta=..., fisher="perspective")
-    res = solve_collision(prob, method="conic")   # or "sqp"
+    grid = Grid.uniform(-2.0, 2.0, 121)
+    prob = CollisionProblem(grid, PowerKernel(1.0), f_star, dt=0.01, beta=10.0, fisher="perspective")
+    res = solve_collision(prob, method="conic")   # or "newton", "nlp", "sqp"
     res.f, res.m, res.status, res.success, res.iterations, res.kkt_residual, res.objective
 
-    run = jko_cvx.load_run("runs/NAME")      # a run directory as the Run that simulate returned
-    run.to_xarray()                          # as an xarray.Dataset (extra jko_cvx[netcdf])
+    run = jko_cvx.simulate(jko_cvx.shipped_scene("tab_bu_g1"), out="runs/tab_bu_g1")
+    run = jko_cvx.load_run("runs/tab_bu_g1")      # the same Run, read back and verified
+
+The scene and engine names are imported on first use: ``import jko_cvx`` loads neither pandas
+nor CVXPY.
 """
 
+from importlib import import_module
 from importlib.metadata import PackageNotFoundError, version
 
-from jko_cvx.collision import CollisionProblem, CollisionResult, KKTResidual, Status, conic_solvers, solve_collision
-from jko_cvx.grid import Grid
+from jko_cvx.collision import (
+    Certificate,
+    CollisionProblem,
+    CollisionResult,
+    KKTResidual,
+    Status,
+    certify,
+    conic_solvers,
+    explicit_step,
+    solve_collision,
+)
+from jko_cvx.evolve import evolve_fixed_grid
+from jko_cvx.grid import Grid, PeriodicGrid
 from jko_cvx.kernels import PowerKernel
 
 try:
@@ -24,27 +51,50 @@ try:
 except PackageNotFoundError:  # running from a source tree
     __version__ = "0.0.0+unknown"
 
+# name -> module: scenes and runs need pandas and the scene schema, so they load on first use
+_LAZY = {
+    "Scene": "jko_cvx.scene",
+    "SceneError": "jko_cvx.scene",
+    "default_scene": "jko_cvx.scene",
+    "load_scene": "jko_cvx.scene",
+    "shipped_scene": "jko_cvx.scene",
+    "simulate": "jko_cvx.engine.loop",
+    "Run": "jko_cvx.engine.run",
+    "load_run": "jko_cvx.engine.run",
+}
 
 
 def __getattr__(name: str):
-    # runs as data: imported on first use (they need pandas and the scene module)
-    if name in ("Run", "load_run"):
-        from jko_cvx.engine import run
-
-        return getattr(run, name)
+    if name in _LAZY:
+        return getattr(import_module(_LAZY[name]), name)
     raise AttributeError(f"module 'jko_cvx' has no attribute {name!r}")
 
 
+def __dir__() -> list[str]:
+    return sorted(__all__)
+
+
 __all__ = [
+    "Certificate",
     "CollisionProblem",
     "CollisionResult",
     "Grid",
     "KKTResidual",
+    "PeriodicGrid",
     "PowerKernel",
     "Run",
+    "Scene",
+    "SceneError",
     "Status",
     "__version__",
+    "certify",
     "conic_solvers",
+    "default_scene",
+    "evolve_fixed_grid",
+    "explicit_step",
     "load_run",
+    "load_scene",
+    "shipped_scene",
+    "simulate",
     "solve_collision",
 ]
