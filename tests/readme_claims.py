@@ -11,7 +11,7 @@ paths resolved against the directory passed to :func:`claim_values` (the shipped
 ``studies/results/reproduce``; ``../NAME`` is a study script's file in ``studies/results``).
 ``compute`` receives the declared files in that order, each loaded once (a CSV as a
 DataFrame, any other file as text), and opens no file itself: the caller's directory is the
-only source (``tests/test_readme_claims.py`` checks each claim reads exactly what it declares).
+only source (``tests/test_quoted_numbers.py`` checks each claim reads exactly what it declares).
 
 Agreement within a tolerance (``tab:bu``, ``tab:bu_tb2``: 0.03) is tested on
 ``|ours - paper|`` **rounded to 5 decimals** (:func:`jko_cvx.studies.reproduce.beta_scan.within`;
