@@ -22,7 +22,7 @@ Writes ``studies/results/bench_collision.csv`` (first part), ``bench_newton.csv`
 beta), ``bench_newton_growth.csv`` (Newton against N), ``bench_newton_batch.csv`` (the
 batch) and ``bench_collision.md`` (every table, with the date, the code, the thread
 setting and the machine's load), and prints the report; README.md quotes these files
-(claims ``bench.*`` of :mod:`jko_cvx.studies.reproduce.summary`).
+(claims ``bench.*`` of ``tests/readme_claims.py``).
 """
 
 from __future__ import annotations

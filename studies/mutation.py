@@ -445,7 +445,7 @@ MUTATIONS = [
     R("records-reset-not-halving", "studies/reproduce/records.py", 'if policy in ("halving", "halving_reset"):',
       'if policy == "halving":', "test_mutation_gaps.py test_reproduce.py",
       "the halving_reset records run with the fixed policy"),
-    R("summary-within-strict", "studies/reproduce/summary.py", "return (df.T_b - df.paper).abs().round(5) <= tol",
+    R("summary-within-strict", "studies/reproduce/beta_scan.py", "return (df.T_b - df.paper).abs().round(5) <= tol",
       "return (df.T_b - df.paper).abs().round(5) < tol", "test_quoted_numbers.py",
       "'within' the paper's rounding excludes the bound"),
     M("table-replay-initial-row", "reproduce/blowup_tables.py", "for k in range(1, len(rows)):",

@@ -1,11 +1,9 @@
 """How long regenerating the paper's numerical section takes (issue 15, item 5).
 
 Runs ``jko-cvx reproduce NAME --fresh`` for every entry of
-:data:`jko_cvx.studies.reproduce.REPRODUCTIONS` (full forms unless ``--quick``), one after another
-(``summary`` last: it reads the others' files), each in its own process, into
-``SCRATCH/reproduce`` (the shipped results are not touched; the study scripts' files that
-the summary reads from ``..`` are copied into ``SCRATCH``),
-and records per entry the wall time, the CPU time of the process and its pool workers
+:data:`jko_cvx.studies.reproduce.REPRODUCTIONS` (full forms unless ``--quick``), one after another,
+each in its own process, into ``SCRATCH/reproduce`` (the shipped results are not touched), and
+records per entry the wall time, the CPU time of the process and its pool workers
 (``RUSAGE_CHILDREN``), the exit status and the 1-minute load average before and after.
 ``--fresh`` ignores every sweep cache: the times are those of a first regeneration.
 
@@ -29,7 +27,6 @@ from __future__ import annotations
 import argparse
 import os
 import resource
-import shutil
 import subprocess
 import sys
 import tempfile
@@ -84,24 +81,6 @@ def time_entry(name: str, out: Path, workers: int, quick: bool) -> dict:
     }
 
 
-def _copy_claim_sources(scratch: Path) -> None:
-    """The files the summary's claims read that no timed entry wrote, copied as shipped.
-
-    Study scripts' outputs (``../x``: timings, failure records), the grid-convergence report
-    (built from a sweep cache by ``studies/grid_convergence_partial.py``) and kept archives
-    (a previous code's table): the summary of a scratch regeneration reads them as shipped.
-    """
-    from jko_cvx.studies.reproduce.summary import CLAIMS
-
-    shipped = RESULTS / "reproduce"
-    for name in sorted({c.file for c in CLAIMS}):
-        target = (scratch / "reproduce" / name).resolve()
-        source = (shipped / name).resolve()
-        if not target.exists() and source.exists():
-            print(f"  summary reads {name} as shipped", flush=True)
-            shutil.copy2(source, target)
-
-
 def _report(df: pd.DataFrame, path: Path, quick: bool, whole: bool = True) -> None:
     ok = df[df.returncode == 0]
     missing = [e for e in REPRODUCTIONS if e not in set(ok.entry)]  # the goal is for the whole section
@@ -133,7 +112,6 @@ def time_section(scratch: Path, workers: int, quick: bool) -> int:
     """``jko-cvx reproduce section --fresh`` in one process: its own record plus wall, CPU and load."""
     out = scratch / "reproduce"
     out.mkdir(parents=True, exist_ok=True)
-    _copy_claim_sources(scratch)  # the summary's inputs that no entry writes (entries overwrite the rest)
     cmd = [sys.executable, "-m", "jko_cvx.cli", "reproduce", "section", "--fresh", "--out", str(out)]
     cmd += ["--workers", str(workers)] + (["--quick"] if quick else [])
     proc, timing = run_timed(cmd)
@@ -148,7 +126,7 @@ def time_section(scratch: Path, workers: int, quick: bool) -> int:
         f"# Regenerating the numerical section in one run ({'quick' if quick else 'full'} forms)",
         "",
         f"`jko-cvx reproduce section --fresh --workers {workers}`: every entry of the section in one process, "
-        f"sharing one pool of {workers} workers (entries start longest first; the summary last), on this "
+        f"sharing one pool of {workers} workers (entries start longest first), on this "
         f"2-core machine; thread environment: {', '.join(f'{k}={v}' for k, v in env.items())}; code "
         f"{code_identity(main)['package_sha256'][:12]}; 1-minute load {load0:.2f} before, {load1:.2f} after; "
         f"finished {datetime.now(UTC).strftime('%Y-%m-%d %H:%M UTC')}.",
@@ -189,16 +167,12 @@ def main(argv: list[str] | None = None) -> int:
         # rows of other code are stale: dropped, never mixed with this code's
         done = done[(done.package_sha256 == code) & ~(args.again & done.entry.isin(entries))]
     scratch = args.scratch or Path(tempfile.mkdtemp(prefix="jko_cvx_regenerate_"))
-    out = scratch / "reproduce"  # laid out like studies/results: the summary reads ../ files
+    out = scratch / "reproduce"
     out.mkdir(parents=True, exist_ok=True)
-    # the summary computes its numbers from every other entry's files: it runs last
-    entries = [e for e in entries if e != "summary"] + (["summary"] if "summary" in entries else [])
     for name in entries:
         if len(done) and ((done.entry == name) & (done.returncode == 0)).any():
             continue
         print(f"{name} ...", flush=True)
-        if name == "summary":
-            _copy_claim_sources(scratch)
         row = {**time_entry(name, out, args.workers, args.quick), "package_sha256": code}
         print(f"  {row['wall_s']:.1f} s wall, {row['cpu_s']:.1f} s CPU, exit {row['returncode']}", flush=True)
         done = pd.concat([done[done.entry != name] if len(done) else done, pd.DataFrame([row])], ignore_index=True)

@@ -128,12 +128,12 @@ def test_the_shipped_report_is_consistent_with_its_runs():
     """The shipped convergence table follows from the shipped runs; the report covers every point of the
     sweep; every shipped run conserved mass and momentum."""
     from jko_cvx.studies.reproduce.grid_convergence import _gamma1p5_convergence
-    from jko_cvx.studies.reproduce.summary import RESULTS
 
-    rows = pd.read_csv(RESULTS / "grid_convergence.csv")
-    shipped = pd.read_csv(RESULTS / "grid_convergence_gamma1p5.csv")
+    results = Path(__file__).resolve().parents[1] / "studies" / "results" / "reproduce"
+    rows = pd.read_csv(results / "grid_convergence.csv")
+    shipped = pd.read_csv(results / "grid_convergence_gamma1p5.csv")
     pd.testing.assert_frame_equal(_gamma1p5_convergence(rows), shipped, check_dtype=False, atol=1e-12)
     assert (rows["mass drift"] < 1e-12).all() and (rows["momentum drift"] < 1e-12).all()
-    report = (RESULTS / "grid_convergence.md").read_text()
+    report = (results / "grid_convergence.md").read_text()
     assert "Points not run" not in report
-    assert len(rows) == 2 * len(GRIDS) * 2 and len(pd.read_csv(RESULTS / "grid_convergence_g2bu.csv")) == 9
+    assert len(rows) == 2 * len(GRIDS) * 2 and len(pd.read_csv(results / "grid_convergence_g2bu.csv")) == 9

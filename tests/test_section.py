@@ -35,11 +35,13 @@ def _fake_entry(name: str, pause: float, log: list):
     return entry
 
 
-def _summary(log: list):
+def _total(log: list):
+    """An entry that reads every other entry's file."""
+
     def entry(out: Path, quick: bool = False, **sweep_opts) -> pd.DataFrame:
-        log.append(("summary", "start", time.perf_counter()))
+        log.append(("total", "start", time.perf_counter()))
         total = sum(pd.read_csv(Path(out) / f"{n}.csv").y.sum() for n in ("alpha", "beta", "gamma"))
-        (Path(out) / "summary.md").write_text(f"total {total!r}\n")
+        (Path(out) / "total.md").write_text(f"total {total!r}\n")
         return pd.DataFrame()
 
     return entry
@@ -48,27 +50,27 @@ def _summary(log: list):
 @pytest.fixture
 def fake_section(monkeypatch):
     log: list = []
-    monkeypatch.setattr(section, "SECTION", ("alpha", "beta", "gamma", "summary"))
-    monkeypatch.setattr(section, "NEEDS", {"gamma": ("alpha",), "summary": ("alpha", "beta", "gamma")})
+    monkeypatch.setattr(section, "SECTION", ("alpha", "beta", "gamma", "total"))
+    monkeypatch.setattr(section, "NEEDS", {"gamma": ("alpha",), "total": ("alpha", "beta", "gamma")})
     for name, pause in (("alpha", 0.4), ("beta", 0.05), ("gamma", 0.0)):
         monkeypatch.setitem(REPRODUCTIONS, name, _fake_entry(name, pause, log))
-    monkeypatch.setitem(REPRODUCTIONS, "summary", _summary(log))
+    monkeypatch.setitem(REPRODUCTIONS, "total", _total(log))
     return log
 
 
 def test_entries_share_the_pool_overlap_and_match_the_serial_run(fake_section, tmp_path):
     log = fake_section
     df = section.reproduce_section(tmp_path / "pool", workers=2, progress=False)
-    assert list(df.entry) == ["alpha", "beta", "gamma", "summary"] and (df.status == "ok").all()
+    assert list(df.entry) == ["alpha", "beta", "gamma", "total"] and (df.status == "ok").all()
     when = {(name, what): t for name, what, t in log}
     # beta starts while alpha waits for its points (the lock is let go during the wait) ...
     assert when["beta", "start"] < when["alpha", "end"]
-    # ... gamma (needs alpha) and the summary (needs everything) only after what they read
+    # ... gamma (needs alpha) and total (needs everything) only after what they read
     assert when["gamma", "start"] > when["alpha", "end"]
-    assert when["summary", "start"] > max(when["alpha", "end"], when["beta", "end"], when["gamma", "end"])
+    assert when["total", "start"] > max(when["alpha", "end"], when["beta", "end"], when["gamma", "end"])
     log.clear()
     section.reproduce_section(tmp_path / "serial", executor="serial", progress=False)
-    for name in ("alpha.csv", "beta.csv", "gamma.csv", "summary.md"):
+    for name in ("alpha.csv", "beta.csv", "gamma.csv", "total.md"):
         a, b = (tmp_path / "pool" / name).read_bytes(), (tmp_path / "serial" / name).read_bytes()
         assert a == b, name
     record = pd.read_csv(tmp_path / "pool" / "section.csv")
@@ -81,7 +83,7 @@ def test_a_failing_entry_skips_its_dependents_and_the_run_says_so(fake_section, 
         raise ValueError("this entry is broken")
 
     monkeypatch.setitem(REPRODUCTIONS, "alpha", broken)
-    with pytest.raises(RuntimeError, match="3 of 4 entries did not finish: alpha, gamma, summary"):
+    with pytest.raises(RuntimeError, match="3 of 4 entries did not finish: alpha, gamma, total"):
         section.reproduce_section(tmp_path, workers=2, progress=False)
     record = pd.read_csv(tmp_path / "section.csv").set_index("entry")
     assert record.loc["alpha", "status"] == "failed" and "this entry is broken" in record.loc["alpha", "error"]
@@ -101,7 +103,7 @@ def test_bad_arguments_are_refused_before_any_work(tmp_path):
 
 def test_the_section_is_every_entry_but_the_grid_convergence_study():
     assert set(section.SECTION) == set(REPRODUCTIONS) - {"grid_convergence"}
-    assert section.SECTION[-1] == "summary" and len(set(section.SECTION)) == len(section.SECTION)
+    assert "summary" not in section.SECTION and len(set(section.SECTION)) == len(section.SECTION)
     for name, needs in section.NEEDS.items():
         assert all(section.SECTION.index(n) < section.SECTION.index(name) for n in needs)
 
@@ -116,9 +118,9 @@ def test_holding_lets_go_only_while_a_sweep_waits(tmp_path):
     assert released == [False] and not lock.locked()
 
 
-def test_the_quick_section_leaves_out_the_summary(fake_section, tmp_path):
+def test_the_quick_section_runs_every_entry(fake_section, tmp_path):
     df = section.reproduce_section(tmp_path, quick=True, workers=1, progress=False)
-    assert list(df.entry) == ["alpha", "beta", "gamma"] and (df.status == "ok").all()
+    assert list(df.entry) == ["alpha", "beta", "gamma", "total"] and (df.status == "ok").all()
     assert not (tmp_path / "summary.md").exists()
 
 

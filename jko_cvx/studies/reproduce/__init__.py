@@ -25,7 +25,6 @@ from jko_cvx.studies.reproduce.mesh_maps import reproduce_mesh_maps
 from jko_cvx.studies.reproduce.panels import reproduce_g2bu_loglog, reproduce_g2bu_records, reproduce_ibu_panels
 from jko_cvx.studies.reproduce.property_budget import reproduce_property_budget
 from jko_cvx.studies.reproduce.records import reproduce_gk1_records
-from jko_cvx.studies.reproduce.summary import reproduce_summary
 from jko_cvx.studies.reproduce.tab_bu_traces import reproduce_tab_bu_traces
 
 REPRODUCTIONS = {
@@ -40,7 +39,6 @@ REPRODUCTIONS = {
     "tab_g2bu": reproduce_tab_g2bu,
     "tab_bu_traces": reproduce_tab_bu_traces,
     "property_budget": reproduce_property_budget,
-    "summary": reproduce_summary,
     "tab_bu_beta_scan": reproduce_tab_bu_beta_scan,
     "explicit_figures": reproduce_explicit_figures,
     "gk1_final": reproduce_gk1_final,
@@ -73,7 +71,6 @@ __all__ = [
     "reproduce_inhom_gamma3",
     "reproduce_mesh_maps",
     "reproduce_property_budget",
-    "reproduce_summary",
     "reproduce_tab_bu",
     "reproduce_tab_bu_beta_scan",
     "reproduce_tab_bu_tb2",

@@ -3,7 +3,7 @@
 The paper does not state its Fisher weight.  For each beta the 75 entries of ``tab:bu``
 (the same sweep points as :func:`~jko_cvx.studies.reproduce.blowup_tables.reproduce_tab_bu`: one
 run per data and dt, every eps_v read off it) are run and summarised: entries within 0.03
-of the paper's (|ours - paper| rounded to 5 decimals, :func:`~jko_cvx.studies.reproduce.summary.within`),
+of the paper's (|ours - paper| rounded to 5 decimals, :func:`within`),
 runs that never fire by t = 2 T, and the g1 entry at eps_v = 1e-3/16, dt = 0.00125 (exact
 0.5).  ``TAB_BU_BETA`` is the smallest scanned weight whose g1 entry lies within 0.01 of 0.5.
 """
@@ -19,12 +19,16 @@ import pandas as pd
 
 from jko_cvx.studies.reproduce import paper
 from jko_cvx.studies.reproduce.blowup_tables import blowup_times, table_entries, table_points
-from jko_cvx.studies.reproduce.summary import within
 from jko_cvx.studies.sweep import run_sweep
 
-__all__ = ["BETAS", "reproduce_tab_bu_beta_scan"]
+__all__ = ["BETAS", "reproduce_tab_bu_beta_scan", "within"]
 
 BETAS = (1000.0, 3000.0, 4000.0, 5000.0, 6000.0, 1e4, float("inf"))
+
+
+def within(df: pd.DataFrame, tol: float) -> pd.Series:
+    """``|T_b - paper|`` rounded to 5 decimals <= tol (NaN: False)."""
+    return (df.T_b - df.paper).abs().round(5) <= tol
 
 
 def reproduce_tab_bu_beta_scan(out: Path, quick: bool = False, **sweep_opts: Any) -> pd.DataFrame:

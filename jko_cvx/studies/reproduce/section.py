@@ -16,12 +16,11 @@ a sweep point is a deterministic function of its parameters wherever it runs (th
 tests check serial, process and Dask runs give identical tables), and the entries write
 the same files as ``jko-cvx reproduce NAME`` does, one by one.
 
-Entries that read another entry's files wait for it (:data:`NEEDS`); ``summary``, which reads
-every other entry's files, runs last.  A point that two entries share (the same function, code
-and parameters: ``gk2_bu``'s runs are four of ``tab_g2bu``'s and ``g2bu_records``' one,
-``tab_bu``'s are a block of the beta scan's, ``ibu_panels``' is ``ibu``'s) runs once
-(:func:`jko_cvx.studies.sweep.shared_points`).  A failing entry is recorded and the others go on;
-entries that need it are skipped.  ``section.{csv,md}`` record, per entry, when it started
+Entries that read another entry's files wait for it (:data:`NEEDS`).  A point that two entries
+share (the same function, code and parameters: ``gk2_bu``'s runs are four of ``tab_g2bu``'s and
+``g2bu_records``' one, ``tab_bu``'s are a block of the beta scan's, ``ibu_panels``' is ``ibu``'s)
+runs once (:func:`jko_cvx.studies.sweep.shared_points`).  A failing entry is recorded and the others
+go on; entries that need it are skipped.  ``section.{csv,md}`` record, per entry, when it started
 and finished, and the total wall and CPU time, with the code's provenance.
 """
 
@@ -68,7 +67,6 @@ SECTION = (
     "gk1_final",
     "mesh_maps",
     "g2bu_loglog",
-    "summary",
 )
 """The entries of the paper's numerical section, in the order they start: by CPU time, longest first
 (``studies/results/regenerate_timing.csv``, one entry at a time on 2 cores: ``inhom_gamma1p5``
@@ -78,7 +76,6 @@ the one before it has, so these come last).  ``grid_convergence``
 
 NEEDS: dict[str, tuple[str, ...]] = {
     "g2bu_loglog": ("tab_g2bu",),  # reads tab_g2bu.csv
-    "summary": tuple(name for name in SECTION if name != "summary"),  # reads every entry's files
 }
 """The entries each entry reads files of (it starts after they have finished)."""
 
@@ -160,9 +157,7 @@ def reproduce_section(
         Ignore the sweep caches (``--fresh``).
     entries : tuple of str, optional
         A subset of :data:`SECTION`; an entry that needs one left out reads its files from ``out``.
-        Default: every entry, but ``summary`` with ``quick`` (it computes the numbers the
-        READMEs quote from the full forms' files and the study scripts' results beside
-        ``out``: run the full section into ``studies/results/reproduce`` to check them).
+        Default: every entry.
 
     Returns
     -------
@@ -171,8 +166,7 @@ def reproduce_section(
         (from the section's start); also written to ``section.{csv,md}`` in ``out``.
         ``RuntimeError`` after the run (and the files) if any entry did not finish.
     """
-    # the summary checks the full forms' numbers (and reads the studies' files beside ``out``)
-    names = (SECTION[:-1] if quick else SECTION) if entries is None else tuple(entries)
+    names = SECTION if entries is None else tuple(entries)
     unknown = [n for n in names if n not in SECTION]
     if unknown:
         raise ValueError(f"entries must be entries of the section {SECTION}, got {unknown}")

@@ -1,51 +1,68 @@
-"""The numbers ``studies/README.md`` and README.md's rows touched by issue 18 quote, from the result files.
+"""The numbers README.md and ``studies/README.md`` quote, computed from the shipped result files.
 
-Every claim is (key, result file, function of that file, quote): the function returns the
-number(s) formatted as the README prints them, and ``quote`` is the README's text with
-``{}`` where they go.  ``jko-cvx reproduce summary`` writes ``summary.md`` (key, value,
-file, how it is computed); ``tests/test_quoted_numbers.py`` checks that every filled-in
-quote appears in the README, so a rerun that changes a number fails the test until the
-prose follows.
+Every claim is (key, file, function, quote): the function returns the number(s) formatted as
+the README prints them, and ``quote`` is the README's text with ``{}`` where they go.
+``studies/readme_claims.py`` writes ``studies/results/reproduce/summary.md`` (key, value, file,
+how it is computed); ``tests/test_quoted_numbers.py`` checks that every filled-in quote appears
+in the README, so a rerun that changes a number fails the test until the prose follows.
+
+Files: a claim declares every file it reads, ``file`` and then ``also``, as relative POSIX
+paths resolved against the directory passed to :func:`claim_values` (the shipped one is
+``studies/results/reproduce``; ``../NAME`` is a study script's file in ``studies/results``).
+``compute`` receives the declared files in that order, each loaded once (a CSV as a
+DataFrame, any other file as text), and opens no file itself: the caller's directory is the
+only source (``tests/test_quoted_numbers.py`` checks each claim reads exactly what it declares).
 
 Agreement within a tolerance (``tab:bu``, ``tab:bu_tb2``: 0.03) is tested on
-``|ours - paper|`` **rounded to 5 decimals** (the tables print at most 5 significant
-digits, and T_b is a multiple of dt >= 0.00125), so 0.0300000000000002 counts as within;
-a run that never fires (NaN) counts as a difference.
+``|ours - paper|`` **rounded to 5 decimals** (:func:`jko_cvx.studies.reproduce.beta_scan.within`;
+the tables print at most 5 significant digits, and T_b is a multiple of dt >= 0.00125), so
+0.0300000000000002 counts as within; a run that never fires (NaN) counts as a difference.
 """
 
 from __future__ import annotations
 
 import json
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
-__all__ = ["CLAIMS", "Claim", "claim_values", "reproduce_summary", "within"]
+from jko_cvx.studies.reproduce.beta_scan import within
 
-RESULTS = Path(__file__).resolve().parents[2] / "studies" / "results" / "reproduce"
+__all__ = ["CLAIMS", "Claim", "claim_values", "within", "write_summary"]
 
 
 @dataclass(frozen=True)
 class Claim:
+    """One quoted passage: ``compute(*loaded files)`` fills the ``{}`` of ``quote`` in ``readme``.
+
+    ``file`` and ``also`` are the files ``compute`` receives, in that order (paths relative to
+    the results directory, see the module docstring); ``how`` says how the value is computed.
+    """
+
     key: str
     file: str
-    compute: Callable[[Any], tuple[str, ...]]
+    compute: Callable[..., tuple[str, ...]]
     quote: str
     how: str
     readme: str = "studies/README.md"
+    also: tuple[str, ...] = ()
+
+    @property
+    def files(self) -> tuple[str, ...]:
+        """Every file the claim reads, ``file`` first."""
+        return (self.file, *self.also)
 
 
-def within(df: pd.DataFrame, tol: float) -> pd.Series:
-    """``|T_b - paper|`` rounded to 5 decimals <= tol (NaN: False)."""
-    return (df.T_b - df.paper).abs().round(5) <= tol
-
-
-def _load(path: Path) -> Any:
+def _load(results: Path, name: str) -> Any:
+    """``name`` under ``results``: a CSV as a DataFrame, any other file as text."""
+    if PurePosixPath(name).is_absolute():
+        raise ValueError(f"a claim's file is a relative POSIX path under the results directory, got {name!r}")
+    path = Path(results) / name
     return pd.read_csv(path) if path.suffix == ".csv" else path.read_text()
 
 
@@ -705,9 +722,8 @@ CLAIMS += (
 )
 
 
-def _rounding_sensitivity(before: pd.DataFrame) -> tuple[str, ...]:
+def _rounding_sensitivity(before: pd.DataFrame, now: pd.DataFrame) -> tuple[str, ...]:
     """T_b of the 121 and 81 mapped runs from the previous code against today's; largest change of a collapse time."""
-    now = pd.read_csv(RESULTS / "inhom_gamma1p5_resolution.csv")
     tb = {
         (g, c): float(before[(before.grid == g) & (before.case == c)].T_b.iloc[0])
         for g in ("121 x 121", "81 x 81")
@@ -736,6 +752,7 @@ CLAIMS += (
         "gave {} and {} (and {} against {} on 81 x 81), while the density-collapse times changed by at most {} on "
         "41 x 41 and {} on 81 x 81 and 121 x 121",
         "the previous code's resolution table (kept beside today's) against today's",
+        also=("inhom_gamma1p5_resolution.csv",),
     ),
 )
 _SECTION_TOTAL = re.compile(
@@ -817,10 +834,9 @@ CLAIMS += (
 )
 
 
-def _tridiagonal_fix(before: pd.DataFrame) -> tuple[str, ...]:
+def _tridiagonal_fix(before: pd.DataFrame, now: pd.DataFrame) -> tuple[str, ...]:
     """``tab_g2bu`` before and after the batched tridiagonal fix: rows whose max f moved, the largest
     relative change, and whether T_b and the step counts moved at all."""
-    now = pd.read_csv(RESULTS / "tab_g2bu.csv")
     if list(before["lambda"]) != list(now["lambda"]) or list(before.n_v) != list(now.n_v):
         raise ValueError("tab_g2bu_previous_code.csv: other rows than tab_g2bu.csv")
     moved = before.max_f != now.max_f
@@ -841,6 +857,7 @@ CLAIMS += (
         _tridiagonal_fix,
         "max f moved in {} of the {} `tab_g2bu` runs, by at most {} relative; T_b and the step counts {}",
         "the previous code's tab_g2bu.csv (kept beside today's) against today's",
+        also=("tab_g2bu.csv",),
     ),
 )
 
@@ -1582,42 +1599,7 @@ CLAIMS += (
 )
 
 
-def claim_values(results: Path = RESULTS) -> dict[str, tuple[str, ...]]:
-    """Every claim's formatted number(s), computed from the files under ``results``."""
-    cache: dict[str, Any] = {}
-    out = {}
-    for c in CLAIMS:
-        if c.file not in cache:
-            cache[c.file] = _load(Path(results) / c.file)
-        out[c.key] = tuple(c.compute(cache[c.file]))
-    return out
-
-
-def reproduce_summary(out: Path, quick: bool = False, **_sweep_opts: Any) -> pd.DataFrame:
-    """Write ``summary.md``: every number ``studies/README.md`` quotes, from the result files in ``out``."""
-    out = Path(out)
-    values = claim_values(out)
-    rows = [
-        {"key": c.key, "value": ", ".join(values[c.key]), "file": c.file, "how": c.how, "readme": c.readme}
-        for c in CLAIMS
-    ]
-    df = pd.DataFrame(rows)
-    lines = [
-        "# The numbers studies/README.md quotes, computed from the result files",
-        "",
-        "Generated by `jko-cvx reproduce summary` (`jko_cvx/studies/reproduce/summary.py`); "
-        "`tests/test_quoted_numbers.py` checks the README against it.  Tolerances on T_b "
-        "are applied to |ours - paper| rounded to 5 decimals.",
-        "",
-        "| key | value | file | how | quoted in |",
-        "|:--|:--|:--|:--|:--|",
-    ]
-    lines += [f"| {r['key']} | {r['value']} | `{r['file']}` | {r['how']} | {r['readme']} |" for r in rows]
-    (out / "summary.md").write_text("\n".join(lines) + "\n")
-    return df
-
-
-# --- issue 18 options (studies/paper_variants.py): appended after the claims above ----------------------
+# --- the paper's options left open (studies/paper_variants.py) -------------------------------------------
 
 
 def _pv_row(d, delta0: float, halve_on: str, safeguard: str, max_iter: int = 20000):
@@ -1752,3 +1734,49 @@ CLAIMS += (
         "quadrant against projections rows",
     ),
 )
+
+
+def claim_values(results: Path, claims: Iterable[Claim] = CLAIMS) -> dict[str, tuple[str, ...]]:
+    """Every claim's formatted number(s), computed from its declared files under ``results``.
+
+    Parameters
+    ----------
+    results : Path
+        The directory the claims' files are relative to (laid out like ``studies/results/reproduce``).
+    claims : iterable of Claim
+        Default: every claim.
+    """
+    cache: dict[str, Any] = {}
+    out = {}
+    for c in claims:
+        for name in c.files:
+            if name not in cache:
+                cache[name] = _load(results, name)
+        out[c.key] = tuple(c.compute(*(cache[name] for name in c.files)))
+    return out
+
+
+def write_summary(results: Path) -> pd.DataFrame:
+    """Write ``summary.md`` in ``results``: every quoted number, from the result files there.
+
+    Returns the table written (key, value, file, how, readme).
+    """
+    results = Path(results)
+    values = claim_values(results)
+    rows = [
+        {"key": c.key, "value": ", ".join(values[c.key]), "file": c.file, "how": c.how, "readme": c.readme}
+        for c in CLAIMS
+    ]
+    lines = [
+        "# The numbers studies/README.md quotes, computed from the result files",
+        "",
+        "Generated by `python studies/readme_claims.py` (the claims: `tests/readme_claims.py`); "
+        "`tests/test_quoted_numbers.py` checks the READMEs against them.  Tolerances on T_b "
+        "are applied to |ours - paper| rounded to 5 decimals.",
+        "",
+        "| key | value | file | how | quoted in |",
+        "|:--|:--|:--|:--|:--|",
+    ]
+    lines += [f"| {r['key']} | {r['value']} | `{r['file']}` | {r['how']} | {r['readme']} |" for r in rows]
+    (results / "summary.md").write_text("\n".join(lines) + "\n")
+    return pd.DataFrame(rows)
