@@ -341,7 +341,7 @@ def test_shipped_scenes_are_package_data_and_load_by_name():
         assert shipped_scene(name) == load_scene(SCENES / f"{name}.toml") == load_scene(name)
         assert shipped_scene(name).name == name
     pyproject = tomllib.loads((ROOT / "pyproject.toml").read_text())
-    assert "scenes/*.toml" in pyproject["tool"]["setuptools"]["package-data"]["jko_cvx"]
+    assert "shipped/*.toml" in pyproject["tool"]["setuptools"]["package-data"]["jko_cvx.scene"]
     with pytest.raises(SceneError, match="no shipped scene 'tab_bu_g9'"):
         shipped_scene("tab_bu_g9")
 
