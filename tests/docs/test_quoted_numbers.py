@@ -9,7 +9,7 @@ import pytest
 
 from jko_cvx.studies.reproduce.summary import CLAIMS, RESULTS, claim_values, reproduce_summary, within
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _normalise(text: str) -> str:
