@@ -29,8 +29,8 @@ nor CVXPY.
 """
 
 from importlib import import_module
-from importlib.metadata import PackageNotFoundError, version
 
+from jko_cvx._version import __version__
 from jko_cvx.collision import (
     Certificate,
     CollisionProblem,
@@ -45,11 +45,6 @@ from jko_cvx.collision import (
 from jko_cvx.evolve import evolve_fixed_grid
 from jko_cvx.grid import Grid, PeriodicGrid
 from jko_cvx.kernels import PowerKernel
-
-try:
-    __version__ = version("jko_cvx")
-except PackageNotFoundError:  # running from a source tree
-    __version__ = "0.0.0+unknown"
 
 # name -> module: scenes and runs need pandas and the scene schema, so they load on first use
 _LAZY = {

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from jko_cvx import __version__
+from jko_cvx._version import __version__
 from jko_cvx.collision import CollisionProblem, conic_solvers, solve_collision
 from jko_cvx.grid import Grid
 from jko_cvx.kernels import PowerKernel

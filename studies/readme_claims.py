@@ -1,6 +1,6 @@
 """Regenerate ``studies/results/reproduce/summary.md``: every number the READMEs quote, from the result files.
 
-The claims live with the tests (``tests/readme_claims.py``, checked by ``tests/test_quoted_numbers.py``);
+The claims live with the tests (``tests/readme_claims.py``, checked by ``tests/docs/test_quoted_numbers.py``);
 this script writes their values into ``summary.md`` in the results directory they read.
 
 Run: ``python studies/readme_claims.py [--results DIR]`` (default: ``studies/results/reproduce``; a

@@ -16,7 +16,7 @@ from jko_cvx.mesh.refine import remap
 from jko_cvx.scene.model import Scene, SceneError, load_scene, scene_from_dict
 from jko_cvx.testing import random_problem
 
-from .test_engine import BASE
+from .engine.test_simulate import BASE
 
 SCENES = Path(__file__).parent.parent / "jko_cvx" / "scene" / "shipped"
 

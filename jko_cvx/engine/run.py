@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from jko_cvx import __version__
+from jko_cvx._version import __version__
 from jko_cvx.engine.state import RunDirError, RunState, read_npz
 from jko_cvx.engine.verdict import StopReason, Verdict
 from jko_cvx.grid import Grid, PeriodicGrid

@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from jko_cvx import __version__
+from jko_cvx._version import __version__
 from jko_cvx.engine.state import RunDirError, RunState, read_snapshot, save_text
 from jko_cvx.scene.model import Scene
 

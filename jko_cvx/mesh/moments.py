@@ -24,7 +24,7 @@ Callers that floor f (the paper's :math:`10^{-10}`) pass the floor: the tilt the
 only :math:`f - \\varphi`, so the floor stays exact.  A tilt of the whole row multiplies
 the tails of a concentrated row by :math:`e^{\\beta (v - \\max v)}` (measured: 1.2e-14 after
 an x-transport step of a bump narrower than a cell; 5e-118 after an energy-restoring
-v-remap of a narrow slice; ``tests/test_floors_and_ends.py``, ``tests/test_refine.py``).
+v-remap of a narrow slice; ``tests/engine/test_floor_and_last_step.py``, ``tests/mesh/test_maps_and_remap.py``).
 """
 
 from __future__ import annotations

@@ -89,7 +89,7 @@ def _module_source(func: Callable[..., Any]) -> str:
 
 def code_identity(func: Callable[..., Any]) -> dict[str, str]:
     """What the results of ``func`` depend on besides the point: name, module source, package version and code."""
-    from jko_cvx import __version__
+    from jko_cvx._version import __version__
 
     return {
         "func": f"{func.__module__}.{func.__qualname__}",

@@ -9,7 +9,7 @@ from jko_cvx.engine.loop import simulate
 from jko_cvx.studies.reproduce.g2bu import g2bu_scene
 from jko_cvx.studies.reproduce.gk2_bu import LAMBDAS, reproduce_gk2_bu
 
-SHIPPED = Path(__file__).parents[1] / "studies/results/reproduce"
+SHIPPED = Path(__file__).parents[3] / "studies/results/reproduce"
 
 
 def test_quick_gk2_bu_is_drawn_at_the_blowup_time_of_the_table_run(tmp_path):

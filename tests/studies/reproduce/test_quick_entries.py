@@ -20,9 +20,9 @@ from jko_cvx.studies.reproduce import (
 from jko_cvx.studies.reproduce.blowup_tables import TAB_BU_BETA, TAB_BU_TB2_BETA, blowup_scene
 from jko_cvx.studies.reproduce.ibu import ibu_scene
 
-from .paper_tex import blowup_table, paper_available
+from ...paper_tex import blowup_table, paper_available
 
-SCENES = Path(__file__).parent.parent / "jko_cvx" / "scene" / "shipped"
+SCENES = Path(__file__).parents[3] / "jko_cvx" / "scene" / "shipped"
 
 
 def _is_figure(path: Path) -> bool:

@@ -18,7 +18,7 @@ from jko_cvx.engine.verdict import StopReason
 from jko_cvx.scene.model import SceneError, default_scene, load_scene, scene_from_dict, with_overrides
 from jko_cvx.studies.reproduce.ibu import bump_positions
 
-SCENES = Path(__file__).parent.parent / "jko_cvx" / "scene" / "shipped"
+SCENES = Path(__file__).parents[2] / "jko_cvx" / "scene" / "shipped"
 
 BASE = {
     "gamma": 1.0,

@@ -2,7 +2,7 @@
 
 from jko_cvx.studies.reproduce import paper
 
-from .paper_tex import blowup_table, g2bu_table, paper_source
+from ..paper_tex import blowup_table, g2bu_table, paper_source
 
 
 def test_tab_bu_is_the_papers():

@@ -21,7 +21,7 @@ from jko_cvx.scene.model import default_scene, load_scene
 
 xr = pytest.importorskip("xarray")
 
-ROOT = Path(__file__).parent.parent
+ROOT = Path(__file__).parents[2]
 SCENES = ROOT / "jko_cvx" / "scene" / "shipped"
 
 

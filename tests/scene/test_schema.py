@@ -24,7 +24,7 @@ from jko_cvx.scene.model import (
 )
 from jko_cvx.scene.options import METHOD_OPTIONS
 
-ROOT = Path(__file__).parent.parent
+ROOT = Path(__file__).parents[2]
 SCENES = ROOT / "jko_cvx" / "scene" / "shipped"
 
 # Every value distinct from every other, so that a key read into the wrong field fails.

@@ -10,7 +10,7 @@ from jko_cvx.studies.reproduce.gk3_panels import FIGURES, reproduce_gk3_panels
 from jko_cvx.studies.reproduce.inhomogeneous import PAPER_TIMES
 from jko_cvx.studies.reproduce.phase_views import zoom_window
 
-SHIPPED = Path(__file__).parents[1] / "studies/results/reproduce"
+SHIPPED = Path(__file__).parents[3] / "studies/results/reproduce"
 
 
 def test_zoom_window_is_the_padded_box_of_the_superlevel_set():

@@ -213,7 +213,7 @@ def _false_jam_problem() -> CollisionProblem:
     The undamped iteration takes five steps of 2e-4 to 1e-3 (which the jam test reads as a
     jam), then converges; the interior-damped attempt stalls near KKT 8e-4 on it.
     """
-    data = np.load(Path(__file__).parent / "data" / "gamma3_lambda10_false_jam.npz")
+    data = np.load(Path(__file__).parents[1] / "data" / "gamma3_lambda10_false_jam.npz")
     grid = Grid(data["points"])
     return CollisionProblem(grid, PowerKernel(3.0), data["f_star"], 0.05, 5.0, 1000.0, "log", conserve_momentum=True)
 

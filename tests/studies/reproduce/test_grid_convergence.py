@@ -83,7 +83,7 @@ def test_quick_grid_convergence_runs_both_studies_and_keeps_the_invariants(tmp_p
     foreign = {"key": "0" * 32, "point": lost, "result": {**lost_entry["result"], "seconds": 0.5}}
     foreign["digest"] = hashlib.sha256(json.dumps(foreign, sort_keys=True, default=float).encode()).hexdigest()
     (cache[0].parent / f"{'0' * 32}.json").write_text(json.dumps(foreign))
-    script = Path(__file__).resolve().parents[1] / "studies" / "grid_convergence_partial.py"
+    script = Path(__file__).resolve().parents[3] / "studies" / "grid_convergence_partial.py"
     cmd = [
         sys.executable,
         str(script),
@@ -111,7 +111,7 @@ def test_partial_report_refuses_a_checkout_whose_code_it_cannot_name(tmp_path, m
     """Uncommitted changes to jko_cvx: nothing would say which code computed the points."""
     import importlib.util
 
-    path = Path(__file__).resolve().parents[1] / "studies" / "grid_convergence_partial.py"
+    path = Path(__file__).resolve().parents[3] / "studies" / "grid_convergence_partial.py"
     spec = importlib.util.spec_from_file_location("grid_convergence_partial", path)
     script = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(script)
@@ -129,7 +129,7 @@ def test_the_shipped_report_is_consistent_with_its_runs():
     sweep; every shipped run conserved mass and momentum."""
     from jko_cvx.studies.reproduce.grid_convergence import _gamma1p5_convergence
 
-    results = Path(__file__).resolve().parents[1] / "studies" / "results" / "reproduce"
+    results = Path(__file__).resolve().parents[3] / "studies" / "results" / "reproduce"
     rows = pd.read_csv(results / "grid_convergence.csv")
     shipped = pd.read_csv(results / "grid_convergence_gamma1p5.csv")
     pd.testing.assert_frame_equal(_gamma1p5_convergence(rows), shipped, check_dtype=False, atol=1e-12)

@@ -57,7 +57,7 @@ def test_quick_beta_scan_reproduces_the_shipped_target_entries(tmp_path):
     from jko_cvx.studies.reproduce.beta_scan import reproduce_tab_bu_beta_scan
 
     quick = reproduce_tab_bu_beta_scan(tmp_path, quick=True, executor="serial", progress=False).set_index("beta")
-    shipped = pd.read_csv(Path(__file__).parents[1] / "studies/results/reproduce/tab_bu_beta_scan_summary.csv")
+    shipped = pd.read_csv(Path(__file__).parents[3] / "studies/results/reproduce/tab_bu_beta_scan_summary.csv")
     target = "g1 at eps_v = 1e-3/16, dt = 0.00125"
     for beta in (1000.0, 6000.0):
         assert quick.loc[beta, target] == shipped.set_index("beta").loc[beta, target]

@@ -25,7 +25,7 @@ from jko_cvx.studies.reproduce.blowup_tables import (
     table_points,
 )
 
-from .test_reproduce_shared_runs import asked_points
+from .test_shared_runs import asked_points
 
 INF = float("inf")
 

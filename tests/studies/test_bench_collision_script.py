@@ -8,7 +8,7 @@ import pytest
 
 pytest.importorskip("cyipopt")
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _bench():

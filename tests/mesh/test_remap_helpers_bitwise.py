@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 from scipy.interpolate import PchipInterpolator
 
-from jko_cvx.mesh import moments as conservation
 from jko_cvx.grid import Grid, PeriodicGrid, _spacing_terms, pchip_coefficients, pchip_ppoly, pchip_terms
+from jko_cvx.mesh import moments as conservation
 from jko_cvx.mesh.refine import OneBumpMap, TwoBumpMap, periodic_map_grid, remap, remap_periodic
 from jko_cvx.transport import transport_step
 

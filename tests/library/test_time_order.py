@@ -157,7 +157,7 @@ def _scene(overrides):
 
     from jko_cvx.scene.model import scene_from_dict, with_overrides
 
-    path = Path(__file__).parent.parent / "jko_cvx" / "scene" / "shipped" / "inhom_gamma3_lambda4.toml"
+    path = Path(__file__).parents[2] / "jko_cvx" / "scene" / "shipped" / "inhom_gamma3_lambda4.toml"
     return scene_from_dict(with_overrides(tomllib.loads(path.read_text()), overrides))
 
 

@@ -11,7 +11,7 @@ from jko_cvx.cli import main
 from jko_cvx.scene.model import default_scene, load_scene
 from jko_cvx.studies.compare import compare_solvers, problem_from_scene
 
-SCENES = Path(__file__).parent.parent / "jko_cvx" / "scene" / "shipped"
+SCENES = Path(__file__).parents[3] / "jko_cvx" / "scene" / "shipped"
 
 
 def test_comparison_table_certifies_every_row():

@@ -180,7 +180,7 @@ def test_code_provenance_adds_the_checkouts_commit_to_the_code_identity():
 
     prov = code_provenance(code_identity)
     assert {k: prov[k] for k in code_identity(code_identity)} == code_identity(code_identity)
-    root = Path(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[3]
     head = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, cwd=root)
     if head.returncode == 0:  # a git checkout (CI's clone is one)
         assert prov["git_commit"] == head.stdout.strip() and re.fullmatch(r"[0-9a-f]{40}", prov["git_commit"])

@@ -15,7 +15,7 @@ from jko_cvx.testing import random_problem
 
 pytest.importorskip("cyipopt")
 
-SCENES = Path(__file__).parent.parent / "studies" / "scenes"
+SCENES = Path(__file__).parents[2] / "studies" / "scenes"
 
 
 def _log_family(seed: int) -> CollisionProblem:

@@ -22,7 +22,7 @@ from jko_cvx import CollisionProblem, Grid, PowerKernel, Status, solve_collision
 from jko_cvx.collision import METHODS
 from jko_cvx.testing import random_problem
 
-PACKAGE = Path(__file__).resolve().parents[1] / "jko_cvx"
+PACKAGE = Path(__file__).resolve().parents[2] / "jko_cvx"
 GRID = Grid.uniform(-2.0, 2.0, 61)
 F = np.exp(-2 * GRID.points**2)
 

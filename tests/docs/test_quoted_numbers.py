@@ -10,9 +10,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from .readme_claims import CLAIMS, claim_values, within, write_summary
+from ..readme_claims import CLAIMS, claim_values, within, write_summary
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SHIPPED = ROOT / "studies" / "results" / "reproduce"
 
 

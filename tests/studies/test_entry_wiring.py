@@ -9,7 +9,7 @@ import pytest
 
 from jko_cvx import CollisionProblem, Grid, PowerKernel, solve_collision
 
-from .paper_tex import blowup_table, paper_available, paper_source
+from ..paper_tex import blowup_table, paper_available, paper_source
 
 
 def test_reproduction_and_study_names_are_wired_to_their_functions():
