@@ -2,13 +2,12 @@
 
 from jko_cvx.collision.certify import Certificate, certify
 from jko_cvx.collision.conic import conic_solvers, solve_conic
-from jko_cvx.collision.explicit import explicit_step, sqp_step
 from jko_cvx.collision.newton import solve_newton
 from jko_cvx.collision.nlp import solve_nlp
 from jko_cvx.collision.problem import CollisionProblem, KKTResidual
 from jko_cvx.collision.result import CollisionResult, Status
 from jko_cvx.collision.solve import METHODS, solve_collision
-from jko_cvx.collision.sqp import solve_sqp
+from jko_cvx.collision.sqp import explicit_step, solve_sqp, sqp_step
 
 __all__ = [
     "METHODS",

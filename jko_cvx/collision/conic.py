@@ -46,7 +46,6 @@ import time
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, replace
-from numbers import Real
 from typing import Any
 
 import numpy as np
@@ -54,10 +53,11 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 
 from jko_cvx.collision.certify import certify
-from jko_cvx.collision.checks import check_bool, check_choice, check_int, check_options_dict, check_unit
-from jko_cvx.collision.explicit import explicit_step
+from jko_cvx.collision.checks import check_options_dict
+from jko_cvx.collision.options import Options, Spec, option
 from jko_cvx.collision.problem import CollisionProblem
 from jko_cvx.collision.result import CollisionResult, Status
+from jko_cvx.collision.sqp import explicit_step
 
 __all__ = ["ConicModel", "ConicOptions", "clear_model_cache", "conic_solvers", "model_cache_size", "solve_conic"]
 
@@ -123,29 +123,59 @@ def _solver_settings(solver: str, tol: float, seconds: float) -> dict[str, Any]:
     return {}
 
 
-@dataclass(frozen=True)
-class ConicOptions:
-    """The options of :func:`solve_conic`, checked once (see its docstring for each)."""
+def _check_solver(label: str, solver: Any) -> str:
+    """``solver`` if it names an installed conic solver in CVXPY's upper case, else ``ValueError``."""
+    if not isinstance(solver, str) or solver.upper() not in conic_solvers():
+        raise ValueError(f"{label} must be one of the installed conic solvers {conic_solvers()}, got {solver!r}")
+    if solver != solver.upper():
+        raise ValueError(f"solver names are upper case as in CVXPY, e.g. {solver.upper()!r}; got {solver!r}")
+    return solver
 
-    solver: str = "CLARABEL"
-    tol: float = 1e-10
-    energy: str = "dc"
-    dc_split: str = "eigen"
-    fisher_cone: str = "auto"
-    max_passes: int = 50
-    dc_tol: float = 1e-4
-    kkt_tol: float = 1e-6
-    solver_options: dict[str, Any] | None = None
-    check_convexity: bool = True
-    verbose: bool = False
-    time_limit: float = _TIME_LIMIT
+
+def _check_solver_options(label: str, options: Any) -> dict[str, Any]:
+    """A dict of keyword options for the solver (None gives ``{}``), none of which writes a file."""
+    return _no_file_options(check_options_dict(label, options))
+
+
+_UNIT = Spec("float", lo=0.0, hi=1.0, lo_open=True, hi_open=True)
+_SECONDS = "be a finite number of seconds > 0"
+
+
+@dataclass(frozen=True)
+class ConicOptions(Options):
+    """The options of :func:`solve_conic`, checked once on construction (see its docstring for each).
+
+    Fields are checked in this order.  ``solver`` accepts any installed conic solver; a scene
+    may name only the ``choices`` of its spec.  ``dc_tol=None`` is resolved from ``tol``
+    (``min(1e-2, 10 * sqrt(tol))``).  Problem-dependent checks: :meth:`checked`.
+    """
+
+    solver: str = option("CLARABEL", Spec("str", choices=("CLARABEL", "SCS", "ECOS"), check_with=_check_solver))
+    tol: float = option(1e-10, _UNIT)
+    time_limit: float = option(_TIME_LIMIT, Spec("float", lo=0.0, lo_open=True, text=_SECONDS))
+    energy: str = option("dc", Spec("str", choices=_ENERGY_MODES))
+    dc_split: str = option("eigen", Spec("str", choices=_DC_SPLITS))
+    fisher_cone: str = option("auto", Spec("str", choices=_FISHER_CONES))
+    max_passes: int = option(50, Spec("int", lo=1))
+    dc_tol: float | None = option(None, _UNIT)
+    kkt_tol: float = option(1e-6, _UNIT)
+    solver_options: dict[str, Any] | None = option(None, Spec("table", check_with=_check_solver_options))
+    check_convexity: bool = option(True, Spec("bool"))
+    verbose: bool = option(False, Spec("bool"))
     # Judge OPTIMAL_INACCURATE by the certificate: fixed-grid runs at gamma = 2.5 and 3 then
     # certify 320 of 320 steps, against 308 (and 317-319 at tol 1e-9 / 1e-8, with 50-100x
-    # larger residuals): studies/results/conic_defaults.md.
-    accept_inaccurate: bool = True
+    # larger residuals): studies/results/conic_defaults.md.  Not on the scene allow-list.
+    accept_inaccurate: bool = option(True, Spec("bool", scene=False))
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.dc_tol is None:  # the solver resolves f to about sqrt(tol): a tighter threshold chases noise
+            object.__setattr__(self, "dc_tol", min(1e-2, 10 * self.tol**0.5))
+        if self.solver_options is None:
+            object.__setattr__(self, "solver_options", {})
 
     @classmethod
-    def checked(cls, problem: CollisionProblem, dc_tol: float | None, **options: Any) -> ConicOptions:
+    def checked(cls, problem: CollisionProblem, **options: Any) -> ConicOptions:
         """Options validated against ``problem``; a ``ValueError``/``TypeError`` names the bad one."""
         if problem.batched:
             raise ValueError("method='conic' solves one problem at a time; pass problem.slice(i)")
@@ -154,32 +184,7 @@ class ConicOptions:
                 'fisher="log" is not conic-representable; use fisher="perspective" for method="conic" '
                 '(or method="sqp"/"newton" for the log form)'
             )
-        solver = options["solver"]
-        if not isinstance(solver, str) or solver.upper() not in conic_solvers():
-            raise ValueError(f"solver must be one of the installed conic solvers {conic_solvers()}, got {solver!r}")
-        if solver != solver.upper():
-            raise ValueError(f"solver names are upper case as in CVXPY, e.g. {solver.upper()!r}; got {solver!r}")
-        tol = check_unit("tol", options["tol"])
-        if dc_tol is None:  # the solver resolves f to about sqrt(tol): a tighter threshold chases noise
-            dc_tol = min(1e-2, 10 * tol**0.5)
-        limit = options["time_limit"]
-        if isinstance(limit, (bool, np.bool_)) or not isinstance(limit, Real) or not 0 < limit < np.inf:
-            raise ValueError(f"time_limit must be a finite number of seconds > 0, got {limit!r}")
-        return cls(
-            solver=solver,
-            tol=tol,
-            energy=check_choice("energy", options["energy"], _ENERGY_MODES),
-            dc_split=check_choice("dc_split", options["dc_split"], _DC_SPLITS),
-            fisher_cone=check_choice("fisher_cone", options["fisher_cone"], _FISHER_CONES),
-            max_passes=check_int("max_passes", options["max_passes"]),
-            dc_tol=check_unit("dc_tol", dc_tol),
-            kkt_tol=check_unit("kkt_tol", options["kkt_tol"]),
-            solver_options=_no_file_options(check_options_dict("solver_options", options["solver_options"])),
-            check_convexity=check_bool("check_convexity", options["check_convexity"]),
-            verbose=check_bool("verbose", options["verbose"]),
-            time_limit=float(limit),
-            accept_inaccurate=check_bool("accept_inaccurate", options["accept_inaccurate"]),
-        )
+        return cls(**options)
 
 
 def _no_file_options(options: dict[str, Any]) -> dict[str, Any]:
@@ -287,7 +292,7 @@ def _build_model(
 def _flux_scale(problem: CollisionProblem) -> tuple[float, float]:
     """(mu, varsigma): size of the explicit step's flux and of its Wasserstein cost.
 
-    The explicit step (:func:`~jko_cvx.collision.explicit.explicit_step`, one tridiagonal
+    The explicit step (:func:`~jko_cvx.collision.sqp.explicit_step`, one tridiagonal
     solve) includes the Fisher-driven flux, which dominates for rough data.  It is capped
     at a quarter of the mass, the largest flux a feasible point can carry.
     """
@@ -588,8 +593,8 @@ def solve_conic(
         ``info``: ``passes``, ``solver_status`` (CVXPY's, last pass), ``compile_seconds``,
         ``solver_seconds``.  Every solve starts cold: the answer does not depend on earlier solves.
     """
-    options = {k: v for k, v in locals().items() if k not in ("problem", "dc_tol")}
-    opts = ConicOptions.checked(problem, dc_tol, **options)
+    options = {k: v for k, v in locals().items() if k != "problem"}
+    opts = ConicOptions.checked(problem, **options)
     if opts.fisher_cone == "auto" and problem.fisher is not None:
         return _solve_auto(problem, opts)
     return _solve_form(problem, opts, opts.fisher_cone)

@@ -44,7 +44,7 @@ stalled with the residual above tolerance).
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from typing import Any
 
 import numpy as np
@@ -52,8 +52,6 @@ from numpy.typing import NDArray
 from scipy.linalg import lapack
 
 from jko_cvx.collision.certify import certify
-from jko_cvx.collision.checks import check_bool, check_choice, check_int, check_unit
-from jko_cvx.collision.explicit import explicit_step
 from jko_cvx.collision.linalg import (
     divergence,
     divergence_adjoint,
@@ -61,8 +59,10 @@ from jko_cvx.collision.linalg import (
     pentadiagonal_cholesky_batch,
     pentadiagonal_solve_batch,
 )
+from jko_cvx.collision.options import Options, Spec, option
 from jko_cvx.collision.problem import CollisionProblem, TermParts, add_pentadiagonal
 from jko_cvx.collision.result import CollisionResult, Status
+from jko_cvx.collision.sqp import explicit_step
 from jko_cvx.collision.structured import dense_kernel_direction  # h15
 from jko_cvx.collision.terms import (
     FISHER_TERMS,
@@ -389,15 +389,28 @@ def _newton_direction(H: NDArray, rhs: NDArray | None) -> tuple[NDArray | None, 
     return x, pd
 
 
-@dataclass(frozen=True)
-class NewtonOptions:
-    """The options of :func:`solve_newton`, checked once (see its docstring)."""
+_UNIT = Spec("float", lo=0.0, hi=1.0, lo_open=True, hi_open=True)
 
-    tol: float = 1e-10
-    kkt_tol: float = 1e-10
-    max_iter: int = 100
-    start: str = "explicit"
-    check_convexity: bool = True
+
+@dataclass(frozen=True)
+class NewtonOptions(Options):
+    """The options of :func:`solve_newton`, checked once on construction (see its docstring for each).
+
+    Fields are checked in this order; ``kkt_tol=None`` is ``tol``.  The warm start ``m0`` is
+    checked against the problem by :func:`solve_newton`.
+    """
+
+    tol: float = option(1e-10, _UNIT)
+    kkt_tol: float | None = option(None, _UNIT)
+    max_iter: int = option(100, Spec("int", lo=1))
+    start: str = option("explicit", Spec("str", choices=("explicit", "zero")))
+    check_convexity: bool = option(True, Spec("bool"))
+    m0: NDArray | None = option(None, Spec("array", scene=False))
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.kkt_tol is None:  # the iterations reach tol quadratically: certify at tol
+            object.__setattr__(self, "kkt_tol", self.tol)
 
 
 @dataclass(frozen=True)
@@ -795,7 +808,7 @@ def solve_newton(
         solution's ``m``), used only where it keeps ``f(m0) > 0`` (else ``start``).  With
         ``conserve_momentum`` it is first projected onto :math:`\\sum_k m_k\\Delta v_k = 0`.
     start : {"explicit", "zero"}, default "explicit"
-        Starting point without ``m0``: the explicit step (:func:`~jko_cvx.collision.explicit.explicit_step`,
+        Starting point without ``m0``: the explicit step (:func:`~jko_cvx.collision.sqp.explicit_step`,
         damped to keep f >= f*/2 and kept only if it lowers J) or ``m = 0``.
     check_convexity : bool, default True
         Report ``NONCONVEX`` when the reduced Hessian at the final point is not positive
@@ -809,9 +822,10 @@ def solve_newton(
         (the returned point comes from the interior-damped attempt); per slice when batched.
         A single problem is solved as a batch of one.
     """
-    opts, m0 = _check_newton_args(problem, tol, kkt_tol, max_iter, m0, start, check_convexity)
+    opts = _check_newton_args(problem, tol, kkt_tol, max_iter, m0, start, check_convexity)
     t0 = time.perf_counter()
     batch = problem if problem.batched else problem.rows(slice(None))
+    m0 = opts.m0
     res = _cascade(batch, None if m0 is None else np.broadcast_to(m0, batch.f_star.shape[:1] + m0.shape[-1:]), opts)
     res.seconds = time.perf_counter() - t0
     return res if problem.batched else _single(res)
@@ -822,16 +836,9 @@ solve_newton.batched = True  # type: ignore[attr-defined]
 
 def _check_newton_args(
     problem: CollisionProblem, tol: Any, kkt_tol: Any, max_iter: Any, m0: Any, start: Any, check_convexity: Any
-) -> tuple[NewtonOptions, NDArray | None]:
-    """The checked options and warm start; errors name the option."""
-    tol = check_unit("tol", tol)
-    opts = NewtonOptions(
-        tol=tol,
-        kkt_tol=tol if kkt_tol is None else check_unit("kkt_tol", kkt_tol),
-        max_iter=check_int("max_iter", max_iter),
-        start=check_choice("start", start, ("explicit", "zero")),
-        check_convexity=check_bool("check_convexity", check_convexity),
-    )
+) -> NewtonOptions:
+    """The checked options, the warm start checked against ``problem``; errors name the option."""
+    opts = NewtonOptions(tol=tol, kkt_tol=kkt_tol, max_iter=max_iter, start=start, check_convexity=check_convexity)
     if m0 is not None:
         shape = (*problem.f_star.shape[:-1], problem.n - 1)
         try:
@@ -842,4 +849,4 @@ def _check_newton_args(
                 + (f" or {shape}" if problem.batched else "")
                 + f", got {np.shape(m0)}"
             ) from exc
-    return opts, m0
+    return replace(opts, m0=m0)

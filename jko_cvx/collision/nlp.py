@@ -51,13 +51,13 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 
 from jko_cvx.collision.certify import certify
-from jko_cvx.collision.checks import check_bool, check_int, check_unit
-from jko_cvx.collision.explicit import explicit_step
 from jko_cvx.collision.linalg import divergence
+from jko_cvx.collision.options import Options, Spec, option
 from jko_cvx.collision.problem import CollisionProblem, KKTResidual
 from jko_cvx.collision.result import CollisionResult, Status
+from jko_cvx.collision.sqp import explicit_step
 
-__all__ = ["IPOPT_STATUS", "NlpModel", "nlp_available", "solve_nlp"]
+__all__ = ["IPOPT_STATUS", "NlpModel", "NlpOptions", "nlp_available", "solve_nlp"]
 
 #: IPOPT's return codes (``ApplicationReturnStatus``) onto :class:`Status`.  A
 #: ``CONVERGED`` entry is only a candidate: the point must still pass the KKT and
@@ -165,7 +165,7 @@ def _start(problem: CollisionProblem) -> tuple[NDArray[np.float64], NDArray[np.f
     """The explicit step ``(f0, m0)`` (damped to keep f >= f*/2) and its Wasserstein cost.
 
     The explicit step is the paper's SQP's first step from ``(f*, 0)``, one tridiagonal
-    solve (:func:`~jko_cvx.collision.explicit.explicit_step`).  Where it is not finite
+    solve (:func:`~jko_cvx.collision.sqp.explicit_step`).  Where it is not finite
     (vacuum edges) the start is ``(f*, 0)``.  The cost :math:`\\varsigma` scales the
     objective (module docstring).
     """
@@ -386,7 +386,7 @@ def solve_nlp(
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # CVXPY's DNLP notices; the status reports the outcome
-            run = _run_ipopt(model, f0 / unit, m0 / unit, opts, verbose)
+            run = _run_ipopt(model, f0 / unit, m0 / unit, opts.ipopt(), opts.verbose)
         status = IPOPT_STATUS.get(run["code"], Status.SOLVER_ERROR)
     except (SolverError, ValueError, ArithmeticError) as exc:  # the external solver failed: reported, not raised
         run = {"code": None, "message": f"{type(exc).__name__}: {exc}", "f": problem.f_star / unit, "iterations": 0}
@@ -396,7 +396,7 @@ def solve_nlp(
     f, m, claimed, kkt = _final_point(
         problem, unit * run["f"], unit * run.get("m", np.full(problem.n - 1, np.nan)), status
     )
-    cert = certify(problem, f, m, kkt_tol=kkt_tol, check_convexity=check_convexity, claimed=claimed, kkt=kkt)
+    cert = certify(problem, f, m, kkt_tol=opts.kkt_tol, check_convexity=opts.check_convexity, claimed=claimed, kkt=kkt)
     return CollisionResult.from_certificate(
         problem,
         f,
@@ -419,6 +419,54 @@ def solve_nlp(
     )
 
 
+def _check_solver_options(label: str, solver_options: Any) -> dict[str, Any]:
+    """Further IPOPT options, each a plain int, float or str accepted by IPOPT; errors name the option."""
+    if not isinstance(solver_options, dict):
+        raise TypeError(f"{label} must be a dict of IPOPT options, got {type(solver_options).__name__}")
+    out: dict[str, Any] = {}
+    for key, val in solver_options.items():
+        if not isinstance(key, str):
+            raise TypeError(f"{label} keys must be IPOPT option names (str), got {key!r}")
+        if key in _RESERVED:
+            use = _RESERVED[key]
+            hint = f"pass {use}= to solve_nlp" if use else "the method needs IPOPT's exact Hessian"
+            raise ValueError(f"{label}[{key!r}] is set by method='nlp' itself; {hint}")
+        if isinstance(val, (bool, np.bool_)) or not isinstance(val, (int, float, str, np.integer, np.floating)):
+            raise TypeError(
+                f"{label}[{key!r}] must be an int, float or str (IPOPT's yes/no options are strings), got {val!r}"
+            )
+        out[key] = val.item() if isinstance(val, (np.integer, np.floating)) else val
+    _check_ipopt_options(out)
+    return out
+
+
+_UNIT = Spec("float", lo=0.0, hi=1.0, lo_open=True, hi_open=True)
+
+
+@dataclass(frozen=True)
+class NlpOptions(Options):
+    """The options of :func:`solve_nlp`, checked once on construction (see its docstring for each).
+
+    Fields are checked in this order; ``solver_options`` are checked by IPOPT itself, so
+    constructing options with them needs ``cyipopt``.
+    """
+
+    tol: float = option(1e-9, _UNIT)
+    kkt_tol: float = option(1e-6, _UNIT)
+    max_iter: int = option(500, Spec("int", lo=1))
+    check_convexity: bool = option(True, Spec("bool"))
+    verbose: bool = option(False, Spec("bool"))
+    # IPOPT's, on the scene allow-list as a table checked against the scene's IPOPT allow-list
+    solver_options: dict[str, Any] | None = option(None, Spec("table", check_with=_check_solver_options))
+
+    def ipopt(self) -> dict[str, Any]:
+        """The options handed to IPOPT: ``tol``, ``max_iter``, the print level, no banner, then ``solver_options``."""
+        opts: dict[str, Any] = {"tol": self.tol, "max_iter": self.max_iter, "print_level": 5 if self.verbose else 0}
+        opts["sb"] = "yes"  # no IPOPT banner
+        opts.update(self.solver_options or {})
+        return opts
+
+
 def _check_nlp_args(
     problem: CollisionProblem,
     tol: float,
@@ -427,39 +475,16 @@ def _check_nlp_args(
     solver_options: dict[str, Any] | None,
     check_convexity: bool,
     verbose: bool,
-) -> dict[str, Any]:
-    """Validate the arguments (before any work) and return IPOPT's options."""
+) -> NlpOptions:
+    """Validate the arguments (before any work)."""
     if not nlp_available():
         raise ImportError(_INSTALL_HINT)
     if not isinstance(problem, CollisionProblem):
         raise TypeError(f"problem must be a CollisionProblem, got {type(problem).__name__}")
     if problem.batched:
         raise ValueError("method='nlp' solves one problem at a time; pass problem.slice(i) or use solve_collision")
-    tol, kkt_tol = check_unit("tol", tol), check_unit("kkt_tol", kkt_tol)
-    max_iter = check_int("max_iter", max_iter)
-    check_bool("check_convexity", check_convexity)
-    verbose = check_bool("verbose", verbose)
-    opts: dict[str, Any] = {"tol": tol, "max_iter": max_iter, "print_level": 5 if verbose else 0}
-    opts["sb"] = "yes"  # no IPOPT banner
-    if solver_options is None:
-        return opts
-    if not isinstance(solver_options, dict):
-        raise TypeError(f"solver_options must be a dict of IPOPT options, got {type(solver_options).__name__}")
-    for key, val in solver_options.items():
-        if not isinstance(key, str):
-            raise TypeError(f"solver_options keys must be IPOPT option names (str), got {key!r}")
-        if key in _RESERVED:
-            use = _RESERVED[key]
-            hint = f"pass {use}= to solve_nlp" if use else "the method needs IPOPT's exact Hessian"
-            raise ValueError(f"solver_options[{key!r}] is set by method='nlp' itself; {hint}")
-        if isinstance(val, (bool, np.bool_)) or not isinstance(val, (int, float, str, np.integer, np.floating)):
-            raise TypeError(
-                f"solver_options[{key!r}] must be an int, float or str (IPOPT's yes/no options are strings), "
-                f"got {val!r}"
-            )
-        opts[key] = val.item() if isinstance(val, (np.integer, np.floating)) else val
-    _check_ipopt_options({k: opts[k] for k in solver_options})
-    return opts
+    return NlpOptions(tol=tol, kkt_tol=kkt_tol, max_iter=max_iter, check_convexity=check_convexity, verbose=verbose,
+                      solver_options=solver_options)  # fmt: skip
 
 
 def _check_ipopt_options(options: dict[str, Any]) -> None:

@@ -10,15 +10,16 @@ from typing import Any
 
 import numpy as np
 
-from jko_cvx.collision.conic import solve_conic
-from jko_cvx.collision.newton import solve_newton
-from jko_cvx.collision.nlp import solve_nlp
+from jko_cvx.collision.conic import ConicOptions, solve_conic
+from jko_cvx.collision.newton import NewtonOptions, solve_newton
+from jko_cvx.collision.nlp import NlpOptions, solve_nlp
+from jko_cvx.collision.options import Options
 from jko_cvx.collision.problem import CollisionProblem
 from jko_cvx.collision.result import CollisionResult
-from jko_cvx.collision.sqp import solve_sqp
+from jko_cvx.collision.sqp import SqpOptions, solve_sqp
 from jko_cvx.threads import blas_limits
 
-__all__ = ["METHODS", "solve_collision"]
+__all__ = ["METHODS", "OPTIONS", "solve_collision"]
 
 METHODS: dict[str, Callable[..., CollisionResult]] = {
     "conic": solve_conic,
@@ -26,6 +27,14 @@ METHODS: dict[str, Callable[..., CollisionResult]] = {
     "newton": solve_newton,
     "nlp": solve_nlp,
 }
+
+OPTIONS: dict[str, type[Options]] = {
+    "conic": ConicOptions,
+    "sqp": SqpOptions,
+    "newton": NewtonOptions,
+    "nlp": NlpOptions,
+}
+"""Per method: its options dataclass, one field per keyword option of the solver in :data:`METHODS`."""
 
 
 @functools.cache

@@ -19,7 +19,11 @@ The QP in O(N): every iterate is feasible (it starts at :math:`(f^*, 0)`), so th
 .. math::  \\big(D^\\top \\operatorname{diag}(H_f/h^2) D + \\operatorname{diag}(H_m)\\big)\\,p_m
            = -\\big(\\nabla_m J - D^\\top(\\nabla_f J / h)\\big),
 
-positive definite because :math:`H_m = 4\\Delta v/s > 0`.  With ``qp="osqp"`` the same QP
+positive definite because :math:`H_m = 4\\Delta v/s > 0` (:func:`sqp_step`; :func:`sqp_stepper` is the
+same step with the per-problem constants set up once, for the loop).  From :math:`(f^*, 0)`
+the Hessian has no f-m coupling and the first step is the explicit-Euler step of the
+collision operator (:func:`explicit_step`): the conic reference takes its scale from it and
+Newton and nlp start from it.  With ``qp="osqp"`` the same QP
 is solved by OSQP with the bound :math:`z_f \\ge` ``floor`` added (the paper's QP has no
 bound; the floor is the option the issue asks for).
 
@@ -47,26 +51,223 @@ from __future__ import annotations
 
 import math
 import time
-from numbers import Real
+from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
+from numpy.typing import NDArray
+from scipy.linalg import lapack
 
 from jko_cvx.collision.certify import certify
-from jko_cvx.collision.checks import check_bool, check_callable, check_choice, check_int, check_unit
-from jko_cvx.collision.explicit import diagonal_hessian, sqp_step, sqp_stepper
-from jko_cvx.collision.linalg import divergence
+from jko_cvx.collision.linalg import divergence, divergence_adjoint, solve_sym_tridiagonal
+from jko_cvx.collision.options import Options, Spec, option
 from jko_cvx.collision.problem import CollisionProblem
 from jko_cvx.collision.result import CollisionResult, Status
-from jko_cvx.mesh.moments import check_floor
+from jko_cvx.collision.terms import FISHER_TERMS, wasserstein_derivatives
 
-__all__ = ["SAFEGUARDS", "solve_sqp"]
+__all__ = [
+    "SAFEGUARDS",
+    "SqpOptions",
+    "diagonal_hessian",
+    "explicit_step",
+    "gradient_and_sqp_step",
+    "solve_sqp",
+    "sqp_step",
+    "sqp_stepper",
+]
 
 _FRACTION_TO_BOUNDARY = 0.995
 
 SAFEGUARDS = ("floor", "cut", "none")
 """The positivity safeguard's variants (``solve_sqp(safeguard=...)``), see the module docstring."""
+
+
+# ---- the QP of one iteration, banded (O(N)); the explicit step is its first
+
+
+def diagonal_hessian(problem: CollisionProblem, f: NDArray, m: NDArray) -> tuple[NDArray, NDArray]:
+    """Diagonal of the Hessian of F (Wasserstein + Fisher) in f and in m (batched like ``f``)."""
+    e = problem.edge_hessian(f, m)
+    hf = np.zeros_like(f)
+    hf[..., :-1] += e["xx"]
+    hf[..., 1:] += e["yy"]
+    return hf, e["mm"]
+
+
+def sqp_step(
+    problem: CollisionProblem, f: NDArray, m: NDArray, gf: NDArray, gm: NDArray
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The SQP step ``(p_f, p_m)`` from the feasible point ``(f, m)`` with gradient ``(gf, gm)``.
+
+    One tridiagonal solve per slice (see the module docstring); ``p_f = -D p_m / h``, so
+    ``(f + p_f, m + p_m)`` is feasible.
+    """
+    hf, hm = diagonal_hessian(problem, f, m)
+    return _step_from(problem, hf, hm, gf, gm)
+
+
+def _step_from(
+    problem: CollisionProblem, hf: NDArray, hm: NDArray, gf: NDArray, gm: NDArray
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The step ``(p_f, p_m)`` of the tridiagonal system from the diagonal Hessian and the gradient."""
+    h = problem.grid.h
+    a = hf / h**2
+    diag = a[..., :-1] + a[..., 1:] + hm
+    off = -a[..., 1:-1]
+    rhs = -(gm - divergence_adjoint(gf / h))
+    pm = solve_sym_tridiagonal(diag, off, rhs)
+    pf = -divergence(pm) / h
+    return pf, pm
+
+
+def gradient_and_sqp_step(
+    problem: CollisionProblem, f: NDArray, m: NDArray
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """``problem.gradient(f, m)`` and :func:`sqp_step` from it, with the shared terms evaluated once.
+
+    One SQP iteration needs the gradient of J and the diagonal Hessian of F at the same
+    point; both start from the Wasserstein derivatives in :math:`(m, s)`, :math:`s = f_k + f_{k+1}`.
+    Where no edge is empty (s > 0 everywhere: every iterate of the safeguarded SQP) they
+    are computed once, by the same operations as :meth:`CollisionProblem.gradient_parts` and
+    :meth:`CollisionProblem.edge_hessian` (so bitwise the same step); with an empty edge the
+    guarded general path runs.  Returns ``(gf, gm, pf, pm)``.
+    """
+    x, y = f[..., :-1], f[..., 1:]
+    s = x + y
+    if not np.all(s > 0):
+        gf, gm = problem.gradient(f, m)
+        return (gf, gm, *sqp_step(problem, f, m, gf, gm))
+    wd = wasserstein_derivatives(m, s, problem.wass_coef)
+    gfw = np.zeros_like(f)
+    gfw[..., :-1] += wd.g_s
+    gfw[..., 1:] += wd.g_s
+    gff = np.zeros_like(f)
+    hf = np.zeros_like(f)
+    if problem.fisher is None:
+        hf[..., :-1] += wd.h_ss
+        hf[..., 1:] += wd.h_ss
+    else:
+        term = FISHER_TERMS[problem.fisher]
+        gx, gy = term.gradient(x, y, s, problem.fisher_coef)
+        gff[..., :-1] += gx
+        gff[..., 1:] += gy
+        hx, hy, _ = term.hessian(x, y, s, problem.fisher_coef)
+        hf[..., :-1] += wd.h_ss + hx
+        hf[..., 1:] += wd.h_ss + hy
+    gf = gfw + gff + 2 * problem.energy_coef * problem.energy.matvec(f)
+    return (gf, wd.g_m, *_step_from(problem, hf, wd.h_mm, gf, wd.g_m))
+
+
+def sqp_stepper(problem: CollisionProblem) -> Callable[[NDArray, NDArray], tuple[NDArray, NDArray]]:
+    """The banded SQP step of one unbatched problem as a function ``(f, m) -> (p_f, p_m)``, for the SQP loop.
+
+    Bitwise the step of :func:`gradient_and_sqp_step` (its last two outputs): the same
+    operations on the same operands in the same order, with what does not change between
+    iterations evaluated once (``h**2``, ``-w``, ``2 w``, ``2 dt sigma``), the subexpressions
+    the gradient and the Hessian share evaluated once, the mixed Hessian entries (unused by
+    the step) not evaluated, and the node sums written into scratch arrays.  One iteration
+    is a few dozen calls on arrays of N ~ 100 points, so their count is its cost.  An empty
+    edge (some ``f_k + f_{k+1} <= 0``, or NaN) takes the guarded general path, as there.
+
+    The returned ``p_f`` and ``p_m`` are new arrays on every call.
+    """
+    if problem.batched:
+        raise ValueError("sqp_stepper takes one problem; pass problem.slice(i)")
+    n = problem.n
+    h = problem.grid.h
+    h2 = h**2
+    w = problem.wass_coef
+    minus_w, two_w = -w, 2 * w
+    c = problem.fisher_coef
+    fisher = None if problem.fisher is None else FISHER_TERMS[problem.fisher].gradient_and_hessian
+    energy_coef = 2 * problem.energy_coef
+    matvec = problem.energy.matvec
+    add, divide, subtract, negative = np.add, np.divide, np.subtract, np.negative
+    smallest = np.minimum.reduce
+    dptsv = lapack.dptsv
+    # scratch node arrays (zeroed where the general path starts from np.zeros_like) and their
+    # edge views: k-th edge to point k (lo) and to point k+1 (hi)
+    gfw, gff, hf, a, gh, div = (np.empty(n) for _ in range(6))
+    gfw_lo, gfw_hi, gff_lo, gff_hi, hf_lo, hf_hi = gfw[:-1], gfw[1:], gff[:-1], gff[1:], hf[:-1], hf[1:]
+    a_lo, a_hi, a_mid, gh_lo, gh_hi = a[:-1], a[1:], a[1:-1], gh[:-1], gh[1:]
+    div_lo, div_hi = div[:-1], div[1:]
+
+    def step(f: NDArray, m: NDArray) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        x, y = f[:-1], f[1:]
+        s = x + y
+        if not smallest(s) > 0:  # as not np.all(s > 0): the minimum of an array with a NaN is NaN
+            gf, gm = problem.gradient(f, m)
+            return sqp_step(problem, f, m, gf, gm)
+        # wasserstein_derivatives (without h_sm): -w u u, 2 w u, 2 w u u / s, 2 w / s
+        u = m / s
+        g_s = minus_w * u * u
+        g_m = two_w * u
+        h_ss = g_m * u / s
+        h_mm = two_w / s
+        gfw.fill(0.0)
+        add(gfw_lo, g_s, out=gfw_lo)
+        add(gfw_hi, g_s, out=gfw_hi)
+        gff.fill(0.0)
+        hf.fill(0.0)
+        if fisher is None:
+            add(hf_lo, h_ss, out=hf_lo)
+            add(hf_hi, h_ss, out=hf_hi)
+        else:
+            gx, gy, hx, hy, _ = fisher(x, y, s, c, mixed=False)
+            add(gff_lo, gx, out=gff_lo)
+            add(gff_hi, gy, out=gff_hi)
+            add(hf_lo, h_ss + hx, out=hf_lo)
+            add(hf_hi, h_ss + hy, out=hf_hi)
+        gf = gfw + gff
+        add(gf, energy_coef * matvec(f), out=gf)
+        # _step_from
+        divide(hf, h2, out=a)
+        diag = a_lo + a_hi
+        add(diag, h_mm, out=diag)
+        off = -a_mid
+        divide(gf, h, out=gh)
+        rhs = gh_lo - gh_hi  # divergence_adjoint(gf / h)
+        subtract(g_m, rhs, out=rhs)
+        negative(rhs, out=rhs)
+        _, _, pm, info = dptsv(diag, off, rhs)  # solve_sym_tridiagonal's first try (inputs not overwritten)
+        if info != 0:  # positive definite unless non-finite: solve_sym_tridiagonal's own fallback
+            pm = solve_sym_tridiagonal(diag, off, rhs)
+        # divergence(pm): zeros, [:-1] = pm, [1:] -= pm
+        div[-1] = 0.0
+        div_lo[...] = pm
+        subtract(div_hi, pm, out=div_hi)
+        pf = negative(div)
+        divide(pf, h, out=pf)
+        return pf, pm
+
+    return step
+
+
+def explicit_step(problem: CollisionProblem) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The explicit step from ``(f_star, 0)``: the first step of the paper's SQP, ``(p_f, p_m)``.
+
+    Batched like ``problem.f_star``.  Non-finite entries (data with exact zeros under a
+    log Fisher term, or underflowed data) are returned as they come; callers check.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from jko_cvx import CollisionProblem, Grid, PowerKernel
+    >>> grid = Grid.uniform(-2.0, 2.0, 41)
+    >>> prob = CollisionProblem(grid, PowerKernel(1.0), np.exp(-2 * grid.points**2), dt=0.01)
+    >>> pf, pm = explicit_step(prob)
+    >>> bool(abs(pf @ grid.h) < 1e-15)  # a feasible direction moves no mass
+    True
+    """
+    f, m = problem.initial_point()
+    with np.errstate(all="ignore"):
+        gf, gm = problem.gradient(f, m)
+        return sqp_step(problem, f, m, gf, gm)
+
+
+# ---- the QP of one iteration by OSQP, the options, the iteration
 
 
 class _OsqpStep:
@@ -118,6 +319,29 @@ class _OsqpStep:
         pm = res.x[n:]
         # Re-impose the equality exactly so the iterate stays feasible to rounding.
         return -divergence(pm) / problem.grid.h, pm
+
+
+_UNIT = Spec("float", lo=0.0, hi=1.0, lo_open=True, hi_open=True)
+
+
+@dataclass(frozen=True)
+class SqpOptions(Options):
+    """The options of :func:`solve_sqp`, checked once on construction (see its docstring for each).
+
+    Fields are checked in this order; ``floor=None`` is resolved by :func:`solve_sqp` from the
+    problem (``1e-10 * max(f_star)``).
+    """
+
+    step: float = option(1.0, Spec("float", lo=0.0, hi=1.0, lo_open=True, label="step (the relaxation step lambda)"))
+    tol: float = option(1e-10, _UNIT)
+    kkt_tol: float = option(1e-6, _UNIT)
+    osqp_eps: float = option(1e-12, _UNIT)
+    max_iter: int = option(20000, Spec("int", lo=1, label="max_iter (I_max)"))
+    qp: str = option("banded", Spec("str", choices=("banded", "osqp")))
+    floor: float | None = option(None, Spec("float", lo=0.0))
+    check_convexity: bool = option(True, Spec("bool"))
+    callback: Callable[..., Any] | None = option(None, Spec("callable", scene=False))
+    safeguard: str = option("floor", Spec("str", choices=SAFEGUARDS))
 
 
 def solve_sqp(
@@ -184,24 +408,26 @@ def solve_sqp(
     """
     if floor is None:
         floor = 1e-10 * float(problem.f_star.max())
-    _check_sqp_args(problem, step, tol, max_iter, kkt_tol, qp, floor, osqp_eps, check_convexity, callback)
-    check_choice("safeguard", safeguard, SAFEGUARDS)
-    step, tol, kkt_tol, floor = float(step), float(tol), float(kkt_tol), float(floor)
+    _check_sqp_problem(problem)
+    opts = SqpOptions(step=step, tol=tol, kkt_tol=kkt_tol, osqp_eps=osqp_eps, max_iter=max_iter, qp=qp, floor=floor,
+                      check_convexity=check_convexity, callback=callback, safeguard=safeguard)  # fmt: skip
     t0 = time.perf_counter()
-    qp_step = sqp_step if qp == "banded" else _OsqpStep(problem, floor, osqp_eps, 100000)
-    f, m, zeta, it, safeguarded, status = _iterate(problem, qp_step, step, tol, max_iter, safeguard, callback)
+    qp_step = sqp_step if opts.qp == "banded" else _OsqpStep(problem, opts.floor, opts.osqp_eps, 100000)
+    f, m, zeta, it, safeguarded, status = _iterate(
+        problem, qp_step, opts.step, opts.tol, opts.max_iter, opts.safeguard, opts.callback
+    )
     left_domain = it if status is Status.NUMERICAL_ERROR and bool(np.any(f <= 0)) else None
     # Algorithm 1, step 3: e_f = 1 if l = I_max (the loop counter reaches I_max only when
     # I_max iterations ran, whether or not the last one passed the zeta test)
-    exit_flag = int(status is None and it >= max_iter)
+    exit_flag = int(status is None and it >= opts.max_iter)
     if exit_flag:
         status = Status.MAX_ITERATIONS
     # Remove the rounding drift of many feasible updates (rebuild f from m), then clip
     # rounding negatives (~1e-25) and restore the mass exactly.
     f, m = problem.project_feasible(problem.density_from_flux(m))
-    cert = certify(problem, f, m, kkt_tol=kkt_tol, check_convexity=check_convexity, claimed=status)
-    info = {"exit_flag": exit_flag, "zeta": float(zeta), "safeguard_steps": safeguarded, "safeguard": safeguard,
-            "qp": qp, "kkt": cert.kkt}  # fmt: skip
+    cert = certify(problem, f, m, kkt_tol=opts.kkt_tol, check_convexity=opts.check_convexity, claimed=status)
+    info = {"exit_flag": exit_flag, "zeta": float(zeta), "safeguard_steps": safeguarded, "safeguard": opts.safeguard,
+            "qp": opts.qp, "kkt": cert.kkt}  # fmt: skip
     if left_domain is not None:
         info["left_domain"] = left_domain
     return CollisionResult.from_certificate(problem, f, m, cert, "sqp", it, time.perf_counter() - t0, info)
@@ -263,7 +489,8 @@ def _relaxation(f: np.ndarray, pf: np.ndarray, step: float) -> tuple[float, bool
     return step, False
 
 
-def _check_sqp_args(problem, step, tol, max_iter, kkt_tol, qp, floor, osqp_eps, check_convexity, callback) -> None:
+def _check_sqp_problem(problem: CollisionProblem) -> None:
+    """``ValueError`` unless ``problem`` is one the paper's SQP solves."""
     if problem.conserve_momentum:
         raise ValueError(
             "method='sqp' is the paper's Algorithm 1, which has no momentum constraint; "
@@ -271,13 +498,3 @@ def _check_sqp_args(problem, step, tol, max_iter, kkt_tol, qp, floor, osqp_eps, 
         )
     if problem.batched:
         raise ValueError("method='sqp' solves one problem at a time; pass problem.slice(i)")
-    if isinstance(step, (bool, np.bool_)) or not isinstance(step, Real) or not 0 < step <= 1:
-        raise ValueError(f"step (the relaxation step lambda) must lie in (0, 1], got {step!r}")
-    check_unit("tol", tol)
-    check_unit("kkt_tol", kkt_tol)
-    check_unit("osqp_eps", osqp_eps)
-    check_int("max_iter (I_max)", max_iter)
-    check_choice("qp", qp, ("banded", "osqp"))
-    check_floor(floor)
-    check_bool("check_convexity", check_convexity)
-    check_callable("callback", callback)

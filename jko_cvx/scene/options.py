@@ -5,6 +5,9 @@ Only options whose values are numbers, enumerations or booleans pass: tolerances
 iteration and time limits, the algorithm variants and ``verbose``.  Nothing that names a
 file or a callable does (SCS's ``write_data_filename`` / ``log_csv_filename``, a
 ``callback``, a warm start ``m0``), and every value is checked here, before the run starts.
+The per-method allow-list is derived from the methods' options dataclasses (each field's
+:class:`~jko_cvx.collision.options.Spec`: its type, range, choices, and whether a scene may
+set it), so it accepts what the solver accepts.
 
 ``collision.options.solver_options`` (method ``"conic"``) is checked against the allow-list
 of the chosen CVXPY solver: Clarabel, SCS, OSQP and ECOS tolerances, iteration and time
@@ -16,60 +19,32 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
+from jko_cvx.collision.options import Spec, scene_specs
+from jko_cvx.collision.solve import OPTIONS
 from jko_cvx.scene.schema import Rule, SceneError, check_known, require_table
 
-__all__ = ["METHOD_OPTIONS", "SOLVER_OPTIONS", "parse_options"]
+__all__ = ["METHOD_OPTIONS", "SOLVER_OPTIONS", "parse_options", "rule_of"]
 
 _TOL = Rule("float", lo=0.0, hi=1.0, lo_open=True, hi_open=True)
 _COUNT = Rule("int", lo=1)
 _BOOL = Rule("bool")
 _SECONDS = Rule("float", lo=0.0, lo_open=True)
-_ABS = Rule("float", lo=0.0)
 _POSITIVE = Rule("float", lo=0.0, lo_open=True)  # IPOPT's tolerances may exceed 1
 
+
+def rule_of(spec: Spec) -> Rule:
+    """The scene :class:`Rule` of a collision option's :class:`~jko_cvx.collision.options.Spec`."""
+    if not spec.scene:
+        raise ValueError(f"a {spec.kind} option is not set by scenes")
+    return Rule(spec.kind, lo=spec.lo, hi=spec.hi, lo_open=spec.lo_open, hi_open=spec.hi_open, choices=spec.choices)
+
+
 METHOD_OPTIONS: dict[str, dict[str, Rule]] = {
-    "newton": {
-        "tol": _TOL,
-        "kkt_tol": _TOL,
-        "max_iter": _COUNT,
-        "start": Rule("str", choices=("explicit", "zero")),
-        "check_convexity": _BOOL,
-    },
-    "sqp": {
-        "step": Rule("float", lo=0.0, hi=1.0, lo_open=True),
-        "tol": _TOL,
-        "kkt_tol": _TOL,
-        "max_iter": _COUNT,
-        "qp": Rule("str", choices=("banded", "osqp")),
-        "floor": _ABS,
-        "osqp_eps": _TOL,
-        "check_convexity": _BOOL,
-        "safeguard": Rule("str", choices=("floor", "cut", "none")),
-    },
-    "conic": {
-        "solver": Rule("str", choices=("CLARABEL", "SCS", "ECOS")),
-        "tol": _TOL,
-        "kkt_tol": _TOL,
-        "energy": Rule("str", choices=("dc", "linearized")),
-        "dc_split": Rule("str", choices=("eigen", "diagonal")),
-        "fisher_cone": Rule("str", choices=("auto", "centred", "raw")),
-        "max_passes": _COUNT,
-        "dc_tol": _TOL,
-        "time_limit": _SECONDS,
-        "check_convexity": _BOOL,
-        "verbose": _BOOL,
-        "solver_options": Rule("table"),
-    },
-    "nlp": {
-        "tol": _TOL,
-        "kkt_tol": _TOL,
-        "max_iter": _COUNT,
-        "check_convexity": _BOOL,
-        "verbose": _BOOL,
-        "solver_options": Rule("table"),  # IPOPT's, checked against SOLVER_OPTIONS["IPOPT"]
-    },
+    method: {name: rule_of(spec) for name, spec in scene_specs(cls).items()} for method, cls in OPTIONS.items()
 }
-"""Per method: the options a scene may pass and the values each accepts."""
+"""Per method: the options a scene may pass and the values each accepts, derived from the method's
+options dataclass (:data:`jko_cvx.collision.solve.OPTIONS`): its fields marked for scenes, with their
+ranges and choices."""
 
 SOLVER_OPTIONS: dict[str, dict[str, Rule]] = {
     "CLARABEL": {

@@ -89,7 +89,7 @@ def test_safeguard_must_be_one_of_the_variants(bad):
 def test_fused_gradient_and_step_are_bitwise_the_two_calls(fisher, gamma):
     """One SQP iteration's gradient and banded step, with the shared Wasserstein terms computed once,
     equal ``problem.gradient`` followed by ``sqp_step`` bit for bit; an empty edge takes the guarded path."""
-    from jko_cvx.collision.explicit import gradient_and_sqp_step, sqp_step
+    from jko_cvx.collision.sqp import gradient_and_sqp_step, sqp_step
 
     rng = np.random.default_rng(int(gamma * 10) + (fisher is None))
     grid = Grid(np.cumsum(rng.uniform(0.02, 0.2, 61)) - 3.0)
@@ -131,7 +131,7 @@ def test_relaxation_step_is_bitwise_the_gathered_minimum():
 
 
 # ---------------------------------------------------------------- the fast SQP loop, bit for bit
-# The loop (``sqp._iterate`` with ``explicit.sqp_stepper``) is written for few NumPy calls per
+# The loop (``sqp._iterate`` with ``sqp.sqp_stepper``) is written for few NumPy calls per
 # iteration; these tests hold it to the formulas it replaced, kept here verbatim.
 
 
@@ -147,7 +147,7 @@ def _literal_relaxation(f, pf, step):
 
 def _literal_iterate(problem, qp_step, step, tol, max_iter, safeguard, callback):
     """``sqp._iterate`` before the fast loop, verbatim (the banded path through ``gradient_and_sqp_step``)."""
-    from jko_cvx.collision.explicit import gradient_and_sqp_step, sqp_step
+    from jko_cvx.collision.sqp import gradient_and_sqp_step, sqp_step
 
     f, m = problem.initial_point()
     zeta, it, safeguarded = 1.0, 0, 0
@@ -206,7 +206,7 @@ def test_sqp_stepper_is_bitwise_the_fused_step(fisher, gamma):
     """``sqp_stepper(problem)(f, m)`` is ``gradient_and_sqp_step(problem, f, m)[2:]`` bit for bit, at
     interior points (m with exact zeros: signed zeros), at points with an empty edge and at
     points with a non-finite step; the same stepper, called in turn, carries nothing over."""
-    from jko_cvx.collision.explicit import gradient_and_sqp_step, sqp_stepper
+    from jko_cvx.collision.sqp import gradient_and_sqp_step, sqp_stepper
 
     rng = np.random.default_rng(int(gamma * 10) + 7 * _FORMS.index(fisher))
     prob = _random_problem(rng, fisher, gamma)
@@ -240,8 +240,7 @@ def test_sqp_loop_is_bitwise_the_literal_loop(fisher, gamma, safeguard, datum):
     """Every iterate ``(f, m, zeta)`` of the SQP loop, and what it returns, is that of the loop it
     replaced bit for bit: interior iterates, cut steps (the peaked datum at a large dt), the
     empty edges of a datum with zeros (no log Fisher term there), iterates that leave the domain."""
-    from jko_cvx.collision.explicit import sqp_step
-    from jko_cvx.collision.sqp import _iterate
+    from jko_cvx.collision.sqp import _iterate, sqp_step
 
     if datum == "zeros" and fisher == "log":
         pytest.skip("the log Fisher term needs f_star > 0")
