@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from jko_cvx.engine.loop import simulate
-from jko_cvx.engine.stepping import CFLStep, FixedStep, HalvingStep
 from jko_cvx.engine.verdict import StopReason
 from jko_cvx.scene.model import scene_from_dict
+from jko_cvx.stepping import CFLStep, FixedStep, HalvingStep
 
 
 def test_cfl_policy_takes_each_limit_with_its_own_axis_length():
