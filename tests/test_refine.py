@@ -348,3 +348,10 @@ def test_periodic_remap_refuses_bad_input_before_any_work(bad, match):
         new = Grid(old.points)
     with pytest.raises((ValueError, TypeError), match=match):
         remap_periodic(old, f, new, **kwargs)
+
+
+def test_remesh_policy_refuses_an_unknown_concentration_set():
+    from jko_cvx.mesh import RemeshPolicy
+
+    with pytest.raises(ValueError, match=r"concentration_set must be one of \['projections', 'quadrant'\]"):
+        RemeshPolicy(None, None, 2.0, concentration_set="everywhere")
