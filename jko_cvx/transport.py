@@ -2,7 +2,7 @@
 
 One step of :math:`f_t + v f_x = 0` on a periodic, possibly non-uniform x-grid:
 :math:`f^{n+1}(x_i, v_j) = f^n(x_i - v_j \\Delta t, v_j)`, evaluated by periodic PCHIP
-interpolation (:meth:`PeriodicGrid.pchip`),
+interpolation (:func:`jko_cvx.mesh.interpolate.pchip_columns`),
 floored at ``floor`` (the paper's :math:`10^{-10}`) and rescaled per velocity so that every
 v-line keeps its mass.  The mass uses the grid's periodic trapezoidal weights on both
 sides (``eqn:semi_update`` mixes the foot points into :math:`M_{n+1}`; the transported values
@@ -28,8 +28,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from jko_cvx.grid import PeriodicGrid
+from jko_cvx.mesh.interpolate import pchip_columns
 from jko_cvx.mesh.moments import restore_moments
-from jko_cvx.mesh.refine import check_line_density
+from jko_cvx.mesh.remapping import check_line_density
 
 __all__ = ["transport_step"]
 
@@ -78,7 +79,7 @@ def transport_step(
     # every v-line at its own foot points x - v_j dt (wrapped into the period), one interpolant for all lines
     # (into an array laid out like f, as the per-line loop wrote it: the mass sums below see the same layout)
     out = np.empty_like(f)
-    out[...] = np.maximum(xgrid.pchip_columns(f, x[:, None] - v[None, :] * dt), floor)
+    out[...] = np.maximum(pchip_columns(xgrid, f, x[:, None] - v[None, :] * dt), floor)
     m_old = xgrid.h @ f
     if not conserve_moment:
         return out * (m_old / (xgrid.h @ out))

@@ -61,7 +61,8 @@ def inhom_batch(n_v: int, gamma: float, slices: int = 32, dt: float = 0.02):
     import dataclasses
 
     from jko_cvx import CollisionProblem, PowerKernel
-    from jko_cvx.mesh.refine import OneBumpMap, remap
+    from jko_cvx.mesh.maps import OneBumpMap
+    from jko_cvx.mesh.remapping import remap
     from jko_cvx.scene.model import load_scene
 
     scene = dataclasses.replace(load_scene(SCENE), x_n=slices, v_n=n_v)

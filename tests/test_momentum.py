@@ -12,7 +12,7 @@ from jko_cvx.collision.problem import add_pentadiagonal
 from jko_cvx.engine.loop import simulate
 from jko_cvx.grid import Grid
 from jko_cvx.mesh.moments import restore_moments
-from jko_cvx.mesh.refine import remap
+from jko_cvx.mesh.remapping import remap
 from jko_cvx.scene.model import Scene, SceneError, load_scene, scene_from_dict
 from jko_cvx.testing import random_problem
 

@@ -1,1 +1,1 @@
-"""The study engine: the time loop, step policies, trackers, verdicts and run directories."""
+"""The study engine: the time loop (step policies from :mod:`jko_cvx.stepping`), trackers, verdicts, run directories."""

@@ -41,9 +41,8 @@ from jko_cvx.engine.rundir import RunDir
 from jko_cvx.engine.state import RunState
 from jko_cvx.engine.trackers import Snapshots, SolverFailure, StepInfo, Tracker, default_trackers
 from jko_cvx.engine.verdict import StopReason, Verdict
-from jko_cvx.grid import Grid, PeriodicGrid
 from jko_cvx.kernels import PowerKernel
-from jko_cvx.mesh.refine import OneBumpMap, TwoBumpMap, periodic_map_grid, quadrant_set, remap, remap_periodic
+from jko_cvx.mesh.policy import RemeshPolicy
 from jko_cvx.scene.limits import check_limits
 from jko_cvx.scene.model import Scene
 from jko_cvx.time_order import collision_step_order2, strang_step
@@ -61,134 +60,26 @@ a failure should mean a step out of reach, not a short budget (as for the SQP's 
 stalls end earlier anyway, on Newton's jam and rounding-floor rules."""
 
 
-def _map_params(mu) -> np.ndarray:
-    """The extent of the concentration set a map was built for: (r,) or (r1, r2)."""
-    return np.array([mu.r] if isinstance(mu, OneBumpMap) else [mu.r1, mu.r2])
-
-
-UNIFORM_EXTENT = np.zeros(1)
-"""The extent recorded for an empty quadrant set (the uniform grid): r = 0, which no map has (r > 0),
-and non-empty, so a checkpoint (where an empty array means None) reads it back as itself."""
-
-
-def _is_uniform(extent: np.ndarray | None) -> bool:
-    return extent is not None and extent.size == 1 and extent[0] == 0
-
-
-def _moved(spec, old: np.ndarray | None, new: np.ndarray) -> bool:
-    """Remesh when the set's extent moved by more than ``spec.tol`` times its width (always if tol = 0).
-
-    From one empty quadrant set (:data:`UNIFORM_EXTENT`) to the next nothing moves.
-    """
-    if _is_uniform(old) and _is_uniform(new):
-        return False
-    if old is None or old.size != new.size or spec.tol == 0:
-        return True
-    width = new[-1] - (new[0] if new.size == 2 else 0.0)
-    return bool(np.abs(new - old).max() > spec.tol * width)
-
-
-def _refine_v(scene: Scene, vgrid: Grid, f: np.ndarray, params):
-    spec = scene.refine_v
-    fv = f if f.ndim == 1 else f.max(axis=0)
-    cls = OneBumpMap if spec.bumps == 1 else TwoBumpMap
-    mu = cls.from_density(vgrid, fv, spec.delta0, spec.delta)
-    new = _map_params(mu)
-    if not _moved(spec, params, new):
-        return f, vgrid, params
-    grid = mu.grid(vgrid.n)
-    f = remap(vgrid, f, grid, axis=-1, conserve_momentum=scene.conserve_momentum, conserve_energy=spec.conserve_energy)
-    return f, grid, new
-
-
-def _floor_v(scene: Scene, vgrid: Grid, f: np.ndarray) -> np.ndarray:
-    """``v.floor_every_step``: ``eqn:mass_conserv_v`` on the unchanged v-grid.
-
-    :math:`f \\leftarrow \\max(f, 10^{-10})\\, M/M'` per x-slice (with the slice's momentum,
-    and energy where ``refine.v.conserve_energy``, restored as the v-remap restores them):
-    the remap of the paper's algorithm onto a grid that did not move.  Without it a fixed
-    v-grid keeps whatever the collision leaves at the edges: on the uniform 481 x 481
-    gamma = 3/2 grid the edge lines in v drained to 1e-17, and Newton could not certify the
-    slices that carried them (``studies/results/grid_convergence_failure*.json``).
-    """
-    energy = scene.refine_v is not None and scene.refine_v.conserve_energy
-    return remap(vgrid, f, vgrid, axis=-1, conserve_momentum=scene.conserve_momentum, conserve_energy=energy)
-
-
-def _refine_x(scene: Scene, xgrid: PeriodicGrid, f: np.ndarray, params):
-    spec = scene.refine_x
-    cls = OneBumpMap if spec.bumps == 1 else TwoBumpMap
-    fx = f.max(axis=1)
-    proxy = _x_proxy(scene, xgrid)
-    mu = cls.from_density(proxy, np.concatenate([[fx[0]], fx, [fx[-1]]]), spec.delta0, spec.delta)
-    new = _map_params(mu)
-    if not _moved(spec, params, new):
-        return f, xgrid, params
-    grid = periodic_map_grid(mu, xgrid.n, xgrid.period)
-    return remap_periodic(xgrid, f, grid, axis=0, conserve_moment=scene.conserve_x_moment), grid, new
-
-
-def _x_proxy(scene: Scene, xgrid: PeriodicGrid) -> Grid:
-    """The maps assume [-L, L]; x-grids are periodic cell-centred grids inside it."""
-    return Grid(np.concatenate([[-scene.x_L], xgrid.points, [scene.x_L]]))
-
-
-def _map_from_extent(spec, grid: Grid, lo: float, hi: float):
-    """The axis map for a set spanning [lo, hi] on the positive half of ``grid``."""
-    if spec.bumps == 1:
-        return OneBumpMap.from_extent(grid, hi, spec.delta)
-    return TwoBumpMap.from_extent(grid, lo, hi, spec.delta)
-
-
-def _refine_quadrant(scene: Scene, vgrid: Grid, xgrid: PeriodicGrid, f: np.ndarray, f_star: np.ndarray, vp, xp):
-    """``refine.concentration_set = "quadrant"``: both maps from one set (``alg:SPMCSL-JKO`` step 4).
-
-    :math:`S = \\{(x_i, v_j): f^*_{ij} > \\delta_0 \\max f^*, x_i > 0, v_j > 0\\}` from ``f_star``, the
-    density entering the collision step on the step's grids, with each axis's own delta0; each
-    map from S's extent on its axis.  An empty S (``eqn:f0`` at t = 0; the paper is silent)
-    gives the axis the uniform grid (extent :data:`UNIFORM_EXTENT`).  ``f`` (after the collision) is remapped,
-    v first, then x.  Returns ``(f, vgrid, xgrid, v extent, x extent)``.
-    """
-    spec_v, spec_x = scene.refine_v, scene.refine_x
-    sets = {axis: quadrant_set(xgrid.points, vgrid.points, f_star, spec.delta0)
-            for axis, spec in (("v", spec_v), ("x", spec_x)) if spec is not None}  # fmt: skip
-    if spec_v is not None:
-        s = sets["v"]
-        mu = None if s is None else _map_from_extent(spec_v, vgrid, *s[1])
-        new = UNIFORM_EXTENT if mu is None else _map_params(mu)
-        if _moved(spec_v, vp, new):
-            grid = scene.vgrid() if mu is None else mu.grid(vgrid.n)
-            f = remap(vgrid, f, grid, axis=-1, conserve_momentum=scene.conserve_momentum,
-                      conserve_energy=spec_v.conserve_energy)  # fmt: skip
-            vgrid, vp = grid, new
-    if spec_x is not None:
-        s = sets["x"]
-        mu = None if s is None else _map_from_extent(spec_x, _x_proxy(scene, xgrid), *s[0])
-        new = UNIFORM_EXTENT if mu is None else _map_params(mu)
-        if _moved(spec_x, xp, new):
-            grid = scene.xgrid() if mu is None else periodic_map_grid(mu, xgrid.n, xgrid.period)
-            f = remap_periodic(xgrid, f, grid, axis=0, conserve_moment=scene.conserve_x_moment)
-            xgrid, xp = grid, new
-    return f, vgrid, xgrid, vp, xp
+def remesh_policy(scene: Scene) -> RemeshPolicy:
+    """The scene's remeshing policy: ``[refine]``, the domains and what the remaps conserve."""
+    return RemeshPolicy(
+        scene.refine_v,
+        scene.refine_x,
+        scene.v_L,
+        scene.x_L,
+        scene.concentration_set,
+        scene.conserve_momentum,
+        scene.conserve_x_moment,
+    )
 
 
 def initial_state(scene: Scene) -> RunState:
-    """f0 on the scene's grids, refined first where the scene refines (as the algorithms start).
-
-    With ``concentration_set = "quadrant"`` the set comes from f0 (no transport yet), and the
-    scene's grids count as uniform-grid maps (an empty set leaves them as they are).
-    """
+    """f0 on the scene's grids, refined first where the scene refines (as the algorithms start;
+    :meth:`~jko_cvx.mesh.policy.RemeshPolicy.initial`)."""
     vgrid, xgrid = scene.vgrid(), scene.xgrid()
     f = scene.initial_density(xgrid, vgrid)
-    v_params = x_params = None  # extent of the set each refined grid was built for
-    if scene.concentration_set == "quadrant":
-        u = UNIFORM_EXTENT
-        f, vgrid, xgrid, v_params, x_params = _refine_quadrant(scene, vgrid, xgrid, f, f, u, u)
-        return RunState(0.0, 0, f, vgrid, xgrid, v_params, x_params, [], Verdict())
-    if scene.refine_v is not None:
-        f, vgrid, v_params = _refine_v(scene, vgrid, f, None)
-    if scene.refine_x is not None:
-        f, xgrid, x_params = _refine_x(scene, xgrid, f, None)
+    # v_params, x_params: the extent of the set each refined grid was built for
+    f, vgrid, xgrid, v_params, x_params = remesh_policy(scene).initial(vgrid, xgrid, f)
     return RunState(0.0, 0, f, vgrid, xgrid, v_params, x_params, [], Verdict())
 
 
@@ -201,6 +92,15 @@ class _Outcome:
     f: np.ndarray | None = None  # the density after the whole step (Strang: after the second half transport)
     f_star: np.ndarray | None = None  # the density entering the collision step (alg:SPMCSL-JKO's f*)
     stop: str | None = None  # a failure that ends the run whatever stop.on_solver_failure says (halve_on)
+
+
+def _not_halving(statuses: list[str]) -> str:
+    """The stop reason for a failure that the halving policy refuses to halve (``time.halve_on =
+    "max_iterations"``: only the exit flag e_f halves the step in alg:MR_JKO_ver2)."""
+    return (
+        f"{StopReason.SOLVER_FAILURE.value} ({', '.join(statuses)}): not the exit flag e_f "
+        "(MAX_ITERATIONS), the only failure that halves the step under time.halve_on = 'max_iterations'"
+    )
 
 
 def _failed_statuses(res) -> list[str]:
@@ -223,6 +123,7 @@ class Stepper:
         self._f_star: np.ndarray | None = None
         self.kernel = PowerKernel(scene.gamma)
         self.policy = scene.step_policy()
+        self.remesh = remesh_policy(scene)
         self.opts = dict(scene.options)
         if scene.method == "newton":
             # Steps certified to 1e-8.  Momentum does not depend on it when the scene conserves
@@ -261,7 +162,7 @@ class Stepper:
             if self.accepted(res):
                 return _Outcome(dt, res, True, retries, f_new, self._f_star)
             statuses = _failed_statuses(res)
-            stop = self._not_halving(statuses)
+            stop = _not_halving(statuses) if self.policy.refuses(statuses) else None
             retry = None if stop is not None else self.policy.retry(dt)
             if self.attempts is not None:
                 then = "stopped" if stop is not None else "given up" if retry is None else "halved"
@@ -269,17 +170,6 @@ class Stepper:
             if retry is None:
                 return _Outcome(dt, res, False, retries, f_new, self._f_star, stop)
             dt, retries = retry, retries + 1
-
-    def _not_halving(self, statuses: list[str]) -> str | None:
-        """Under ``time.halve_on = "max_iterations"``: the stop reason for a failure that is not the
-        exit flag e_f (only ``MAX_ITERATIONS`` halves the step in alg:MR_JKO_ver2); else None."""
-        other = [st for st in statuses if st != Status.MAX_ITERATIONS.name]
-        if self.scene.halve_on != "max_iterations" or not other:
-            return None
-        return (
-            f"{StopReason.SOLVER_FAILURE.value} ({', '.join(statuses)}): not the exit flag e_f "
-            "(MAX_ITERATIONS), the only failure that halves the step under time.halve_on = 'max_iterations'"
-        )
 
     def step(self, state: RunState, dt: float) -> tuple[np.ndarray, Any]:
         """Transport and collision over ``dt`` from ``state``: the new density and the collision result.
@@ -321,16 +211,11 @@ class Stepper:
     def commit(self, state: RunState, out: _Outcome) -> StepInfo:
         """Advance ``state`` by the solved step: refine, then t and step."""
         t2 = time.perf_counter()
-        f, vgrid, xgrid, vp, xp = out.f, state.vgrid, state.xgrid, state.v_params, state.x_params
-        if self.scene.concentration_set == "quadrant":
-            f, vgrid, xgrid, vp, xp = _refine_quadrant(self.scene, vgrid, xgrid, f, out.f_star, vp, xp)
-        else:
-            if self.scene.refine_v is not None:
-                f, vgrid, vp = _refine_v(self.scene, vgrid, f, vp)
-            if self.scene.refine_x is not None:
-                f, xgrid, xp = _refine_x(self.scene, xgrid, f, xp)
+        f, vgrid, xgrid, vp, xp = self.remesh.refine(
+            state.vgrid, state.xgrid, out.f, out.f_star, state.v_params, state.x_params
+        )
         if self.scene.v_floor_every_step and vgrid is state.vgrid:
-            f = _floor_v(self.scene, vgrid, f)
+            f = self.remesh.floor_v(vgrid, f)
         state.seconds["refine"] += time.perf_counter() - t2
         state.f, state.vgrid, state.xgrid, state.v_params, state.x_params = f, vgrid, xgrid, vp, xp
         state.t += out.dt

@@ -32,7 +32,8 @@ from jko_cvx._version import __version__
 from jko_cvx.engine.state import RunDirError, RunState, read_npz
 from jko_cvx.engine.verdict import StopReason, Verdict
 from jko_cvx.grid import Grid, PeriodicGrid
-from jko_cvx.scene.model import RefineSpec, Scene, scene_from_dict
+from jko_cvx.mesh.policy import RefineSpec
+from jko_cvx.scene.model import Scene, scene_from_dict
 
 __all__ = ["Run", "load_run"]
 

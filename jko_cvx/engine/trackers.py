@@ -26,6 +26,7 @@ from jko_cvx.engine.verdict import StopReason
 if TYPE_CHECKING:
     from jko_cvx.engine.rundir import RunDir
     from jko_cvx.scene.model import Scene
+    from jko_cvx.stepping import StepPolicy
 
 __all__ = [
     "GRID_RESOLUTION",
@@ -170,14 +171,15 @@ class SpreadV(StopRule):
 
 
 class EpsT(Tracker):
-    """``alg:MR_JKO_ver2`` with adaptive steps: the run ends after an accepted step ``<= eps_t``."""
+    """``alg:MR_JKO_ver2`` with adaptive steps: the run ends after an accepted step that ends the
+    step policy (:meth:`jko_cvx.stepping.HalvingStep.end`: a step ``<= eps_t``)."""
 
-    def __init__(self, policy) -> None:
+    def __init__(self, policy: StepPolicy) -> None:
         self.policy = policy
 
     def handle(self, state: RunState, step: StepInfo) -> None:
-        if self.policy.exhausted(step.dt):
-            text = f"dt = {step.dt:.3g} <= eps_t = {self.policy.eps_t:.3g}"
+        text = self.policy.end(step.dt)  # the policy's floor (HalvingStep.end)
+        if text is not None:
             state.verdict = state.verdict.stopped(StopReason.EPS_T, state.t, text)
 
 

@@ -80,7 +80,7 @@ def restore_moments(
     v : ndarray, shape (N,) or (..., N)
         The coordinate whose first moment is restored: the grid points, or one row of
         coordinates per row of ``f`` (a periodic axis cut at a different place per row,
-        see :func:`jko_cvx.mesh.refine.remap_periodic`).
+        see :func:`jko_cvx.mesh.remapping.remap_periodic`).
     mass : float or ndarray, shape (...)
         Target :math:`\\sum_j h_j f_j` per row.
     momentum : float or ndarray, shape (...), optional

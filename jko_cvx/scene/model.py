@@ -14,8 +14,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from jko_cvx.engine.stepping import CFLStep, FixedStep, HalvingStep
 from jko_cvx.grid import Grid, PeriodicGrid
+from jko_cvx.mesh.policy import RefineSpec
 from jko_cvx.scene.limits import Limits, check_limits
 from jko_cvx.scene.options import parse_options
 from jko_cvx.scene.schema import (
@@ -35,6 +35,7 @@ from jko_cvx.scene.schema import (
     parse_table,
     require_table,
 )
+from jko_cvx.stepping import StepPolicy, step_policy
 
 __all__ = [
     "Scene",
@@ -46,24 +47,6 @@ __all__ = [
     "shipped_scene_names",
     "with_overrides",
 ]
-
-
-@dataclass(frozen=True)
-class RefineSpec:
-    """Mesh refinement on one axis: map type, delta0, delta, and the remeshing tolerance.
-
-    ``tol = 0`` remeshes every step (the paper's Algorithm ``alg:one_step_MR_JKO``); ``tol > 0``
-    remeshes only when the concentration set's extent has moved by more than ``tol`` times
-    its width.  Measured (``ibu_gamma3``): remeshing every step moves the bumps inward by as
-    much as their own motion per step (PCHIP remap bias), so the peaks ran ahead of the
-    point-mass law 1/(2Mt) after t ~ 5; with ``tol = 0.1`` they follow it to t = 20.
-    """
-
-    bumps: int = 1
-    delta0: float = 0.5
-    delta: float = 0.5
-    tol: float = 0.0
-    conserve_energy: bool = False
 
 
 @dataclass(frozen=True)
@@ -83,8 +66,8 @@ class Scene:
       ``"projections"`` (default) builds the v-map from the post-collision f maximised over x
       and the x-map from it maximised over v; ``"quadrant"`` follows ``alg:SPMCSL-JKO`` step 4:
       one set :math:`S = \\{f^* > \\delta_0 \\max f^*, x > 0, v > 0\\}` from the density entering
-      the collision step (:func:`jko_cvx.mesh.refine.quadrant_set`), each map from its extent on
-      its axis (with the one-bump map's ``r = max`` rule of :mod:`jko_cvx.mesh.refine`); where S is
+      the collision step (:func:`jko_cvx.mesh.maps.quadrant_set`), each map from its extent on
+      its axis (with the one-bump map's ``r = max`` rule of :mod:`jko_cvx.mesh.maps`); where S is
       empty (``eqn:f0`` at t = 0; the paper is silent) both refined axes take the uniform grid.
     """
 
@@ -132,12 +115,9 @@ class Scene:
     def xgrid(self) -> PeriodicGrid | None:
         return None if self.homogeneous else PeriodicGrid.uniform(self.x_L, self.x_n)
 
-    def step_policy(self):
-        if self.policy == "fixed":
-            return FixedStep(self.dt)
-        if self.policy in ("halving", "halving_reset"):
-            return HalvingStep(self.dt, self.eps_t, reset=self.policy == "halving_reset")
-        return CFLStep(self.dt)
+    def step_policy(self) -> StepPolicy:
+        """The time-step policy of ``[time]`` (:func:`jko_cvx.stepping.step_policy`)."""
+        return step_policy(self.policy, self.dt, self.eps_t, self.halve_on)
 
     def initial_density(self, xgrid: PeriodicGrid | None, vgrid: Grid) -> NDArray[np.float64]:
         """f0 on the grids, shape (Nv,) or (Nx, Nv)."""
@@ -299,13 +279,10 @@ def _check_combinations(top, v, x, t, c, s, o) -> None:
             f"collision.beta = {c.beta:g} with time.dt = {t.dt:g}: the Fisher weight (dt/beta)^2 overflows; "
             "beta must be a number > 0 well above dt * 1e-150 (inf allowed)"
         )
-    if t.policy in ("halving", "halving_reset") and not t.eps_t < t.dt:
-        raise SceneError(f"time.eps_t must be < time.dt = {t.dt:g} (the halving floor), got {t.eps_t:g}")
-    if t.halve_on != "any_failure" and t.policy not in ("halving", "halving_reset"):
-        raise SceneError(
-            f"time.halve_on = {t.halve_on!r} needs time.policy 'halving' or 'halving_reset' "
-            f"(policy {t.policy!r} never halves the step)"
-        )
+    try:  # the policy checks its parameters (eps_t < dt, halve_on only where the step halves)
+        step_policy(t.policy, t.dt, t.eps_t, t.halve_on, prefix="time.")
+    except ValueError as exc:
+        raise SceneError(str(exc)) from None
     if x is None and s.eps_x > 0:
         raise SceneError("stop.eps_x needs an [x] grid (a homogeneous scene has no x-cells)")
     if any(tk > top.t_end for tk in o.times):

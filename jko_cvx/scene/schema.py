@@ -18,6 +18,9 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
+from jko_cvx.mesh.policy import CONCENTRATION_SETS
+from jko_cvx.stepping import HALVE_ON, POLICIES
+
 __all__ = [
     "CONCENTRATION_SETS",
     "HALVE_ON",
@@ -272,12 +275,6 @@ class Gamma2Initial(_Table):
     x1: float = key(_POS)
 
 
-HALVE_ON = ("any_failure", "max_iterations")
-"""``time.halve_on``: which failed collision solves halve the step (halving policies; see ``Scene.halve_on``)."""
-
-CONCENTRATION_SETS = ("projections", "quadrant")
-"""``refine.concentration_set``: where the mesh maps' sets come from (see ``Scene.concentration_set``)."""
-
 INITIAL_KINDS: dict[str, type[_Table]] = {
     "gaussians": GaussiansInitial,
     "two_bump_phase": TwoBumpInitial,
@@ -290,7 +287,7 @@ class TimeTable(_Table):
     """``[time]``: the step policy, its (first / largest) step, the halving floor and what halves the step."""
 
     dt: float = key(_POS)
-    policy: str = key(Rule("str", choices=("fixed", "halving", "halving_reset", "cfl")), "fixed")
+    policy: str = key(Rule("str", choices=POLICIES), "fixed")
     eps_t: float = key(_POS, 1e-6)
     order: int = key(Rule("int", choices=(1, 2)), 1)
     halve_on: str = key(Rule("str", choices=HALVE_ON), "any_failure")

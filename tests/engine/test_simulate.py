@@ -163,7 +163,7 @@ def test_killed_run_resumes_to_the_uninterrupted_result(tmp_path):
 
 
 def test_step_policies():
-    from jko_cvx.engine.stepping import CFLStep, FixedStep, HalvingStep
+    from jko_cvx.stepping import CFLStep, FixedStep, HalvingStep
 
     assert FixedStep(0.01).first(1e-3, None, 2.0, None) == 0.01 and FixedStep(0.01).retry(0.01) is None
     h = HalvingStep(0.01, eps_t=0.002, reset=True)
@@ -283,16 +283,16 @@ def test_the_density_stopping_rule_stops_at_the_first_step_below_its_threshold()
 
 def test_refine_v_conserve_energy_reaches_the_remap(monkeypatch):
     """refine.v.conserve_energy is passed to the v-remap (restore_three_moments); refine.x refuses it."""
-    import jko_cvx.engine.loop as sim
+    import jko_cvx.mesh.policy as policy
 
     seen = []
-    real = sim.remap
+    real = policy.remap
 
     def spy(*args, **kwargs):
         seen.append(kwargs.get("conserve_energy"))
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(sim, "remap", spy)
+    monkeypatch.setattr(policy, "remap", spy)
     s = default_scene()
     for flag in (True, False):
         seen.clear()

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from jko_cvx.engine.loop import simulate
-from jko_cvx.engine.stepping import CFLStep, FixedStep, HalvingStep
 from jko_cvx.engine.verdict import StopReason
 from jko_cvx.scene.model import scene_from_dict
+from jko_cvx.stepping import CFLStep, FixedStep, HalvingStep, step_policy
 
 
 def test_cfl_policy_takes_each_limit_with_its_own_axis_length():
@@ -47,6 +47,35 @@ def test_halving_policy_gives_up_at_eps_t():
     assert p.first(1e-9, None, 2.0, None) == 0.08 and p.first(1e-9, None, 2.0, None, carried=0.02) == 0.02
     assert p.retry(0.02) == 0.01 and p.retry(0.01) is None  # 0.01 is not above eps_t: no further halving
     assert p.exhausted(0.01) and not p.exhausted(0.0101) and not h.exhausted(0.0)
+
+
+def test_step_policy_builds_each_policy_and_checks_its_parameters():
+    """step_policy by name; HalvingStep refuses eps_t >= dt and an unknown halve_on itself, and
+    halve_on other than any_failure needs a halving policy; the prefix names the scene keys."""
+    assert step_policy("fixed", 0.01) == FixedStep(0.01) and step_policy("cfl", 0.01) == CFLStep(0.01)
+    assert step_policy("halving", 0.01, 1e-3, "max_iterations") == HalvingStep(0.01, 1e-3, halve_on="max_iterations")
+    assert step_policy("halving_reset", 0.01, 1e-3) == HalvingStep(0.01, 1e-3, reset=True)
+    with pytest.raises(ValueError, match=r"^eps_t must be < dt = 0.01 \(the halving floor\), got 0.01$"):
+        HalvingStep(0.01, 0.01)
+    with pytest.raises(ValueError, match=r"^halve_on must be one of"):
+        HalvingStep(0.01, 1e-3, halve_on="never")
+    with pytest.raises(ValueError, match=r"^time\.eps_t must be < time\.dt = 0.01"):
+        step_policy("halving", 0.01, 0.02, prefix="time.")
+    with pytest.raises(ValueError, match=r"^halve_on = 'max_iterations' needs policy 'halving' or 'halving_reset' "):
+        step_policy("fixed", 0.01, halve_on="max_iterations")
+    with pytest.raises(ValueError, match=r"^policy must be one of"):
+        step_policy("adaptive", 0.01)
+
+
+def test_which_failures_end_the_run_instead_of_halving_and_the_eps_t_end():
+    """halve_on = "max_iterations": only MAX_ITERATIONS halves, any other status ends the run; the other
+    policies and halve_on = "any_failure" never refuse.  end(dt) is the EPS_T tracker's reason."""
+    paper = HalvingStep(0.01, 1e-3, halve_on="max_iterations")
+    assert not paper.refuses(["MAX_ITERATIONS"]) and paper.refuses(["MAX_ITERATIONS", "NOT_CERTIFIED"])
+    for p in (HalvingStep(0.01, 1e-3), FixedStep(0.01), CFLStep(0.01)):
+        assert not p.refuses(["NUMERICAL_ERROR"])
+    assert paper.end(1e-3) == "dt = 0.001 <= eps_t = 0.001" and paper.end(2e-3) is None
+    assert HalvingStep(0.01, 1e-3, reset=True).end(0.0) is None and FixedStep(0.01).end(0.0) is None
 
 
 def _inhom(time, n_x=10, refine=None, t_end=0.3):

@@ -1,9 +1,9 @@
-"""Limits the mesh maps keep on purpose (``jko_cvx.mesh.refine``), checked on the grids they build."""
+"""Limits the mesh maps keep on purpose (``jko_cvx.mesh.maps``), checked on the grids they build."""
 
 import numpy as np
 
 from jko_cvx import Grid
-from jko_cvx.mesh.refine import TwoBumpMap
+from jko_cvx.mesh.maps import TwoBumpMap
 
 
 def test_a_two_bump_set_reaching_zero_is_trimmed_so_the_grid_stays_resolved():

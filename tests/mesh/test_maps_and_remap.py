@@ -5,7 +5,8 @@ import pytest
 
 from jko_cvx import Grid
 from jko_cvx.grid import PeriodicGrid
-from jko_cvx.mesh.refine import OneBumpMap, TwoBumpMap, periodic_map_grid, remap, remap_periodic
+from jko_cvx.mesh.maps import OneBumpMap, TwoBumpMap, periodic_map_grid
+from jko_cvx.mesh.remapping import remap, remap_periodic
 
 S = np.linspace(-1, 1, 2001)
 
@@ -190,7 +191,7 @@ def test_energy_conserving_remap_of_a_narrow_slice_keeps_the_floor():
 
 
 def test_quadrant_set_is_the_papers_and_empty_for_the_two_bump_phase_datum():
-    from jko_cvx.mesh.refine import quadrant_set
+    from jko_cvx.mesh.maps import quadrant_set
 
     x = np.linspace(-4, 4, 81)
     v = np.linspace(-4, 4, 81)
@@ -276,15 +277,16 @@ def test_quadrant_rule_builds_each_map_from_the_sets_extent_on_its_axis(bumps_v)
 def test_quadrant_rule_reads_the_density_entering_the_collision(monkeypatch):
     """alg:SPMCSL-JKO step 4 takes f*, the density after transport and before the collision: the set
     is built from exactly transport_step(f^n) (computed here on its own), not from f^{n+1}."""
-    from jko_cvx.engine import loop as sim
+    import jko_cvx.engine.loop as sim
+    import jko_cvx.mesh.policy as policy
     from jko_cvx.transport import transport_step
 
     scene = _phase_scene(-1.0, 1.0, "quadrant", t_end=0.05)
     st = sim.initial_state(scene)
     want = transport_step(st.xgrid, st.vgrid.points, st.f, 0.05, conserve_moment=scene.conserve_x_moment)
     seen = []
-    real = sim.quadrant_set
-    monkeypatch.setattr(sim, "quadrant_set", lambda x, v, f, d0: seen.append(np.array(f)) or real(x, v, f, d0))
+    real = policy.quadrant_set
+    monkeypatch.setattr(policy, "quadrant_set", lambda x, v, f, d0: seen.append(np.array(f)) or real(x, v, f, d0))
     stepper = sim.Stepper(scene)
     out = stepper.solve(st)
     assert out.ok
@@ -298,7 +300,7 @@ def test_quadrant_rule_reads_the_density_entering_the_collision(monkeypatch):
 def test_quadrant_rule_state_survives_a_checkpoint_and_resumes_bit_for_bit(tmp_path):
     """The 'uniform grid' extent of an empty quadrant set must read back as itself: a resumed run then
     takes exactly the steps of the uninterrupted one (no extra remap on the uniform grids)."""
-    from jko_cvx.engine import loop as sim
+    import jko_cvx.engine.loop as sim
 
     scene = _phase_scene(1.0, 1.0, "quadrant", t_end=0.15)
     st = sim.initial_state(scene)
@@ -346,3 +348,10 @@ def test_periodic_remap_refuses_bad_input_before_any_work(bad, match):
         new = Grid(old.points)
     with pytest.raises((ValueError, TypeError), match=match):
         remap_periodic(old, f, new, **kwargs)
+
+
+def test_remesh_policy_refuses_an_unknown_concentration_set():
+    from jko_cvx.mesh import RemeshPolicy
+
+    with pytest.raises(ValueError, match=r"concentration_set must be one of \['projections', 'quadrant'\]"):
+        RemeshPolicy(None, None, 2.0, concentration_set="everywhere")

@@ -1,8 +1,8 @@
 """The faster non-collision step helpers against the code they replace, bit for bit.
 
-``grid.pchip_coefficients`` against SciPy's ``PchipInterpolator`` (its coefficients and its
+``mesh.interpolate.pchip_coefficients`` against SciPy's ``PchipInterpolator`` (its coefficients and its
 values, through ``remap`` and the periodic interpolants), and the Newton loop of
-``conservation._tilt_exponent`` against a verbatim copy of the loop before the row data
+``mesh.moments._tilt_exponent`` against a verbatim copy of the loop before the row data
 were gathered once per row set.  Compared as int64 bit patterns (signed zeros and NaN
 payloads included).
 """
@@ -13,9 +13,18 @@ import numpy as np
 import pytest
 from scipy.interpolate import PchipInterpolator
 
-from jko_cvx.grid import Grid, PeriodicGrid, _spacing_terms, pchip_coefficients, pchip_ppoly, pchip_terms
+from jko_cvx.grid import Grid, PeriodicGrid
 from jko_cvx.mesh import moments as conservation
-from jko_cvx.mesh.refine import OneBumpMap, TwoBumpMap, periodic_map_grid, remap, remap_periodic
+from jko_cvx.mesh.interpolate import (
+    _spacing_terms,
+    pchip_coefficients,
+    pchip_columns,
+    pchip_ppoly,
+    pchip_terms,
+    periodic_pchip,
+)
+from jko_cvx.mesh.maps import OneBumpMap, TwoBumpMap, periodic_map_grid
+from jko_cvx.mesh.remapping import remap, remap_periodic
 from jko_cvx.transport import transport_step
 
 
@@ -88,7 +97,8 @@ def test_pchip_ppoly_values_are_scipys(seed: int) -> None:
 
 
 def _old_extended_pchip(grid: PeriodicGrid, vals: np.ndarray):
-    """``PeriodicGrid._extended_pchip`` before the direct coefficients (verbatim)."""
+    """``interpolate._extended_pchip`` (``PeriodicGrid._extended_pchip`` then) before the direct
+    coefficients (verbatim)."""
     x, P, k = grid.points, grid.period, 3
     xe = np.concatenate([x[-k:] - P, x, x[:k] + P])
     ve = np.concatenate([vals[..., -k:], vals, vals[..., :k]], axis=-1)
@@ -97,10 +107,11 @@ def _old_extended_pchip(grid: PeriodicGrid, vals: np.ndarray):
 
 
 def _old_pchip_columns(grid: PeriodicGrid, vals: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """``PeriodicGrid.pchip_columns`` before the direct coefficients (verbatim)."""
+    """``interpolate.pchip_columns`` (``PeriodicGrid.pchip_columns`` then) before the direct coefficients
+    (verbatim but for the wrap, now the public ``PeriodicGrid.wrap``)."""
     interp = _old_extended_pchip(grid, vals.T)
     xe, c = interp.x, interp.c
-    qw = grid._wrap(q)
+    qw = grid.wrap(q)
     cell = np.clip(np.searchsorted(xe, qw, side="right") - 1, 0, xe.size - 2)
     s = qw - xe[cell]
     col = np.broadcast_to(np.arange(vals.shape[1]), q.shape)
@@ -117,11 +128,11 @@ def test_periodic_pchip_is_the_old_one(seed: int) -> None:
     for grid in _periodic_grids(rng, 33):
         f = _lines(rng, (33, 9))
         q = grid.points[:, None] - rng.uniform(-3, 3, 9)[None, :] * rng.uniform(0, 2)
-        _same(grid.pchip_columns(f, q), _old_pchip_columns(grid, f, q))
+        _same(pchip_columns(grid, f, q), _old_pchip_columns(grid, f, q))
         qq = np.concatenate([rng.uniform(-20, 20, 40), grid.points])
-        _same(grid.pchip(f, axis=0)(qq), _old_extended_pchip(grid, f.T)(grid._wrap(qq)))
+        _same(periodic_pchip(grid, f, axis=0)(qq), _old_extended_pchip(grid, f.T)(grid.wrap(qq)))
         with pytest.raises(ValueError, match="finite"):
-            grid.pchip_columns(np.where(f > 1, np.nan, f), q)
+            pchip_columns(grid, np.where(f > 1, np.nan, f), q)
 
 
 # --- the moment restoration's Newton loop, as it was (verbatim) -----------------------------
@@ -229,8 +240,9 @@ def test_tilt_exponent_is_the_old_loop(seed: int) -> None:
 @pytest.mark.parametrize("seed", range(3))
 def test_remaps_and_transport_are_the_scipy_path(seed: int, monkeypatch: pytest.MonkeyPatch) -> None:
     """remap, remap_periodic and transport_step through the old SciPy interpolants, end to end."""
-    import jko_cvx.grid as grid_mod
-    import jko_cvx.mesh.refine as refine_mod
+    import jko_cvx.mesh.interpolate as interpolate_mod
+    import jko_cvx.mesh.remapping as remap_mod
+    import jko_cvx.transport as transport_mod
 
     rng = np.random.default_rng(500 + seed)
     vg, vg2 = Grid.uniform(-5.0, 5.0, 41), TwoBumpMap(L=5.0, r1=1.0, r2=2.0, delta=0.3).grid(41)
@@ -254,11 +266,11 @@ def test_remaps_and_transport_are_the_scipy_path(seed: int, monkeypatch: pytest.
         with np.errstate(over="ignore", divide="ignore"):
             return PchipInterpolator(terms[0], vals, axis=-1, extrapolate=True)
 
-    def old_pchip_columns(self, values, queries):
-        return _old_pchip_columns(self, np.asarray(values, dtype=float), np.asarray(queries, dtype=float))
+    def old_pchip_columns(grid, values, queries):
+        return _old_pchip_columns(grid, np.asarray(values, dtype=float), np.asarray(queries, dtype=float))
 
-    monkeypatch.setattr(refine_mod, "pchip_ppoly", old_ppoly)
-    monkeypatch.setattr(grid_mod.PeriodicGrid, "pchip_columns", old_pchip_columns)
-    monkeypatch.setattr(grid_mod.PeriodicGrid, "_extended_pchip", _old_extended_pchip)
+    monkeypatch.setattr(remap_mod, "pchip_ppoly", old_ppoly)
+    monkeypatch.setattr(transport_mod, "pchip_columns", old_pchip_columns)
+    monkeypatch.setattr(interpolate_mod, "_extended_pchip", _old_extended_pchip)
     for a, b in zip(new, run(), strict=True):
         _same(a, b)

@@ -14,7 +14,7 @@ from jko_cvx.engine.loop import simulate
 from jko_cvx.evolve import evolve_fixed_grid
 from jko_cvx.finite_volume import Cells, evolve_finite_volume
 from jko_cvx.grid import PeriodicGrid
-from jko_cvx.mesh.refine import remap
+from jko_cvx.mesh.remapping import remap
 from jko_cvx.scene.model import default_scene
 from jko_cvx.studies.sweep import run_sweep
 from jko_cvx.transport import transport_step

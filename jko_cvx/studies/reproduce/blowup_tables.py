@@ -39,7 +39,7 @@ from jko_cvx.engine.trackers import EpsV
 from jko_cvx.engine.verdict import Verdict
 from jko_cvx.exact import GaussianMixture, blowup_time_gamma1, exact_gamma1
 from jko_cvx.grid import Grid
-from jko_cvx.mesh.refine import OneBumpMap, TwoBumpMap
+from jko_cvx.mesh.maps import OneBumpMap, TwoBumpMap
 from jko_cvx.scene.model import Scene, shipped_scene
 from jko_cvx.studies.reproduce import paper
 from jko_cvx.studies.sweep import run_sweep

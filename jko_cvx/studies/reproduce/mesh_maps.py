@@ -16,7 +16,8 @@ import numpy as np
 import pandas as pd
 
 from jko_cvx.grid import Grid
-from jko_cvx.mesh.refine import OneBumpMap, TwoBumpMap, remap
+from jko_cvx.mesh.maps import OneBumpMap, TwoBumpMap
+from jko_cvx.mesh.remapping import remap
 
 __all__ = ["reproduce_mesh_maps"]
 

@@ -28,7 +28,8 @@ from jko_cvx.collision import CollisionProblem, solve_collision
 from jko_cvx.diagnostics import diagnostics
 from jko_cvx.grid import Grid
 from jko_cvx.kernels import PowerKernel
-from jko_cvx.mesh.refine import OneBumpMap, TwoBumpMap, periodic_map_grid, remap, remap_periodic
+from jko_cvx.mesh.maps import OneBumpMap, TwoBumpMap, periodic_map_grid
+from jko_cvx.mesh.remapping import remap, remap_periodic
 from jko_cvx.scene.model import Scene
 from jko_cvx.studies.reproduce.gamma1p5 import gamma1p5_scene
 from jko_cvx.studies.reproduce.inhomogeneous import inhomogeneous_scene

@@ -33,7 +33,7 @@ import pandas as pd
 
 from jko_cvx.engine.loop import simulate
 from jko_cvx.grid import Grid
-from jko_cvx.mesh.refine import concentration_set
+from jko_cvx.mesh.maps import concentration_set
 from jko_cvx.studies.reproduce.blowup_tables import TAB_BU_BETA, TAB_BU_TB2_BETA, blowup_scene
 from jko_cvx.studies.reproduce.paper import EXACT_T
 
