@@ -29,7 +29,7 @@ except PackageNotFoundError:  # running from a source tree
 def __getattr__(name: str):
     # runs as data: imported on first use (they need pandas and the scene module)
     if name in ("Run", "load_run"):
-        from jko_cvx import run
+        from jko_cvx.engine import run
 
         return getattr(run, name)
     raise AttributeError(f"module 'jko_cvx' has no attribute {name!r}")
