@@ -194,7 +194,7 @@ MUTATIONS = [
     M("scene-delta-1", "scene_schema.py", "_FRAC = Rule(_FLOAT, lo=0.0, hi=1.0, lo_open=True, hi_open=True)",
       "_FRAC = Rule(_FLOAT, lo=0.0, hi=1.0, lo_open=True, hi_open=False)", "test_validation_bounds.py test_engine.py",
       "refine delta = 1 / delta0 = 1 accepted"),
-    M("scene-eps_x-key", "scene.py", "eps_x=s.eps_x,", "eps_x=s.eps_v,",
+    M("scene-eps_x-key", "scene.py", "eps_x=s.stop.eps_x,", "eps_x=s.stop.eps_v,",
       "test_stop_rules.py", "stop.eps_x read from the eps_v key"),
     M("scene-halving-policy", "scene.py",
       'return HalvingStep(self.dt, self.eps_t, reset=self.policy == "halving_reset")', "return FixedStep(self.dt)",
@@ -203,7 +203,7 @@ MUTATIONS = [
       "conserve_momentum=False if c.conserve_momentum is None",
       "test_engine.py test_momentum.py", "momentum constraint off by default"),
     # ---------------------------------------------------------------- simulate
-    M("sim-B_x-eps_v", "trackers.py", "EpsX(scene.eps_x)", "EpsX(scene.eps_v)",
+    M("sim-B_x-eps_v", "trackers.py", "EpsX(scene.stop.eps_x)", "EpsX(scene.stop.eps_v)",
       "test_stop_rules.py", "B_x compares min dx against eps_v"),
     M("sim-B_v-leq", "trackers.py", "if value < self.threshold:\n            return f\"{self.label}",
       "if value <= self.threshold:\n            return f\"{self.label}",
@@ -214,7 +214,7 @@ MUTATIONS = [
       'flag = {"B_x": True} if stop in (StopReason.EPS_X, StopReason.SOLVER_FAILURE) else {"B_v": True}',
       "test_stop_rules.py",
       "solver failure counted as blow-up in x"),
-    M("sim-policy-lengths", "simulate.py", "sc.v_L, sc.x_L, carried", "sc.x_L, sc.v_L, carried",
+    M("sim-policy-lengths", "simulate.py", "sc.v.L, L_x, carried", "L_x, sc.v.L, carried",
       "test_policies.py test_stop_rules.py",
       "L_v and L_x swapped when the policy is asked for dt"),
     # ---------------------------------------------------------------- sweep

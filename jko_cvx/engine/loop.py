@@ -13,7 +13,7 @@ B_v), keep snapshots and write checkpoints; a solver failure the policy cannot c
 
 With ``out`` the run lives in a directory (:mod:`jko_cvx.engine.rundir`: provenance, lock,
 resume and overwrite rules): scene, metadata, diagnostics.csv, snapshots (every K steps and
-at the first step reaching each of the scene's ``snapshot_times``), a checkpoint every K
+at the first step reaching each of the scene's ``output.times``), a checkpoint every K
 steps and the verdict, all written atomically, so a killed run loses at most K steps and
 ``resume=True`` continues it to exactly the result of an uninterrupted run (the loop is
 deterministic and the checkpoint holds the whole state).  SIGINT / SIGTERM write a
@@ -89,7 +89,7 @@ def _moved(spec, old: np.ndarray | None, new: np.ndarray) -> bool:
 
 
 def _refine_v(scene: Scene, vgrid: Grid, f: np.ndarray, params):
-    spec = scene.refine_v
+    spec = scene.refine.v
     fv = f if f.ndim == 1 else f.max(axis=0)
     cls = OneBumpMap if spec.bumps == 1 else TwoBumpMap
     mu = cls.from_density(vgrid, fv, spec.delta0, spec.delta)
@@ -97,7 +97,14 @@ def _refine_v(scene: Scene, vgrid: Grid, f: np.ndarray, params):
     if not _moved(spec, params, new):
         return f, vgrid, params
     grid = mu.grid(vgrid.n)
-    f = remap(vgrid, f, grid, axis=-1, conserve_momentum=scene.conserve_momentum, conserve_energy=spec.conserve_energy)
+    f = remap(
+        vgrid,
+        f,
+        grid,
+        axis=-1,
+        conserve_momentum=scene.collision.conserve_momentum,
+        conserve_energy=spec.conserve_energy,
+    )
     return f, grid, new
 
 
@@ -111,12 +118,12 @@ def _floor_v(scene: Scene, vgrid: Grid, f: np.ndarray) -> np.ndarray:
     gamma = 3/2 grid the edge lines in v drained to 1e-17, and Newton could not certify the
     slices that carried them (``studies/results/grid_convergence_failure*.json``).
     """
-    energy = scene.refine_v is not None and scene.refine_v.conserve_energy
-    return remap(vgrid, f, vgrid, axis=-1, conserve_momentum=scene.conserve_momentum, conserve_energy=energy)
+    energy = scene.refine.v is not None and scene.refine.v.conserve_energy
+    return remap(vgrid, f, vgrid, axis=-1, conserve_momentum=scene.collision.conserve_momentum, conserve_energy=energy)
 
 
 def _refine_x(scene: Scene, xgrid: PeriodicGrid, f: np.ndarray, params):
-    spec = scene.refine_x
+    spec = scene.refine.x
     cls = OneBumpMap if spec.bumps == 1 else TwoBumpMap
     fx = f.max(axis=1)
     proxy = _x_proxy(scene, xgrid)
@@ -125,12 +132,12 @@ def _refine_x(scene: Scene, xgrid: PeriodicGrid, f: np.ndarray, params):
     if not _moved(spec, params, new):
         return f, xgrid, params
     grid = periodic_map_grid(mu, xgrid.n, xgrid.period)
-    return remap_periodic(xgrid, f, grid, axis=0, conserve_moment=scene.conserve_x_moment), grid, new
+    return remap_periodic(xgrid, f, grid, axis=0, conserve_moment=scene.x.conserve_moment), grid, new
 
 
 def _x_proxy(scene: Scene, xgrid: PeriodicGrid) -> Grid:
     """The maps assume [-L, L]; x-grids are periodic cell-centred grids inside it."""
-    return Grid(np.concatenate([[-scene.x_L], xgrid.points, [scene.x_L]]))
+    return Grid(np.concatenate([[-scene.x.L], xgrid.points, [scene.x.L]]))
 
 
 def _map_from_extent(spec, grid: Grid, lo: float, hi: float):
@@ -149,7 +156,7 @@ def _refine_quadrant(scene: Scene, vgrid: Grid, xgrid: PeriodicGrid, f: np.ndarr
     gives the axis the uniform grid (extent :data:`UNIFORM_EXTENT`).  ``f`` (after the collision) is remapped,
     v first, then x.  Returns ``(f, vgrid, xgrid, v extent, x extent)``.
     """
-    spec_v, spec_x = scene.refine_v, scene.refine_x
+    spec_v, spec_x = scene.refine.v, scene.refine.x
     sets = {axis: quadrant_set(xgrid.points, vgrid.points, f_star, spec.delta0)
             for axis, spec in (("v", spec_v), ("x", spec_x)) if spec is not None}  # fmt: skip
     if spec_v is not None:
@@ -158,7 +165,7 @@ def _refine_quadrant(scene: Scene, vgrid: Grid, xgrid: PeriodicGrid, f: np.ndarr
         new = UNIFORM_EXTENT if mu is None else _map_params(mu)
         if _moved(spec_v, vp, new):
             grid = scene.vgrid() if mu is None else mu.grid(vgrid.n)
-            f = remap(vgrid, f, grid, axis=-1, conserve_momentum=scene.conserve_momentum,
+            f = remap(vgrid, f, grid, axis=-1, conserve_momentum=scene.collision.conserve_momentum,
                       conserve_energy=spec_v.conserve_energy)  # fmt: skip
             vgrid, vp = grid, new
     if spec_x is not None:
@@ -167,7 +174,7 @@ def _refine_quadrant(scene: Scene, vgrid: Grid, xgrid: PeriodicGrid, f: np.ndarr
         new = UNIFORM_EXTENT if mu is None else _map_params(mu)
         if _moved(spec_x, xp, new):
             grid = scene.xgrid() if mu is None else periodic_map_grid(mu, xgrid.n, xgrid.period)
-            f = remap_periodic(xgrid, f, grid, axis=0, conserve_moment=scene.conserve_x_moment)
+            f = remap_periodic(xgrid, f, grid, axis=0, conserve_moment=scene.x.conserve_moment)
             xgrid, xp = grid, new
     return f, vgrid, xgrid, vp, xp
 
@@ -181,13 +188,13 @@ def initial_state(scene: Scene) -> RunState:
     vgrid, xgrid = scene.vgrid(), scene.xgrid()
     f = scene.initial_density(xgrid, vgrid)
     v_params = x_params = None  # extent of the set each refined grid was built for
-    if scene.concentration_set == "quadrant":
+    if scene.refine.concentration_set == "quadrant":
         u = UNIFORM_EXTENT
         f, vgrid, xgrid, v_params, x_params = _refine_quadrant(scene, vgrid, xgrid, f, f, u, u)
         return RunState(0.0, 0, f, vgrid, xgrid, v_params, x_params, [], Verdict())
-    if scene.refine_v is not None:
+    if scene.refine.v is not None:
         f, vgrid, v_params = _refine_v(scene, vgrid, f, None)
-    if scene.refine_x is not None:
+    if scene.refine.x is not None:
         f, xgrid, x_params = _refine_x(scene, xgrid, f, None)
     return RunState(0.0, 0, f, vgrid, xgrid, v_params, x_params, [], Verdict())
 
@@ -223,15 +230,15 @@ class Stepper:
         self._f_star: np.ndarray | None = None
         self.kernel = PowerKernel(scene.gamma)
         self.policy = scene.step_policy()
-        self.opts = dict(scene.options)
-        if scene.method == "newton":
+        self.opts = dict(scene.collision.options)
+        if scene.collision.method == "newton":
             # Steps certified to 1e-8.  Momentum does not depend on it when the scene conserves
             # it (the constraint holds to rounding at every iterate); without the constraint
             # the drift comes from the step itself, not from the tolerance (measured on
             # inhom_gamma3_lambda4: tol 1e-11 costs 50 % more and only lowers it 3e-9 -> 6e-10).
             self.opts.setdefault("tol", ACCEPT_KKT)
             self.opts.setdefault("max_iter", NEWTON_MAX_ITER)
-        if scene.method in ("conic", "nlp"):
+        if scene.collision.method in ("conic", "nlp"):
             # one certificate for the engine: a step is a success only at the engine's threshold
             # (their own default kkt_tol, 1e-6, suits a single-step check, not a run).  The paper's
             # SQP keeps its own default: its failures are its exit flag (alg:non_uni_JKO).
@@ -251,8 +258,9 @@ class Stepper:
         sc = self.scene
         xg = state.xgrid
         carried = state.rows[-1]["dt"] if state.step > 0 else None  # the last accepted step
+        L_x = None if sc.x is None else sc.x.L
         dt = self.policy.first(
-            float(state.vgrid.dv.min()), None if xg is None else float(xg.dx.min()), sc.v_L, sc.x_L, carried
+            float(state.vgrid.dv.min()), None if xg is None else float(xg.dx.min()), sc.v.L, L_x, carried
         )
         dt = min(dt, sc.t_end - state.t)
         retries = 0
@@ -274,7 +282,7 @@ class Stepper:
         """Under ``time.halve_on = "max_iterations"``: the stop reason for a failure that is not the
         exit flag e_f (only ``MAX_ITERATIONS`` halves the step in alg:MR_JKO_ver2); else None."""
         other = [st for st in statuses if st != Status.MAX_ITERATIONS.name]
-        if self.scene.halve_on != "max_iterations" or not other:
+        if self.scene.time.halve_on != "max_iterations" or not other:
             return None
         return (
             f"{StopReason.SOLVER_FAILURE.value} ({', '.join(statuses)}): not the exit flag e_f "
@@ -293,27 +301,36 @@ class Stepper:
 
         def transport(g: np.ndarray, h: float) -> np.ndarray:
             t0 = time.perf_counter()
-            out = transport_step(xg, vg.points, g, h, conserve_moment=sc.conserve_x_moment)
+            out = transport_step(xg, vg.points, g, h, conserve_moment=sc.x.conserve_moment)
             secs["transport"] += time.perf_counter() - t0
             return out
 
         def problem(g: np.ndarray, h: float) -> CollisionProblem:
-            return CollisionProblem(vg, self.kernel, g, h, sc.strength, sc.beta, sc.fisher, sc.conserve_momentum)
+            return CollisionProblem(
+                vg,
+                self.kernel,
+                g,
+                h,
+                sc.strength,
+                sc.collision.beta,
+                sc.collision.problem_fisher,
+                sc.collision.conserve_momentum,
+            )
 
         def collide(g: np.ndarray, h: float):
             self._f_star = g  # alg:SPMCSL-JKO's f*, for refine.concentration_set = "quadrant"
             t0 = time.perf_counter()
-            if sc.time_order == 2:
-                res = collision_step_order2(problem, g, h, method=sc.method, **self.opts)
+            if sc.time.order == 2:
+                res = collision_step_order2(problem, g, h, method=sc.collision.method, **self.opts)
             else:
-                res = solve_collision(problem(g, h), method=sc.method, **self.opts)
+                res = solve_collision(problem(g, h), method=sc.collision.method, **self.opts)
             secs["collision"] += time.perf_counter() - t0
             return res
 
         if xg is None:
             res = collide(state.f, dt)
             return res.f, res
-        if sc.time_order == 2:
+        if sc.time.order == 2:
             return strang_step(transport, collide, state.f, dt)
         res = collide(transport(state.f, dt), dt)
         return res.f, res
@@ -322,14 +339,14 @@ class Stepper:
         """Advance ``state`` by the solved step: refine, then t and step."""
         t2 = time.perf_counter()
         f, vgrid, xgrid, vp, xp = out.f, state.vgrid, state.xgrid, state.v_params, state.x_params
-        if self.scene.concentration_set == "quadrant":
+        if self.scene.refine.concentration_set == "quadrant":
             f, vgrid, xgrid, vp, xp = _refine_quadrant(self.scene, vgrid, xgrid, f, out.f_star, vp, xp)
         else:
-            if self.scene.refine_v is not None:
+            if self.scene.refine.v is not None:
                 f, vgrid, vp = _refine_v(self.scene, vgrid, f, vp)
-            if self.scene.refine_x is not None:
+            if self.scene.refine.x is not None:
                 f, xgrid, xp = _refine_x(self.scene, xgrid, f, xp)
-        if self.scene.v_floor_every_step and vgrid is state.vgrid:
+        if self.scene.v.floor_every_step and vgrid is state.vgrid:
             f = _floor_v(self.scene, vgrid, f)
         state.seconds["refine"] += time.perf_counter() - t2
         state.f, state.vgrid, state.xgrid, state.v_params, state.x_params = f, vgrid, xgrid, vp, xp
@@ -340,7 +357,7 @@ class Stepper:
 
 
 def _loop(scene: Scene, stepper: Stepper, state: RunState, trackers: list[Tracker], guard: InterruptGuard) -> None:
-    failure = SolverFailure(scene.stop_on_solver_failure)
+    failure = SolverFailure(scene.stop.on_solver_failure)
     while not state.done(scene.t_end):
         out = stepper.solve(state)
         if out.stop is not None:  # never accepted, whatever stop.on_solver_failure says

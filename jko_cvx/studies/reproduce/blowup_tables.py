@@ -178,8 +178,8 @@ def _mesh_rule_curve(data: str, n_fine: int = 6001, n_times: int = 160) -> tuple
     p = scene.initial
     f0 = GaussianMixture(p["amplitudes"], p["rates"], p["centres"])
     T = blowup_time_gamma1(f0)
-    fine = Grid(np.linspace(-scene.v_L, scene.v_L, n_fine))
-    r, n = scene.refine_v, scene.v_n
+    fine = Grid(np.linspace(-scene.v.L, scene.v.L, n_fine))
+    r, n = scene.refine.v, scene.v.n
     cls = OneBumpMap if r.bumps == 1 else TwoBumpMap
     ts = T * (1 - np.geomspace(0.5, 1e-4, n_times))
     spacing = np.array(
