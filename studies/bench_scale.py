@@ -26,7 +26,6 @@ The machine may be shared: the 1-minute load average is recorded with every row.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import os
 import resource
 import time
@@ -89,7 +88,9 @@ def step_rows(cases: list[tuple[int, str]], steps: int) -> list[dict]:
     rows = []
     os.environ.setdefault("JKO_CVX_MAX_GIB", "64")
     for n, mode in cases:
-        scene = dataclasses.replace(base, x_n=n, v_n=n, t_end=steps * base.dt, every=10**6, checkpoint_every=10**6)
+        scene = base.replace(
+            {"x.n": n, "v.n": n, "t_end": steps * base.time.dt, "output.every": 10**6, "output.checkpoint_every": 10**6}
+        )
         old = _with_linalg(mode)
         try:
             load0 = os.getloadavg()[0]

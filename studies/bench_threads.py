@@ -58,17 +58,16 @@ CONFIGS = {
 
 def inhom_batch(n_v: int, gamma: float, slices: int = 32, dt: float = 0.02):
     """The benchmark batch (see the module docstring) as a batched CollisionProblem."""
-    import dataclasses
 
     from jko_cvx import CollisionProblem, PowerKernel
     from jko_cvx.mesh.maps import OneBumpMap
     from jko_cvx.mesh.remapping import remap
     from jko_cvx.scene.model import load_scene
 
-    scene = dataclasses.replace(load_scene(SCENE), x_n=slices, v_n=n_v)
+    scene = load_scene(SCENE).replace({"x.n": slices, "v.n": n_v})
     vgrid, xgrid = scene.vgrid(), scene.xgrid()
     f = scene.initial_density(xgrid, vgrid)
-    spec = scene.refine_v
+    spec = scene.refine.v
     grid = OneBumpMap.from_density(vgrid, f.max(axis=0), spec.delta0, spec.delta).grid(n_v)
     f = np.maximum(remap(vgrid, f, grid, axis=-1, conserve_momentum=True), 1e-300)
     return CollisionProblem(grid, PowerKernel(gamma), f, dt, 2.0, 1000.0, "log", conserve_momentum=True)

@@ -24,7 +24,6 @@ About 5-10 minutes on one core.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 from pathlib import Path
 
@@ -86,7 +85,7 @@ def main(argv: list[str] | None = None) -> None:
     try:
         scene = study_scene("after", 481, "uniform")
         if args.no_floor:
-            scene = dataclasses.replace(scene, v_floor_every_step=False)
+            scene = scene.replace({"v.floor_every_step": False})
         x_weights.append(scene.xgrid().h)  # a fixed uniform x-grid: the same weights every step
         run = simulate_module.simulate(scene)
     finally:
@@ -101,7 +100,7 @@ def main(argv: list[str] | None = None) -> None:
                 "steps": len(d) - 1,
                 "sigma_v at the stop": float(d.min_spread_v.iloc[-1]),
                 "collapse t (sigma_v < 0.05)": float(below.iloc[0]) if len(below) else None,
-                "v.floor_every_step": scene.v_floor_every_step,
+                "v.floor_every_step": scene.v.floor_every_step,
                 "failed solves": failures,
                 "code": code,
             },

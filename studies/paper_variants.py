@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import argparse
 import time
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -84,7 +83,7 @@ def _inhom_scene(case: str, n: int, rule: str):
     121, the shipped one); ``gamma1p5_before`` / ``_after``: the quick form's run on n x n."""
     over = {"refine.concentration_set": rule}
     if case == "gamma3_lambda4":  # inhomogeneous_scene takes no overrides; the rule is a plain field
-        return replace(inhomogeneous_scene(4.0, n, 2.0 if n < 121 else 4.0), concentration_set=rule)
+        return inhomogeneous_scene(4.0, n, 2.0 if n < 121 else 4.0).replace({"refine.concentration_set": rule})
     sub = case.split("_")[1]  # gamma1p5_before / gamma1p5_after
     return gamma1p5_scene(sub, n, {**over, "stop.spread_v": COLLAPSE_SPREAD, "t_end": QUICK_T_END, "output.times": []})
 
@@ -95,7 +94,7 @@ def concentration_variant(case: str, n: int, rule: str) -> dict[str, Any]:
     t0 = time.perf_counter()
     run = simulate(scene)
     d = run.diagnostics
-    uniform_dv = 2 * scene.v_L / (scene.v_n - 1)
+    uniform_dv = 2 * scene.v.L / (scene.v.n - 1)
     refined = d.t[d.min_dv < uniform_dv * (1 - 1e-9)]
     return {
         "min dv": float(d.min_dv.min()),

@@ -13,7 +13,7 @@ B_v), keep snapshots and write checkpoints; a solver failure the policy cannot c
 
 With ``out`` the run lives in a directory (:mod:`jko_cvx.engine.rundir`: provenance, lock,
 resume and overwrite rules): scene, metadata, diagnostics.csv, snapshots (every K steps and
-at the first step reaching each of the scene's ``snapshot_times``), a checkpoint every K
+at the first step reaching each of the scene's ``output.times``), a checkpoint every K
 steps and the verdict, all written atomically, so a killed run loses at most K steps and
 ``resume=True`` continues it to exactly the result of an uninterrupted run (the loop is
 deterministic and the checkpoint holds the whole state).  SIGINT / SIGTERM write a
@@ -63,13 +63,13 @@ stalls end earlier anyway, on Newton's jam and rounding-floor rules."""
 def remesh_policy(scene: Scene) -> RemeshPolicy:
     """The scene's remeshing policy: ``[refine]``, the domains and what the remaps conserve."""
     return RemeshPolicy(
-        scene.refine_v,
-        scene.refine_x,
-        scene.v_L,
-        scene.x_L,
-        scene.concentration_set,
-        scene.conserve_momentum,
-        scene.conserve_x_moment,
+        scene.refine.v,
+        scene.refine.x,
+        scene.v.L,
+        None if scene.x is None else scene.x.L,
+        scene.refine.concentration_set,
+        scene.collision.conserve_momentum,
+        True if scene.x is None else scene.x.conserve_moment,
     )
 
 
@@ -124,15 +124,15 @@ class Stepper:
         self.kernel = PowerKernel(scene.gamma)
         self.policy = scene.step_policy()
         self.remesh = remesh_policy(scene)
-        self.opts = dict(scene.options)
-        if scene.method == "newton":
+        self.opts = dict(scene.collision.options)
+        if scene.collision.method == "newton":
             # Steps certified to 1e-8.  Momentum does not depend on it when the scene conserves
             # it (the constraint holds to rounding at every iterate); without the constraint
             # the drift comes from the step itself, not from the tolerance (measured on
             # inhom_gamma3_lambda4: tol 1e-11 costs 50 % more and only lowers it 3e-9 -> 6e-10).
             self.opts.setdefault("tol", ACCEPT_KKT)
             self.opts.setdefault("max_iter", NEWTON_MAX_ITER)
-        if scene.method in ("conic", "nlp"):
+        if scene.collision.method in ("conic", "nlp"):
             # one certificate for the engine: a step is a success only at the engine's threshold
             # (their own default kkt_tol, 1e-6, suits a single-step check, not a run).  The paper's
             # SQP keeps its own default: its failures are its exit flag (alg:non_uni_JKO).
@@ -152,8 +152,9 @@ class Stepper:
         sc = self.scene
         xg = state.xgrid
         carried = state.rows[-1]["dt"] if state.step > 0 else None  # the last accepted step
+        L_x = None if sc.x is None else sc.x.L
         dt = self.policy.first(
-            float(state.vgrid.dv.min()), None if xg is None else float(xg.dx.min()), sc.v_L, sc.x_L, carried
+            float(state.vgrid.dv.min()), None if xg is None else float(xg.dx.min()), sc.v.L, L_x, carried
         )
         dt = min(dt, sc.t_end - state.t)
         retries = 0
@@ -183,27 +184,36 @@ class Stepper:
 
         def transport(g: np.ndarray, h: float) -> np.ndarray:
             t0 = time.perf_counter()
-            out = transport_step(xg, vg.points, g, h, conserve_moment=sc.conserve_x_moment)
+            out = transport_step(xg, vg.points, g, h, conserve_moment=sc.x.conserve_moment)
             secs["transport"] += time.perf_counter() - t0
             return out
 
         def problem(g: np.ndarray, h: float) -> CollisionProblem:
-            return CollisionProblem(vg, self.kernel, g, h, sc.strength, sc.beta, sc.fisher, sc.conserve_momentum)
+            return CollisionProblem(
+                vg,
+                self.kernel,
+                g,
+                h,
+                sc.strength,
+                sc.collision.beta,
+                sc.collision.problem_fisher,
+                sc.collision.conserve_momentum,
+            )
 
         def collide(g: np.ndarray, h: float):
             self._f_star = g  # alg:SPMCSL-JKO's f*, for refine.concentration_set = "quadrant"
             t0 = time.perf_counter()
-            if sc.time_order == 2:
-                res = collision_step_order2(problem, g, h, method=sc.method, **self.opts)
+            if sc.time.order == 2:
+                res = collision_step_order2(problem, g, h, method=sc.collision.method, **self.opts)
             else:
-                res = solve_collision(problem(g, h), method=sc.method, **self.opts)
+                res = solve_collision(problem(g, h), method=sc.collision.method, **self.opts)
             secs["collision"] += time.perf_counter() - t0
             return res
 
         if xg is None:
             res = collide(state.f, dt)
             return res.f, res
-        if sc.time_order == 2:
+        if sc.time.order == 2:
             return strang_step(transport, collide, state.f, dt)
         res = collide(transport(state.f, dt), dt)
         return res.f, res
@@ -214,7 +224,7 @@ class Stepper:
         f, vgrid, xgrid, vp, xp = self.remesh.refine(
             state.vgrid, state.xgrid, out.f, out.f_star, state.v_params, state.x_params
         )
-        if self.scene.v_floor_every_step and vgrid is state.vgrid:
+        if self.scene.v.floor_every_step and vgrid is state.vgrid:
             f = self.remesh.floor_v(vgrid, f)
         state.seconds["refine"] += time.perf_counter() - t2
         state.f, state.vgrid, state.xgrid, state.v_params, state.x_params = f, vgrid, xgrid, vp, xp
@@ -225,7 +235,7 @@ class Stepper:
 
 
 def _loop(scene: Scene, stepper: Stepper, state: RunState, trackers: list[Tracker], guard: InterruptGuard) -> None:
-    failure = SolverFailure(scene.stop_on_solver_failure)
+    failure = SolverFailure(scene.stop.on_solver_failure)
     while not state.done(scene.t_end):
         out = stepper.solve(state)
         if out.stop is not None:  # never accepted, whatever stop.on_solver_failure says

@@ -49,7 +49,7 @@ def refinement_switches(run: Run, axis: str = "v") -> np.ndarray:
     Read from the records: the smallest spacing of a grid that was not rebuilt is the same
     number, bit for bit, as at the previous step.  Empty for an axis the scene does not refine.
     """
-    spec = run.scene.refine_v if axis == "v" else run.scene.refine_x
+    spec = run.scene.refine.v if axis == "v" else run.scene.refine.x
     if spec is None:
         return np.array([], dtype=int)
     col = run.diagnostics[f"min_d{axis}"].to_numpy()
@@ -91,11 +91,11 @@ def plot_records(run: Run, ax=None):
     fig, a = _new_axes(ax)
     d, sc = run.diagnostics, run.scene
     t = d["t"].to_numpy()
-    series = [("min dv", "min_dv", sc.eps_v, "eps_v", "v"), ("max f", "max_f", 0.0, "", "")]
+    series = [("min dv", "min_dv", sc.stop.eps_v, "eps_v", "v"), ("max f", "max_f", 0.0, "", "")]
     if run.xgrid is not None:
-        series.insert(1, ("min dx", "min_dx", sc.eps_x, "eps_x", "x"))
-    if sc.spread_v > 0:
-        series.append(("min spread_v", "min_spread_v", sc.spread_v, "spread_v", ""))
+        series.insert(1, ("min dx", "min_dx", sc.stop.eps_x, "eps_x", "x"))
+    if sc.stop.spread_v > 0:
+        series.append(("min spread_v", "min_spread_v", sc.stop.spread_v, "spread_v", ""))
     for label, col, eps, eps_label, axis in series:
         (line,) = a.semilogy(t, d[col], label=label)
         if eps > 0:

@@ -19,7 +19,6 @@ state, verdict and timings.
 
 from __future__ import annotations
 
-import dataclasses
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -32,7 +31,6 @@ from jko_cvx._version import __version__
 from jko_cvx.engine.state import RunDirError, RunState, read_npz
 from jko_cvx.engine.verdict import StopReason, Verdict
 from jko_cvx.grid import Grid, PeriodicGrid
-from jko_cvx.mesh.policy import RefineSpec
 from jko_cvx.scene.model import Scene, scene_from_dict
 
 __all__ = ["Run", "load_run"]
@@ -71,7 +69,7 @@ class Run:
     def snapshots_at(self, times) -> list[dict[str, Any]]:
         """The first snapshot at or after each of ``times`` (distinct; times past the run's end are skipped).
 
-        Exact for the scene's ``snapshot_times``: the run took a snapshot at the first step
+        Exact for the scene's ``output.times``: the run took a snapshot at the first step
         reaching each of them.
         """
         ts = np.array([s["t"] for s in self.snapshots])
@@ -165,27 +163,22 @@ def export_netcdf(run: Run, path: str | Path) -> Path:
 
 def _scene_from_record(record: dict[str, Any], fingerprint: str, where: Path) -> Scene:
     """Rebuild the scene recorded in ``scene.json``; it must reproduce the recorded fingerprint."""
-    from jko_cvx.engine.rundir import scene_fingerprint
+    from jko_cvx.engine.rundir import flat_scene_record, scene_fingerprint
 
-    candidates = []
-    try:  # a record in the TOML layout
-        candidates.append(scene_from_dict(record))
-    except (ValueError, TypeError, KeyError, AttributeError):
-        pass
-    try:  # a record of the dataclass fields (Scene.to_dict = dataclasses.asdict)
-        kw = {f.name: record[f.name] for f in dataclasses.fields(Scene) if f.name in record}
-        for k in ("refine_v", "refine_x"):
-            if isinstance(kw.get(k), dict):
-                kw[k] = RefineSpec(**kw[k])
-        if "snapshot_times" in kw:
-            kw["snapshot_times"] = tuple(kw["snapshot_times"])
-        candidates.append(Scene(**kw))
-    except (ValueError, TypeError, KeyError):
-        pass
-    for scene in candidates:
-        if scene_fingerprint(scene) == fingerprint:
-            return scene
-    raise RunDirError(f"{where} does not rebuild the scene the run's checkpoint was made from (fingerprint differs)")
+    if flat_scene_record(record):
+        raise RunDirError(
+            f"{where} records the scene as flat fields (v_n, dt, ...), the layout of an earlier jko_cvx; this "
+            "version records and reads the TOML-shaped document (v.n, time.dt, ...): run the scene again"
+        )
+    try:
+        scene = scene_from_dict(record)
+    except (ValueError, TypeError) as exc:
+        raise RunDirError(f"{where} does not rebuild the scene the run's checkpoint was made from ({exc})") from None
+    if scene_fingerprint(scene) != fingerprint:
+        raise RunDirError(
+            f"{where} does not rebuild the scene the run's checkpoint was made from (fingerprint differs)"
+        )
+    return scene
 
 
 def load_run(path: str | Path, *, allow_partial: bool = False) -> Run:

@@ -32,7 +32,7 @@ from jko_cvx._version import __version__
 from jko_cvx.engine.state import RunDirError, RunState, read_snapshot, save_text
 from jko_cvx.scene.model import Scene
 
-__all__ = ["RunDir", "canonical_scene", "read_snapshots", "scene_differences", "scene_fingerprint"]
+__all__ = ["RunDir", "canonical_scene", "flat_scene_record", "read_snapshots", "scene_differences", "scene_fingerprint"]
 
 RUN_FILES = ("scene.json", "metadata.json", "checkpoint.npz", "diagnostics.csv", "verdict.json")
 FIGURES = ("solution.png", "records.png")
@@ -47,6 +47,14 @@ def canonical_scene(scene: Scene) -> str:
 def scene_fingerprint(scene: Scene) -> str:
     """SHA-256 (hex) of :func:`canonical_scene`."""
     return hashlib.sha256(canonical_scene(scene).encode()).hexdigest()
+
+
+_FLAT_FIELDS = frozenset({"v_L", "v_n", "dt", "policy", "method", "every", "snapshot_times"})
+
+
+def flat_scene_record(record: Any) -> bool:
+    """True for a scene record in the flat field layout of earlier versions (``v_n``, ``dt``, ...)."""
+    return isinstance(record, dict) and bool(_FLAT_FIELDS & set(record))
 
 
 def _flatten(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
@@ -216,7 +224,10 @@ class RunDir:
         if recorded["scene_sha256"] != self.provenance["scene_sha256"]:
             try:
                 old = json.loads((self.path / "scene.json").read_text())
-                diff = "; ".join(scene_differences(old, json.loads(canonical_scene(self.scene))))
+                if flat_scene_record(old):
+                    diff = "scene.json records it as flat fields (v_n, dt, ...), the layout of an earlier jko_cvx"
+                else:
+                    diff = "; ".join(scene_differences(old, json.loads(canonical_scene(self.scene))))
             except (OSError, ValueError) as exc:
                 diff = f"the keys cannot be named: scene.json does not read ({exc})"
             raise RunDirError(

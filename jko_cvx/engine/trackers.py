@@ -282,22 +282,22 @@ def default_trackers(
 ) -> tuple[list[Tracker], Snapshots]:
     """The trackers of a run of ``scene``, in order, and the snapshot tracker among them."""
     snaps = Snapshots(
-        scene.every,
-        scene.snapshot_times,
+        scene.output.every,
+        scene.output.times,
         scene.t_end,
         None if rundir is None else rundir.snapshot_path,
         snapshots,
     )
-    trackers: list[Tracker] = [Diagnostics(), UnresolvedV(GRID_RESOLUTION * scene.v_L), EpsV(scene.eps_v)]
+    trackers: list[Tracker] = [Diagnostics(), UnresolvedV(GRID_RESOLUTION * scene.v.L), EpsV(scene.stop.eps_v)]
     if not scene.homogeneous:
-        trackers += [UnresolvedX(GRID_RESOLUTION * scene.x_L), EpsX(scene.eps_x)]
-    trackers.append(SpreadV(scene.spread_v))
+        trackers += [UnresolvedX(GRID_RESOLUTION * scene.x.L), EpsX(scene.stop.eps_x)]
+    trackers.append(SpreadV(scene.stop.spread_v))
     policy = scene.step_policy()
     if policy.exhausted(0.0):  # a policy whose runs end on eps_t (alg:MR_JKO_ver2's halving)
         trackers.append(EpsT(policy))
     trackers.append(snaps)
     if rundir is not None:
-        trackers.append(Checkpoints(rundir, scene.checkpoint_every, scene.t_end))
+        trackers.append(Checkpoints(rundir, scene.output.checkpoint_every, scene.t_end))
     if progress:
         trackers.append(Progress(scene.t_end, scene.name))
     return trackers, snaps

@@ -67,6 +67,12 @@ A scene file (the shipped ones are package data, ``jko_cvx/scene/shipped/*.toml`
     times = []               # and at the first step reaching each of these times
     checkpoint_every = 10
 
+:class:`Scene` is nested as the document: a dotted key is its attribute path (``scene.time.dt``,
+``scene.refine.v.delta0``; ``scene.x`` is None for a homogeneous scene), each table one of the
+dataclasses of :mod:`jko_cvx.scene.schema`, ``scene.initial`` one of the kinds of
+:mod:`jko_cvx.scene.initial` (each with its density).  ``scene.to_dict()`` is the canonical
+document (every default filled in) and ``scene_from_dict(scene.to_dict()) == scene``.
+
 Every table is parsed strictly (:mod:`jko_cvx.scene.schema`): an unknown key anywhere, a
 section given as a scalar, a value of the wrong type or outside its range raises
 :class:`SceneError` naming the dotted key.  A scene whose step count or memory estimate is

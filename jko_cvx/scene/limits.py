@@ -52,14 +52,14 @@ class SizeEstimate:
 
 def estimate_size(scene: Scene) -> SizeEstimate:
     """Steps and memory of ``scene`` (see the module docstring for the formulas)."""
-    dt = scene.dt
-    if scene.policy == "cfl":
-        dt = min(dt, 0.9 * (2 * scene.v_L / (scene.v_n - 1)) / scene.v_L)
-        if scene.x_n is not None:
-            dt = min(dt, 0.9 * (2 * scene.x_L / scene.x_n) / scene.x_L)
+    dt = scene.time.dt
+    if scene.time.policy == "cfl":
+        dt = min(dt, 0.9 * (2 * scene.v.L / (scene.v.n - 1)) / scene.v.L)
+        if scene.x is not None:
+            dt = min(dt, 0.9 * (2 * scene.x.L / scene.x.n) / scene.x.L)
     steps = math.ceil(scene.t_end / dt) if scene.t_end / dt < 1e300 else math.inf
-    B, N = float(scene.x_n or 1), float(scene.v_n)
-    snapshots = min(steps + 1, steps / scene.every + 2) + len(scene.snapshot_times)
+    B, N = float(1 if scene.x is None else scene.x.n), float(scene.v.n)
+    snapshots = min(steps + 1, steps / scene.output.every + 2) + len(scene.output.times)
     return SizeEstimate(
         steps=float(steps),
         dense_bytes=8 * 4 * (1.0 if scene.gamma in (1.0, 2.0, 3.0) else B) * N * N,
@@ -85,12 +85,12 @@ def check_limits(scene: Scene, limits: Limits | None = None) -> SizeEstimate:
     est = estimate_size(scene)
     if est.steps > limits.max_steps:
         raise SceneError(
-            f"time.dt = {scene.dt:g} with t_end = {scene.t_end:g} (policy {scene.policy!r}) needs about "
+            f"time.dt = {scene.time.dt:g} with t_end = {scene.t_end:g} (policy {scene.time.policy!r}) needs about "
             f"{est.steps:.3g} steps, above the limit of {limits.max_steps:.3g}; raise it with the environment "
             f"variable {STEPS_ENV} if that is intended"
         )
     if est.bytes > limits.max_gib * _GIB:
-        grid = f"v.n = {scene.v_n}" + ("" if scene.x_n is None else f", x.n = {scene.x_n}")
+        grid = f"v.n = {scene.v.n}" + ("" if scene.x is None else f", x.n = {scene.x.n}")
         raise SceneError(
             f"{grid} needs an estimated {_size(est.bytes)} (dense N_v x N_v blocks {_size(est.dense_bytes)}, "
             f"snapshots {_size(est.snapshot_bytes)}), above the limit of {limits.max_gib:g} GiB; raise it with "

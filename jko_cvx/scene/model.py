@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
 import tomllib
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -16,13 +17,14 @@ from numpy.typing import NDArray
 
 from jko_cvx.grid import Grid, PeriodicGrid
 from jko_cvx.mesh.policy import RefineSpec
+from jko_cvx.scene.initial import INITIAL_KINDS, Initial
 from jko_cvx.scene.limits import Limits, check_limits
 from jko_cvx.scene.options import parse_options
 from jko_cvx.scene.schema import (
     CONCENTRATION_SETS,
-    INITIAL_KINDS,
     CollisionTable,
     OutputTable,
+    RefineAxisTable,
     RefineTable,
     Rule,
     SceneError,
@@ -51,18 +53,25 @@ __all__ = [
 
 @dataclass(frozen=True)
 class Scene:
-    """A validated scene (see the module docstring for the TOML layout).
+    """A validated scene, nested as its TOML document: a dotted key is an attribute path.
+
+    ``scene.v.n`` is ``v.n``, ``scene.time.dt`` is ``time.dt``, ``scene.refine.v`` the
+    ``[refine.v]`` table (a :class:`RefineSpec`, None for a fixed grid), ``scene.x`` None for a
+    homogeneous scene; ``scene.initial`` is the initial condition's kind
+    (:mod:`jko_cvx.scene.initial`).  Defaults are filled in and resolved at parse time
+    (``collision.conserve_momentum``, ``collision.options``, ``output.times`` sorted); see the
+    module docstring of :mod:`jko_cvx.scene` for the layout.
 
     Two switches between the paper's algorithms as written and this package's rule (measured in
     ``studies/results/reproduce/paper_variants.md``):
 
-    * ``halve_on`` (``time.halve_on``, halving policies): ``"any_failure"`` (default) halves the
+    * ``time.halve_on`` (halving policies): ``"any_failure"`` (default) halves the
       step after any collision solve the engine does not accept (not certified, non-convex,
       numerical error, iteration limit); ``"max_iterations"`` follows ``alg:MR_JKO_ver2`` /
       ``alg:non_uni_JKO``: only the exit flag ``e_f`` (``MAX_ITERATIONS``) halves it, and any
       other failure stops the run as a solver failure (``e_f``, whatever
       ``stop.on_solver_failure`` says: an uncertified step is never used as a solution).
-    * ``concentration_set`` (``refine.concentration_set``, inhomogeneous scenes):
+    * ``refine.concentration_set`` (inhomogeneous scenes):
       ``"projections"`` (default) builds the v-map from the post-collision f maximised over x
       and the x-map from it maximised over v; ``"quadrant"`` follows ``alg:SPMCSL-JKO`` step 4:
       one set :math:`S = \\{f^* > \\delta_0 \\max f^*, x > 0, v > 0\\}` from the density entering
@@ -73,76 +82,77 @@ class Scene:
 
     name: str
     gamma: float
+    strength: float
     t_end: float
-    v_L: float
-    v_n: int
-    initial: dict[str, Any]
-    dt: float
-    policy: str = "fixed"
-    eps_t: float = 1e-6
-    halve_on: str = "any_failure"
-    time_order: int = 1
-    strength: float = 1.0
-    x_L: float | None = None
-    x_n: int | None = None
-    conserve_x_moment: bool = True
-    v_floor_every_step: bool = False
-    refine_v: RefineSpec | None = None
-    refine_x: RefineSpec | None = None
-    concentration_set: str = "projections"
-    method: str = "newton"
-    beta: float = math.inf
-    fisher: str | None = "perspective"
-    conserve_momentum: bool = True
-    options: dict[str, Any] = field(default_factory=dict)
-    eps_v: float = 0.0
-    eps_x: float = 0.0
-    spread_v: float = 0.0
-    stop_on_solver_failure: bool = True
-    every: int = 10
-    snapshot_times: tuple[float, ...] = ()
-    checkpoint_every: int = 10
-    description: str = ""
+    description: str
+    v: VTable
+    x: XTable | None
+    initial: Initial
+    time: TimeTable
+    refine: RefineTable
+    collision: CollisionTable
+    stop: StopTable
+    output: OutputTable
 
     @property
     def homogeneous(self) -> bool:
         """True when the scene has no x-grid (no transport)."""
-        return self.x_n is None
+        return self.x is None
 
     def vgrid(self) -> Grid:
-        return Grid.uniform(-self.v_L, self.v_L, self.v_n)
+        return Grid.uniform(-self.v.L, self.v.L, self.v.n)
 
     def xgrid(self) -> PeriodicGrid | None:
-        return None if self.homogeneous else PeriodicGrid.uniform(self.x_L, self.x_n)
+        return None if self.x is None else PeriodicGrid.uniform(self.x.L, self.x.n)
 
     def step_policy(self) -> StepPolicy:
         """The time-step policy of ``[time]`` (:func:`jko_cvx.stepping.step_policy`)."""
-        return step_policy(self.policy, self.dt, self.eps_t, self.halve_on)
+        return step_policy(self.time.policy, self.time.dt, self.time.eps_t, self.time.halve_on)
 
     def initial_density(self, xgrid: PeriodicGrid | None, vgrid: Grid) -> NDArray[np.float64]:
-        """f0 on the grids, shape (Nv,) or (Nx, Nv)."""
-        p = self.initial
-        v = vgrid.points
-        if p["kind"] == "gaussians":
-            fv = sum(
-                A * np.exp(-a * (v - c) ** 2) for A, a, c in zip(p["amplitudes"], p["rates"], p["centres"], strict=True)
-            )
-            return fv if xgrid is None else np.tile(fv, (xgrid.n, 1))
-        x = xgrid.points[:, None]
-        if p["kind"] == "two_bump_phase":  # eqn:f0
-            a, b, c, d = p["a"], p["b"], p["c"], p["d"]
-            return np.exp(-a * (x + c) ** 2) * np.exp(-b * (v - d) ** 2) + np.exp(-a * (x - c) ** 2) * np.exp(
-                -b * (v + d) ** 2
-            )
-        a, b, x1 = p["a"], p["b"], p["x1"]  # eqn:ic_g2
-        base = np.exp(-a * (b * x + v) ** 2) / np.sqrt(2 * np.pi)
-        cut = np.where(np.abs(x) <= x1, 1.0, np.exp(-1000 * (np.abs(x) - x1) ** 2))
-        return base * cut
+        """f0 on the grids, shape (Nv,) or (Nx, Nv): :meth:`Initial.density` of ``initial``."""
+        return self.initial.density(xgrid, vgrid)
+
+    def replace(self, changes: Mapping[str, Any]) -> Scene:
+        """A copy with the attributes at the dotted paths of ``changes`` set, not revalidated.
+
+        The nested counterpart of :func:`dataclasses.replace` (``{"v.n": 41, "time.dt": 0.02}``);
+        a document to validate goes through :func:`with_overrides` and :func:`scene_from_dict`.
+
+        >>> default_scene().replace({"time.dt": 0.005, "t_end": 0.5}).time.dt
+        0.005
+        """
+        out: Any = self
+        for dotted, val in changes.items():
+            out = _replace_path(out, str(dotted).split("."), val, str(dotted))
+        return out
 
     def to_dict(self) -> dict[str, Any]:
-        """The scene's fields as plain JSON data, canonical: keys sorted at every level, every
-        default filled in, tuples as lists.  Equal scenes give equal dicts (and equal JSON)."""
-        return _canonical(asdict(self))
+        """The scene as its canonical TOML-shaped document: nested by table, every default filled in,
+        keys sorted at every level, tuples as lists, no ``x`` / ``refine.v`` / ``refine.x`` where the
+        scene has none.  ``scene_from_dict(scene.to_dict()) == scene``; equal scenes give equal dicts.
+
+        >>> d = default_scene().to_dict()
+        >>> d["time"]["dt"], d["refine"]["v"]["delta0"], scene_from_dict(d) == default_scene()
+        (0.01, 0.5, True)
+        """
+        d = asdict(self)
+        d["initial"] = {"kind": self.initial.kind, **d["initial"]}
+        if self.x is None:
+            del d["x"]
+        for axis in ("v", "x"):
+            if d["refine"][axis] is None:
+                del d["refine"][axis]
+        return _canonical(d)
+
+
+def _replace_path(obj: Any, path: list[str], val: Any, dotted: str) -> Any:
+    head, *rest = path
+    if not dataclasses.is_dataclass(obj) or head not in {f.name for f in dataclasses.fields(obj)}:
+        raise AttributeError(f"scene has no attribute path {dotted!r}")
+    if rest:
+        val = _replace_path(getattr(obj, head), rest, val, dotted)
+    return dataclasses.replace(obj, **{head: val})
 
 
 def _canonical(obj: Any) -> Any:
@@ -178,46 +188,31 @@ def scene_from_dict(d: Mapping[str, Any], limits: Limits | None = None) -> Scene
     t = parse_table(TimeTable, top.time, "time")
     refine = _parse_refine(top.refine, x is not None)
     c = parse_table(CollisionTable, {} if top.collision is None else top.collision, "collision")
-    options = {} if c.options is None else parse_options(c.method, c.options)
     s = parse_table(StopTable, {} if top.stop is None else top.stop, "stop")
     o = parse_table(OutputTable, {} if top.output is None else top.output, "output")
     _check_combinations(top, v, x, t, c, s, o)
-    scene = Scene(
-        name=top.name,
-        gamma=top.gamma,
-        t_end=top.t_end,
-        v_L=v.L,
-        v_n=v.n,
-        initial=initial,
-        dt=t.dt,
-        policy=t.policy,
-        eps_t=t.eps_t,
-        halve_on=t.halve_on,
-        time_order=t.order,
-        strength=top.strength,
-        x_L=None if x is None else x.L,
-        x_n=None if x is None else x.n,
-        conserve_x_moment=True if x is None else x.conserve_moment,
-        v_floor_every_step=v.floor_every_step,
-        refine_v=refine.get("v"),
-        refine_x=refine.get("x"),
-        concentration_set=refine.get("concentration_set", "projections"),
-        method=c.method,
-        beta=c.beta,
-        fisher=None if c.fisher == "none" else c.fisher,
+    collision = dataclasses.replace(
+        c,
         # Momentum: the collision operator conserves it on each x-slice; the constrained step
         # does so exactly (CollisionProblem.conserve_momentum).  The paper's SQP has no such
         # constraint, so it defaults to false there.
         conserve_momentum=c.method != "sqp" if c.conserve_momentum is None else c.conserve_momentum,
-        options=options,
-        eps_v=s.eps_v,
-        eps_x=s.eps_x,
-        spread_v=s.spread_v,
-        stop_on_solver_failure=s.on_solver_failure,
-        every=o.every,
-        snapshot_times=tuple(sorted(o.times)),
-        checkpoint_every=o.checkpoint_every,
+        options={} if c.options is None else parse_options(c.method, c.options),
+    )
+    scene = Scene(
+        name=top.name,
+        gamma=top.gamma,
+        strength=top.strength,
+        t_end=top.t_end,
         description=top.description,
+        v=v,
+        x=x,
+        initial=initial,
+        time=t,
+        refine=refine,
+        collision=collision,
+        stop=s,
+        output=dataclasses.replace(o, times=tuple(sorted(o.times))),
     )
     check_limits(scene, limits)  # before anything of the run's size is allocated
     f0 = scene.initial_density(scene.xgrid(), scene.vgrid())
@@ -226,27 +221,27 @@ def scene_from_dict(d: Mapping[str, Any], limits: Limits | None = None) -> Scene
     return scene
 
 
-def _parse_initial(data: Any, has_x: bool) -> dict[str, Any]:
+def _parse_initial(data: Any, has_x: bool) -> Initial:
     data = require_table(data, "initial")
     if "kind" not in data:
         raise SceneError(f"initial.kind is required, one of {sorted(INITIAL_KINDS)}")
     kind = Rule("str", choices=tuple(INITIAL_KINDS)).parse(data["kind"], "initial.kind")
-    table = parse_table(INITIAL_KINDS[kind], {k: val for k, val in data.items() if k != "kind"}, "initial")
-    if kind != "gaussians" and not has_x:
+    initial = parse_table(INITIAL_KINDS[kind], {k: val for k, val in data.items() if k != "kind"}, "initial")
+    if initial.phase_space and not has_x:
         raise SceneError(f"initial.kind = {kind!r} is a phase-space datum and needs an [x] grid")
-    return {"kind": kind, **{k: (list(val) if isinstance(val, tuple) else val) for k, val in asdict(table).items()}}
+    return initial
 
 
-def _parse_refine(data: Any, has_x: bool) -> dict[str, Any]:
-    """``{"v": RefineSpec, "x": RefineSpec, "concentration_set": str}``, each where the scene sets it."""
+def _parse_refine(data: Any, has_x: bool) -> RefineTable:
+    """The ``[refine]`` table: a :class:`RefineSpec` per axis the scene refines, and the concentration set."""
     if data is None:
-        return {}
+        return RefineTable()
     data = require_table(data, "refine")
     check_known(data, ("v", "x", "concentration_set"), "refine")
     if "x" in data and not has_x:
         raise SceneError("refine.x needs an [x] grid")
     specs: dict[str, Any] = {
-        axis: RefineSpec(**asdict(parse_table(RefineTable, data[axis], f"refine.{axis}")))
+        axis: RefineSpec(**asdict(parse_table(RefineAxisTable, data[axis], f"refine.{axis}")))
         for axis in ("v", "x")
         if axis in data
     }
@@ -262,7 +257,7 @@ def _parse_refine(data: Any, has_x: bool) -> dict[str, Any]:
             )
         if specs["concentration_set"] == "quadrant" and not ("v" in specs or "x" in specs):
             raise SceneError('refine.concentration_set = "quadrant" needs [refine.v] or [refine.x] (a map to build)')
-    return specs
+    return RefineTable(**specs)
 
 
 def _check_combinations(top, v, x, t, c, s, o) -> None:
@@ -350,7 +345,7 @@ def shipped_scene_names() -> list[str]:
 def shipped_scene(name: str, overrides: Mapping[str, Any] | None = None, limits: Limits | None = None) -> Scene:
     """A shipped scene (package data) by name, with dotted-key ``overrides`` applied before validation.
 
-    >>> shipped_scene("tab_bu_g1", {"time.dt": 0.005}).dt
+    >>> shipped_scene("tab_bu_g1", {"time.dt": 0.005}).time.dt
     0.005
     """
     names = shipped_scene_names()

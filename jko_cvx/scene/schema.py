@@ -18,24 +18,21 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
-from jko_cvx.mesh.policy import CONCENTRATION_SETS
+from jko_cvx.mesh.policy import CONCENTRATION_SETS, RefineSpec
 from jko_cvx.stepping import HALVE_ON, POLICIES
 
 __all__ = [
     "CONCENTRATION_SETS",
     "HALVE_ON",
-    "INITIAL_KINDS",
     "CollisionTable",
-    "Gamma2Initial",
-    "GaussiansInitial",
     "OutputTable",
+    "RefineAxisTable",
     "RefineTable",
     "Rule",
     "SceneError",
     "SceneTable",
     "StopTable",
     "TimeTable",
-    "TwoBumpInitial",
     "VTable",
     "XTable",
     "check_known",
@@ -238,48 +235,6 @@ class XTable(_Table):
     conserve_moment: bool = key(_BOOL, True)
 
 
-@dataclass(frozen=True)
-class GaussiansInitial(_Table):
-    """``initial.kind = "gaussians"``: f0(v) = sum_j A_j exp(-a_j (v - c_j)^2), the same on every x."""
-
-    amplitudes: tuple[float, ...] = key(Rule("floats", lo=0.0, nonempty=True))
-    rates: tuple[float, ...] = key(Rule("floats", lo=0.0, lo_open=True, nonempty=True))
-    centres: tuple[float, ...] = key(Rule("floats", nonempty=True))
-
-    def check(self, where: str) -> None:
-        if not len(self.amplitudes) == len(self.rates) == len(self.centres):
-            raise SceneError(
-                f"{where}.amplitudes, rates and centres must be lists of the same length, got "
-                f"{len(self.amplitudes)}, {len(self.rates)} and {len(self.centres)}"
-            )
-        if not any(a > 0 for a in self.amplitudes):
-            raise SceneError(f"{where}.amplitudes must have at least one entry > 0 (f0 = 0 has no mass)")
-
-
-@dataclass(frozen=True)
-class TwoBumpInitial(_Table):
-    """``initial.kind = "two_bump_phase"`` (``eqn:f0``): two Gaussian bumps in phase space."""
-
-    a: float = key(_POS)
-    b: float = key(_POS)
-    c: float = key(_ANY)
-    d: float = key(_ANY)
-
-
-@dataclass(frozen=True)
-class Gamma2Initial(_Table):
-    """``initial.kind = "gamma2"`` (``eqn:ic_g2``): a sheared Gaussian cut off at |x| = x1."""
-
-    a: float = key(_POS)
-    b: float = key(_ANY)
-    x1: float = key(_POS)
-
-
-INITIAL_KINDS: dict[str, type[_Table]] = {
-    "gaussians": GaussiansInitial,
-    "two_bump_phase": TwoBumpInitial,
-    "gamma2": Gamma2Initial,
-}
 
 
 @dataclass(frozen=True)
@@ -294,7 +249,7 @@ class TimeTable(_Table):
 
 
 @dataclass(frozen=True)
-class RefineTable(_Table):
+class RefineAxisTable(_Table):
     """``[refine.v]`` / ``[refine.x]``: the mesh map (one or two bumps), delta0, delta, remesh tolerance."""
 
     bumps: int = key(Rule("int", choices=(1, 2)), 1)
@@ -302,6 +257,19 @@ class RefineTable(_Table):
     delta: float = key(_FRAC, 0.5)
     tol: float = key(Rule(_FLOAT, lo=0.0, hi=1.0, hi_open=True), 0.0)
     conserve_energy: bool = key(_BOOL, False)
+
+
+@dataclass(frozen=True)
+class RefineTable:
+    """``[refine]``: the mesh refinement of each axis (None: a fixed grid) and where the maps' sets come from.
+
+    Built by :func:`jko_cvx.scene.model.scene_from_dict` from the sub-tables ``[refine.v]`` /
+    ``[refine.x]`` (each parsed as :class:`RefineAxisTable`).
+    """
+
+    v: RefineSpec | None = None
+    x: RefineSpec | None = None
+    concentration_set: str = "projections"
 
 
 @dataclass(frozen=True)
@@ -313,6 +281,11 @@ class CollisionTable(_Table):
     fisher: str = key(Rule("str", choices=("perspective", "log", "none")), "perspective")
     conserve_momentum: bool | None = key(_BOOL, None)
     options: Mapping[str, Any] | None = key(_TABLE, None)
+
+    @property
+    def problem_fisher(self) -> str | None:
+        """``fisher`` as :class:`~jko_cvx.collision.problem.CollisionProblem` takes it (None for ``"none"``)."""
+        return None if self.fisher == "none" else self.fisher
 
     def check(self, where: str) -> None:
         if self.method == "conic" and self.fisher == "log":

@@ -204,7 +204,14 @@ def problem_from_scene(scene, t: float) -> CollisionProblem:
         f = scene.initial_density(scene.xgrid(), grid)
     if f.ndim == 2:
         f = f[int(np.argmax(f.max(axis=1)))]
-    dt = scene.step_policy().first(float(grid.dv.min()), None, scene.v_L, scene.x_L)
+    dt = scene.step_policy().first(float(grid.dv.min()), None, scene.v.L, None if scene.x is None else scene.x.L)
     return CollisionProblem(
-        grid, PowerKernel(scene.gamma), f, dt, scene.strength, scene.beta, scene.fisher, scene.conserve_momentum
+        grid,
+        PowerKernel(scene.gamma),
+        f,
+        dt,
+        scene.strength,
+        scene.collision.beta,
+        scene.collision.problem_fisher,
+        scene.collision.conserve_momentum,
     )

@@ -1,6 +1,5 @@
 """method="nlp" (CVXPY nonlinear mode + IPOPT) against independent solvers: Newton (log form), conic (perspective)."""
 
-import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -196,10 +195,10 @@ def test_missing_ipopt_says_how_to_install(monkeypatch):
 def test_whole_run_with_nlp_matches_newton():
     """A short inhomogeneous log-Fisher scene (16 x 31, two steps): nlp and Newton runs agree."""
     base = load_scene(SCENES / "inhom_gamma3_lambda4.toml")
-    base = dataclasses.replace(base, v_n=31, x_n=16, t_end=0.1)
-    assert base.fisher == "log" and base.conserve_momentum
+    base = base.replace({"v.n": 31, "x.n": 16, "t_end": 0.1})
+    assert base.collision.problem_fisher == "log" and base.collision.conserve_momentum
     newton = simulate(base)
-    nlp = simulate(dataclasses.replace(base, method="nlp"))
+    nlp = simulate(base.replace({"collision.method": "nlp"}))
     assert nlp.t == pytest.approx(0.1) and newton.t == pytest.approx(0.1)
     assert (nlp.diagnostics.failed == 0).all()
     assert np.array_equal(nlp.vgrid.points, newton.vgrid.points)
@@ -222,7 +221,7 @@ def test_scene_accepts_nlp_with_allow_listed_ipopt_options():
     }
     d["collision"]["options"]["solver_options"] = {"max_cpu_time": 5.0}
     scene = scene_from_dict(d)
-    assert scene.method == "nlp" and scene.options["solver_options"] == {"max_cpu_time": 5.0}
+    assert scene.collision.method == "nlp" and scene.collision.options["solver_options"] == {"max_cpu_time": 5.0}
     d["collision"]["options"]["solver_options"] = {"output_file": "ipopt.out"}  # writes a file: never from a scene
     with pytest.raises(SceneError, match="output_file"):
         scene_from_dict(d)

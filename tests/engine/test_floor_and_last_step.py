@@ -80,7 +80,7 @@ def test_two_bump_x_refinement_on_a_coarse_grid_ends_with_a_verdict():
     # the x-map concentrates to a point at x ~ 1e-15 (spacings 1e-17): the paper's B_x, said so
     assert run.blowup and run.verdict["B_x"]
     assert "below float64 resolution" in run.verdict["reason"]
-    assert run.xgrid.dx.min() < 1e-12 * scene.x_L
+    assert run.xgrid.dx.min() < 1e-12 * scene.x.L
 
 
 def test_a_line_with_a_thin_tail_at_every_cut_keeps_the_papers_mass_only_step():

@@ -27,14 +27,20 @@ SCENES = ROOT / "jko_cvx" / "scene" / "shipped"
 
 def _inhomogeneous():
     s = load_scene(SCENES / "inhom_gamma3_lambda4.toml")
-    return dataclasses.replace(s, v_n=31, x_n=21, t_end=0.3, every=2, snapshot_times=(0.15,))
+    return s.replace({"v.n": 31, "x.n": 21, "t_end": 0.3, "output.every": 2, "output.times": (0.15,)})
 
 
 def _failing():
     """The default scene with a step too large for a small Newton budget: stops on a solver failure at step 2,
     right after the snapshot of step 1 (every = 1)."""
-    return dataclasses.replace(
-        default_scene(), dt=0.05, t_end=0.3, stop_on_solver_failure=True, options={"max_iter": 6}, every=1
+    return default_scene().replace(
+        {
+            "time.dt": 0.05,
+            "t_end": 0.3,
+            "stop.on_solver_failure": True,
+            "collision.options": {"max_iter": 6},
+            "output.every": 1,
+        }
     )
 
 
@@ -72,6 +78,10 @@ def test_load_run_refuses_an_unfinished_run_unless_asked(tmp_path):
         jko_cvx.load_run(out / "snapshots")
     (out / "scene.json").write_text(json.dumps({**json.loads((out / "scene.json").read_text()), "gamma": 2.0}))
     with pytest.raises(RunDirError, match="does not rebuild the scene"):  # an edited scene.json is caught
+        jko_cvx.load_run(out, allow_partial=True)
+    flat = {"name": "default_tab_bu_g1", "gamma": 1.0, "t_end": 1.0, "v_L": 2.0, "v_n": 121, "dt": 0.01}
+    (out / "scene.json").write_text(json.dumps(flat))  # the flat layout of earlier versions: refused, not misread
+    with pytest.raises(RunDirError, match=r"records the scene as flat fields \(v_n, dt, \.\.\.\)"):
         jko_cvx.load_run(out, allow_partial=True)
 
 
@@ -145,7 +155,7 @@ def test_records_figure_of_a_loaded_run_shows_thresholds_exact_law_and_blowup(tm
 
 def test_refinement_switches_are_the_steps_whose_grid_changed():
     """Checked against the grids themselves: a snapshot at every step of a run that remeshes only when the set moved."""
-    s = dataclasses.replace(load_scene(SCENES / "ibu_gamma3.toml"), t_end=1.0, v_n=61, every=1)
+    s = load_scene(SCENES / "ibu_gamma3.toml").replace({"t_end": 1.0, "v.n": 61, "output.every": 1})
     run = simulate(s)
     pairs = zip(run.snapshots[1:], run.snapshots[:-1], strict=True)
     changed = [snap["step"] for snap, prev in pairs if not np.array_equal(snap["v"], prev["v"])]

@@ -98,7 +98,7 @@ def test_default_scene_blows_up_at_the_exact_time():
 
 def test_short_inhomogeneous_run_conserves_mass_and_dissipates():
     s = load_scene(SCENES / "inhom_gamma3_lambda4.toml")
-    s = dataclasses.replace(s, v_n=41, x_n=41, t_end=0.3)
+    s = s.replace({"v.n": 41, "x.n": 41, "t_end": 0.3})
     run = simulate(s)
     d = run.diagnostics
     assert not run.blowup and run.t == pytest.approx(0.3)
@@ -181,20 +181,21 @@ def test_step_policies():
 def test_halving_reset_policy_cures_a_failing_step():
     """The "halving_reset" variant: a step too large for the solver is retried with dt/2, and the
     next step starts again at dt0."""
-    s = dataclasses.replace(
-        default_scene(),
-        policy="halving_reset",
-        dt=0.05,
-        eps_t=1e-4,
-        t_end=0.3,
-        stop_on_solver_failure=True,
-        options={"max_iter": 6},  # a small iteration budget makes some full steps fail
+    s = default_scene().replace(
+        {
+            "time.policy": "halving_reset",
+            "time.dt": 0.05,
+            "time.eps_t": 1e-4,
+            "t_end": 0.3,
+            "stop.on_solver_failure": True,
+            "collision.options": {"max_iter": 6},
+        }
     )
     run = simulate(s)
     dt = run.diagnostics.dt.to_numpy()[1:-1]  # the last step is cut to land on t_end
     assert (dt < 0.05 - 1e-12).any() and (dt == 0.05).any(), "halved where needed, full steps elsewhere"
     assert not run.blowup and run.t == pytest.approx(0.3)
-    fixed = simulate(dataclasses.replace(s, policy="fixed"))  # the same scene without halving fails
+    fixed = simulate(s.replace({"time.policy": "fixed"}))  # the same scene without halving fails
     assert fixed.blowup and fixed.verdict["e_f"] and "collision solver failed" in fixed.verdict["reason"]
     assert fixed.verdict.stop is StopReason.SOLVER_FAILURE and not run.verdict.e_f
     # T_b of a solver-failure stop is the end of the failing step (alg:MR_JKO_ver2 adds dt first)
@@ -208,14 +209,15 @@ def test_halving_reset_policy_cures_a_failing_step():
 def test_halving_as_written_carries_the_halved_step_and_ends_on_eps_t():
     """alg:MR_JKO_ver2 as written: dt = dt0 once, halved while the solve fails, never grown again;
     the loop ends after the first accepted step <= eps_t (StopReason.EPS_T, counted as e_f)."""
-    s = dataclasses.replace(
-        default_scene(),
-        policy="halving",
-        dt=0.05,
-        eps_t=0.05 / 2**3 * 1.01,  # the third halving reaches it
-        t_end=2.0,
-        stop_on_solver_failure=True,
-        options={"max_iter": 5},  # a small budget: some full steps fail, more as f concentrates
+    s = default_scene().replace(
+        {
+            "time.policy": "halving",
+            "time.dt": 0.05,
+            "time.eps_t": 0.05 / 2**3 * 1.01,
+            "t_end": 2.0,
+            "stop.on_solver_failure": True,
+            "collision.options": {"max_iter": 5},
+        }
     )
     run = simulate(s)
     d = run.diagnostics
@@ -224,8 +226,8 @@ def test_halving_as_written_carries_the_halved_step_and_ends_on_eps_t():
     assert set(np.round(np.log2(0.05 / dt)).astype(int)) <= {0, 1, 2, 3}
     assert np.allclose(dt, 0.05 / 2.0 ** d.retries.cumsum().to_numpy()[1:]), "each retry halves the carried step"
     assert run.verdict.stop is StopReason.EPS_T and run.verdict["e_f"] and run.verdict["B_v"]
-    assert dt[-1] <= s.eps_t < dt[-2] and run.verdict["T_b"] == pytest.approx(run.t)
-    reset = simulate(dataclasses.replace(s, policy="halving_reset"))  # the variant never stops on eps_t
+    assert dt[-1] <= s.time.eps_t < dt[-2] and run.verdict["T_b"] == pytest.approx(run.t)
+    reset = simulate(s.replace({"time.policy": "halving_reset"}))  # the variant never stops on eps_t
     assert reset.verdict.stop is not StopReason.EPS_T
 
 
@@ -250,7 +252,7 @@ def test_gamma3_bumps_approach_zero_like_one_over_t():
     point-mass law).  Remeshing every step (tol = 0, the paper's Algorithm 3) drags the
     bumps inward each remap: the same run leaves the law or stalls.
     """
-    s = dataclasses.replace(load_scene(SCENES / "ibu_gamma3.toml"), every=50)
+    s = load_scene(SCENES / "ibu_gamma3.toml").replace({"output.every": 50})
     run = simulate(s)
     assert not run.blowup and run.t == pytest.approx(20.0)
     M = run.diagnostics.mass.iloc[0]
@@ -261,7 +263,7 @@ def test_gamma3_bumps_approach_zero_like_one_over_t():
     assert abs(slope + 1) <= 0.15, slope
     dev = late.centre_of_mass / law(late.t) - 1
     assert np.all(np.abs(dev) <= 0.03), list(zip(late.t, dev, strict=True))
-    eager = simulate(dataclasses.replace(s, refine_v=dataclasses.replace(s.refine_v, tol=0.0)))
+    eager = simulate(s.replace({"refine.v": dataclasses.replace(s.refine.v, tol=0.0)}))
     e = bump_positions(eager.snapshots)
     e = e[e.t >= 10]
     assert eager.blowup or np.any(np.abs(e.centre_of_mass / law(e.t) - 1) > 0.05)
@@ -275,7 +277,7 @@ def test_the_density_stopping_rule_stops_at_the_first_step_below_its_threshold()
     threshold = 0.5 * (spread[0] + spread.min())  # crossed part-way through the free run
     first = int(np.argmax(spread < threshold))
     assert 0 < first < spread.size - 1
-    stopped = simulate(dataclasses.replace(base, spread_v=threshold))
+    stopped = simulate(base.replace({"stop.spread_v": threshold}))
     assert stopped.blowup and stopped.verdict["B_v"] and stopped.verdict.stop is StopReason.SPREAD_V
     assert stopped.verdict["T_b"] == free.diagnostics["t"].iloc[first]
     pd.testing.assert_frame_equal(stopped.diagnostics, free.diagnostics.iloc[: first + 1], check_exact=True)
@@ -296,10 +298,10 @@ def test_refine_v_conserve_energy_reaches_the_remap(monkeypatch):
     s = default_scene()
     for flag in (True, False):
         seen.clear()
-        simulate(dataclasses.replace(s, t_end=0.03, refine_v=dataclasses.replace(s.refine_v, conserve_energy=flag)))
+        simulate(s.replace({"t_end": 0.03, "refine.v": dataclasses.replace(s.refine.v, conserve_energy=flag)}))
         assert seen and set(seen) == {flag}
     doc = tomllib.loads((SCENES / "inhom_gamma3_lambda4.toml").read_text())
-    assert scene_from_dict(with_overrides(doc, {"refine.v.conserve_energy": True})).refine_v.conserve_energy
+    assert scene_from_dict(with_overrides(doc, {"refine.v.conserve_energy": True})).refine.v.conserve_energy
     with pytest.raises(SceneError, match=r"refine\.x\.conserve_energy"):
         scene_from_dict(with_overrides(doc, {"refine.x.conserve_energy": True}))
 
@@ -307,7 +309,7 @@ def test_refine_v_conserve_energy_reaches_the_remap(monkeypatch):
 def test_simulate_refuses_an_oversized_scene_built_in_code(tmp_path):
     """dataclasses.replace skips the loader's checks: simulate applies the size limits itself, before writing."""
     s = default_scene()
-    for bad in (dataclasses.replace(s, dt=1e-300), dataclasses.replace(s, v_n=10**7)):
+    for bad in (s.replace({"time.dt": 1e-300}), s.replace({"v.n": 10**7})):
         with pytest.raises(SceneError, match="JKO_CVX_MAX_"):
             simulate(bad, out=tmp_path / "run")
         assert not (tmp_path / "run").exists()
@@ -321,10 +323,12 @@ def test_the_engine_certifies_every_method_at_its_threshold(method, expected):
     from jko_cvx.engine.loop import ACCEPT_KKT, Stepper
 
     fisher = "perspective" if method == "conic" else "log"
-    s = dataclasses.replace(default_scene(), method=method, fisher=fisher, conserve_momentum=method != "sqp")
+    s = default_scene().replace(
+        {"collision.method": method, "collision.fisher": fisher, "collision.conserve_momentum": method != "sqp"}
+    )
     opts = Stepper(s).opts
     assert ACCEPT_KKT == 1e-8
     assert opts.get("kkt_tol", opts.get("tol") if method == "newton" else None) == expected
     if method != "sqp":
-        own = dataclasses.replace(s, options={"kkt_tol": 1e-7})
+        own = s.replace({"collision.options": {"kkt_tol": 1e-7}})
         assert Stepper(own).opts["kkt_tol"] == 1e-7

@@ -5,8 +5,6 @@ The CFL rule, read from the paper's LaTeX (``alg:SPMCSL-JKO``, step 1):
 number below is chosen so that swapping L_v and L_x, or dv and dx, gives a different step.
 """
 
-import dataclasses
-
 import numpy as np
 import pytest
 
@@ -168,7 +166,7 @@ def test_halving_scene_cures_the_step_when_eps_t_allows_it():
 def test_halving_reset_scene_gives_up_when_the_half_step_reaches_eps_t():
     """halving_reset with eps_t = 0.01: the half step 0.01 is not above eps_t, the policy gives up (e_f),
     T_b the end of the failed step 0.02."""
-    run = simulate(dataclasses.replace(_failing(eps_t=0.01), policy="halving_reset"))
+    run = simulate(_failing(eps_t=0.01).replace({"time.policy": "halving_reset"}))
     v = run.verdict
     assert v["blowup"] and v["e_f"] and v["B_v"] and v["T_b"] == pytest.approx(0.02) and run.t == 0.0
     assert "collision solver failed" in v["reason"] and "MAX_ITERATIONS" in v["reason"]
@@ -186,7 +184,7 @@ def test_halving_scene_ends_on_eps_t_after_the_step_that_reaches_it():
 
 
 def test_a_fixed_step_that_fails_is_not_retried():
-    run = simulate(dataclasses.replace(_failing(eps_t=1e-6), policy="fixed", dt=0.02))
+    run = simulate(_failing(eps_t=1e-6).replace({"time.policy": "fixed", "time.dt": 0.02}))
     assert run.blowup and run.verdict["e_f"] and run.t == 0.0
 
 
@@ -237,7 +235,7 @@ def test_max_iterations_rule_stops_on_an_uncertified_step_without_halving(on_fai
 def test_max_iterations_rule_still_halves_on_the_exit_flag():
     """The step that fails with MAX_ITERATIONS is halved under both rules, with the same records."""
     base = simulate(_failing(eps_t=0.0099))
-    paper = simulate(dataclasses.replace(_failing(eps_t=0.0099), halve_on="max_iterations"))
+    paper = simulate(_failing(eps_t=0.0099).replace({"time.halve_on": "max_iterations"}))
     assert not paper.blowup and paper.t == pytest.approx(0.02)
     np.testing.assert_array_equal(paper.diagnostics.dt.to_numpy(), base.diagnostics.dt.to_numpy())
     assert paper.diagnostics.retries.tolist() == base.diagnostics.retries.tolist() == [0, 1, 0]

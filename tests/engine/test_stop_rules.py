@@ -114,7 +114,7 @@ def test_B_v_on_a_refined_grid_stops_at_the_first_step_below_eps_v():
     eps_v = 0.5 * (min_dv[1] + min_dv[-1])
     first = int(np.argmax(min_dv < eps_v))
     assert 1 < first < min_dv.size - 1
-    stopped = simulate(dataclasses.replace(_homogeneous(), eps_v=eps_v))
+    stopped = simulate(_homogeneous().replace({"stop.eps_v": eps_v}))
     v = stopped.verdict
     assert v["blowup"] and v["B_v"] and not v["B_x"] and not v["e_f"]
     assert v["T_b"] == free.diagnostics.t.iloc[first]

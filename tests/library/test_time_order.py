@@ -181,11 +181,11 @@ def test_scene_time_order_2_homogeneous_is_the_richardson_run():
         run = simulate(s)
         f0 = run.snapshots[0]["f"]
         ref = evolve_fixed_grid(
-            s.vgrid(), PowerKernel(s.gamma), f0, 0.05, 0.2, strength=s.strength, beta=s.beta, fisher=s.fisher,
-            time_order=order, tol=1e-8,
+            s.vgrid(), PowerKernel(s.gamma), f0, 0.05, 0.2, strength=s.strength, beta=s.collision.beta,
+            fisher=s.collision.problem_fisher, time_order=order, tol=1e-8,
         )  # fmt: skip
         np.testing.assert_allclose(run.f, ref.f[-1], rtol=0, atol=1e-12 * ref.f[-1].max())
-        assert s.time_order == order and run.t == pytest.approx(0.2)
+        assert s.time.order == order and run.t == pytest.approx(0.2)
 
 
 def test_scene_time_order_2_inhomogeneous_is_strang_and_keeps_the_invariants():
@@ -204,11 +204,20 @@ def test_scene_time_order_2_inhomogeneous_is_strang_and_keeps_the_invariants():
     f0, xg, vg = run.snapshots[0]["f"], s.xgrid(), s.vgrid()
 
     def factory(g, h):
-        return CollisionProblem(vg, PowerKernel(s.gamma), g, h, s.strength, s.beta, s.fisher, s.conserve_momentum)
+        return CollisionProblem(
+            vg,
+            PowerKernel(s.gamma),
+            g,
+            h,
+            s.strength,
+            s.collision.beta,
+            s.collision.problem_fisher,
+            s.collision.conserve_momentum,
+        )
 
     f1, _ = strang_step(
-        lambda g, h: transport_step(xg, vg.points, g, h, conserve_moment=s.conserve_x_moment),
-        lambda g, h: collision_step_order2(factory, g, h, method=s.method, tol=1e-8),
+        lambda g, h: transport_step(xg, vg.points, g, h, conserve_moment=s.x.conserve_moment),
+        lambda g, h: collision_step_order2(factory, g, h, method=s.collision.method, tol=1e-8),
         f0,
         0.1,
     )

@@ -283,7 +283,7 @@ def test_quadrant_rule_reads_the_density_entering_the_collision(monkeypatch):
 
     scene = _phase_scene(-1.0, 1.0, "quadrant", t_end=0.05)
     st = sim.initial_state(scene)
-    want = transport_step(st.xgrid, st.vgrid.points, st.f, 0.05, conserve_moment=scene.conserve_x_moment)
+    want = transport_step(st.xgrid, st.vgrid.points, st.f, 0.05, conserve_moment=scene.x.conserve_moment)
     seen = []
     real = policy.quadrant_set
     monkeypatch.setattr(policy, "quadrant_set", lambda x, v, f, d0: seen.append(np.array(f)) or real(x, v, f, d0))

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from jko_cvx.scene.initial import GaussiansInitial
 from jko_cvx.scene.limits import Limits, estimate_size
 from jko_cvx.scene.model import (
     Scene,
@@ -55,15 +56,21 @@ def _set(dotted, value, base=BASE):
 def test_base_scene_maps_every_key_to_its_field():
     s = scene_from_dict(BASE)
     assert (s.name, s.gamma, s.strength, s.t_end) == ("base", 1.25, 0.75, 0.2)
-    assert (s.v_L, s.v_n, s.x_L, s.x_n, s.conserve_x_moment) == (2.5, 23, 3.5, 19, False)
-    assert s.initial == {"kind": "gaussians", "amplitudes": [1.5], "rates": [2.25], "centres": [0.125]}
-    assert (s.policy, s.dt, s.eps_t, s.halve_on) == ("halving", 0.05, 1e-4, "max_iterations")
-    assert s.concentration_set == "quadrant"
-    assert (s.refine_v.bumps, s.refine_v.delta0, s.refine_v.delta, s.refine_v.tol) == (2, 0.3, 0.6, 0.15)
-    assert (s.refine_x.bumps, s.refine_x.delta0, s.refine_x.delta, s.refine_x.tol) == (1, 0.35, 0.65, 0.05)
-    assert (s.method, s.beta, s.fisher, s.conserve_momentum) == ("newton", 700.0, "log", False)
-    assert (s.eps_v, s.eps_x, s.spread_v, s.stop_on_solver_failure) == (2e-4, 3e-4, 0.04, False)
-    assert (s.every, s.snapshot_times, s.checkpoint_every) == (7, (0.05, 0.15), 9)
+    assert (s.v.L, s.v.n, s.x.L, s.x.n, s.x.conserve_moment) == (2.5, 23, 3.5, 19, False)
+    assert s.initial == GaussiansInitial(amplitudes=(1.5,), rates=(2.25,), centres=(0.125,))
+    assert s.initial.kind == "gaussians"
+    assert (s.time.policy, s.time.dt, s.time.eps_t, s.time.halve_on) == ("halving", 0.05, 1e-4, "max_iterations")
+    assert s.refine.concentration_set == "quadrant"
+    assert (s.refine.v.bumps, s.refine.v.delta0, s.refine.v.delta, s.refine.v.tol) == (2, 0.3, 0.6, 0.15)
+    assert (s.refine.x.bumps, s.refine.x.delta0, s.refine.x.delta, s.refine.x.tol) == (1, 0.35, 0.65, 0.05)
+    assert (s.collision.method, s.collision.beta, s.collision.problem_fisher, s.collision.conserve_momentum) == (
+        "newton",
+        700.0,
+        "log",
+        False,
+    )
+    assert (s.stop.eps_v, s.stop.eps_x, s.stop.spread_v, s.stop.on_solver_failure) == (2e-4, 3e-4, 0.04, False)
+    assert (s.output.every, s.output.times, s.output.checkpoint_every) == (7, (0.05, 0.15), 9)
 
 
 # (dotted key, how to read it back, accepted values, refused values): at and around each bound
@@ -71,27 +78,27 @@ BOUNDS = [
     ("gamma", lambda s: s.gamma, [1e-6, 3.0], [0.0, -1e-9, math.nan, math.inf, 1e-320, 1e300]),
     ("strength", lambda s: s.strength, [1e-9, 155.0], [0.0, -1e-9, math.inf]),
     ("t_end", lambda s: s.t_end, [0.15, 4.0], [0.0, -1e-9, math.inf]),
-    ("v.L", lambda s: s.v_L, [1e-3, 5.0], [0.0, -1e-9, math.inf]),
-    ("v.n", lambda s: s.v_n, [3, 4], [2, 0, -3]),
-    ("x.L", lambda s: s.x_L, [1e-3, 5.0], [0.0, -1e-9]),
-    ("x.n", lambda s: s.x_n, [3, 4], [2, 0]),
-    ("time.dt", lambda s: s.dt, [2e-4, 0.5], [0.0, -1e-9, math.inf, math.nan]),
-    ("time.eps_t", lambda s: s.eps_t, [1e-12, 0.0499], [0.0, -1e-9, 0.05, 0.06]),  # halving: eps_t < dt
-    ("refine.v.delta0", lambda s: s.refine_v.delta0, [1e-9, 0.999999], [0.0, 1.0, -1e-9, 1.000001]),
-    ("refine.v.delta", lambda s: s.refine_v.delta, [1e-9, 0.999999], [0.0, 1.0, -1e-9, 1.000001]),
-    ("refine.x.delta0", lambda s: s.refine_x.delta0, [1e-9, 0.999999], [0.0, 1.0]),
-    ("refine.x.delta", lambda s: s.refine_x.delta, [1e-9, 0.999999], [0.0, 1.0]),
-    ("refine.v.tol", lambda s: s.refine_v.tol, [0.0, 0.999999], [1.0, -1e-9]),
-    ("refine.v.bumps", lambda s: s.refine_v.bumps, [1, 2], [0, 3]),
-    ("collision.beta", lambda s: s.beta, [math.inf, 1e-3, 1e300], [0.0, -1.0, -math.inf, math.nan, 1e-300]),
-    ("stop.eps_v", lambda s: s.eps_v, [0.0, 1e-12], [-1e-12, math.inf, math.nan]),
-    ("stop.eps_x", lambda s: s.eps_x, [0.0, 1e-12], [-1e-12, math.inf]),
-    ("stop.spread_v", lambda s: s.spread_v, [0.0, 1e-12], [-1e-12, math.inf]),
-    ("output.every", lambda s: s.every, [1, 2], [0, -1]),
-    ("output.checkpoint_every", lambda s: s.checkpoint_every, [1, 2], [0, -1]),
-    ("output.times", lambda s: s.snapshot_times, [[0.0, 0.2], []], [[-1e-9], [0.2 * (1 + 1e-9)], [math.nan]]),
-    ("initial.rates", lambda s: s.initial["rates"], [[1e-9], [40.0]], [[0.0], [-1e-9], [math.inf]]),
-    ("initial.amplitudes", lambda s: s.initial["amplitudes"], [[1e-9], [2.0]], [[0.0], [-1e-9]]),
+    ("v.L", lambda s: s.v.L, [1e-3, 5.0], [0.0, -1e-9, math.inf]),
+    ("v.n", lambda s: s.v.n, [3, 4], [2, 0, -3]),
+    ("x.L", lambda s: s.x.L, [1e-3, 5.0], [0.0, -1e-9]),
+    ("x.n", lambda s: s.x.n, [3, 4], [2, 0]),
+    ("time.dt", lambda s: s.time.dt, [2e-4, 0.5], [0.0, -1e-9, math.inf, math.nan]),
+    ("time.eps_t", lambda s: s.time.eps_t, [1e-12, 0.0499], [0.0, -1e-9, 0.05, 0.06]),  # halving: eps_t < dt
+    ("refine.v.delta0", lambda s: s.refine.v.delta0, [1e-9, 0.999999], [0.0, 1.0, -1e-9, 1.000001]),
+    ("refine.v.delta", lambda s: s.refine.v.delta, [1e-9, 0.999999], [0.0, 1.0, -1e-9, 1.000001]),
+    ("refine.x.delta0", lambda s: s.refine.x.delta0, [1e-9, 0.999999], [0.0, 1.0]),
+    ("refine.x.delta", lambda s: s.refine.x.delta, [1e-9, 0.999999], [0.0, 1.0]),
+    ("refine.v.tol", lambda s: s.refine.v.tol, [0.0, 0.999999], [1.0, -1e-9]),
+    ("refine.v.bumps", lambda s: s.refine.v.bumps, [1, 2], [0, 3]),
+    ("collision.beta", lambda s: s.collision.beta, [math.inf, 1e-3, 1e300], [0.0, -1.0, -math.inf, math.nan, 1e-300]),
+    ("stop.eps_v", lambda s: s.stop.eps_v, [0.0, 1e-12], [-1e-12, math.inf, math.nan]),
+    ("stop.eps_x", lambda s: s.stop.eps_x, [0.0, 1e-12], [-1e-12, math.inf]),
+    ("stop.spread_v", lambda s: s.stop.spread_v, [0.0, 1e-12], [-1e-12, math.inf]),
+    ("output.every", lambda s: s.output.every, [1, 2], [0, -1]),
+    ("output.checkpoint_every", lambda s: s.output.checkpoint_every, [1, 2], [0, -1]),
+    ("output.times", lambda s: s.output.times, [[0.0, 0.2], []], [[-1e-9], [0.2 * (1 + 1e-9)], [math.nan]]),
+    ("initial.rates", lambda s: s.initial.rates, [[1e-9], [40.0]], [[0.0], [-1e-9], [math.inf]]),
+    ("initial.amplitudes", lambda s: s.initial.amplitudes, [[1e-9], [2.0]], [[0.0], [-1e-9]]),
 ]
 
 
@@ -100,7 +107,7 @@ def test_each_bound_accepts_inside_and_refuses_outside_naming_the_key(dotted, re
     for val in good:
         s = scene_from_dict(_set(dotted, val))
         got = read(s)
-        want = tuple(sorted(val)) if dotted == "output.times" else val
+        want = tuple(sorted(val)) if dotted == "output.times" else tuple(val) if isinstance(val, list) else val
         assert got == want or (isinstance(want, float) and got == pytest.approx(want, rel=0, abs=0)), (dotted, val)
     for val in bad:
         with pytest.raises(SceneError, match=re.escape(dotted)):
@@ -218,7 +225,7 @@ def test_paper_switches_name_their_allowed_values_and_default_to_the_shipped_rul
     with pytest.raises(SceneError, match=re.escape(f"{dotted} must be one of {allowed}, got 'paper'")):
         scene_from_dict(_set(dotted, "paper"))
     plain = scene_from_dict(_set("refine.concentration_set", None, _set("time.halve_on", None)))
-    assert (plain.halve_on, plain.concentration_set) == ("any_failure", "projections")
+    assert (plain.time.halve_on, plain.refine.concentration_set) == ("any_failure", "projections")
 
 
 @pytest.mark.parametrize("name", ["a", "tab_bu_g1", "run-2.v3", "A.B_c-1", "x" * 128])
@@ -292,10 +299,10 @@ def test_solver_options_are_checked_before_the_run(method, options, match):
 
 def test_allowed_solver_options_reach_the_scene_unchanged():
     d = _set("collision", {"method": "newton", "fisher": "log", "options": {"tol": 1e-9, "max_iter": 40}})
-    assert scene_from_dict(d).options == {"tol": 1e-9, "max_iter": 40}
+    assert scene_from_dict(d).collision.options == {"tol": 1e-9, "max_iter": 40}
     opts = {"solver": "CLARABEL", "tol": 1e-8, "solver_options": {"max_iter": 300, "time_limit": 60.0}}
     d = _set("collision", {"method": "conic", "fisher": "perspective", "options": opts})
-    assert scene_from_dict(d).options == opts
+    assert scene_from_dict(d).collision.options == opts
 
 
 def test_allow_list_names_options_of_the_solvers():
@@ -348,8 +355,8 @@ def test_shipped_scenes_are_package_data_and_load_by_name():
 
 def test_overrides_set_dotted_keys_and_are_validated_like_the_file():
     s = shipped_scene("tab_bu_g1", {"time.dt": 0.005, "stop.eps_v": 1e-5, "refine.v.delta0": 0.25, "x": None})
-    assert (s.dt, s.eps_v, s.refine_v.delta0) == (0.005, 1e-5, 0.25)
-    assert shipped_scene("tab_bu_g1").dt == 0.01  # the file is not changed
+    assert (s.time.dt, s.stop.eps_v, s.refine.v.delta0) == (0.005, 1e-5, 0.25)
+    assert shipped_scene("tab_bu_g1").time.dt == 0.01  # the file is not changed
     with pytest.raises(SceneError, match=r"unknown key\(s\) \['time\.dtt'\]"):
         shipped_scene("tab_bu_g1", {"time.dtt": 0.005})
     with pytest.raises(SceneError, match=r"override 'gamma\.x': gamma is not a table"):
@@ -361,14 +368,18 @@ def test_to_dict_is_canonical_sorted_and_complete():
     d = s.to_dict()
     assert set(d) == {f.name for f in dataclasses.fields(Scene)}
     assert json.dumps(d) == json.dumps(d, sort_keys=True)
-    assert list(d["refine_v"]) == sorted(d["refine_v"]) and list(d["initial"]) == sorted(d["initial"])
+    assert list(d["refine"]["v"]) == sorted(d["refine"]["v"]) and list(d["initial"]) == sorted(d["initial"])
+    assert scene_from_dict(d) == s and scene_from_dict(json.loads(json.dumps(d))) == s
     # the same scene written in another order, with defaults spelled out, gives the same dict
     shuffled = {k: BASE[k] for k in reversed(list(BASE))}
     shuffled = with_overrides(shuffled, {"description": "", "collision.options": {}})
     assert scene_from_dict(shuffled).to_dict() == d
     minimal = {k: BASE[k] for k in ("gamma", "t_end", "v", "initial")} | {"time": {"dt": 0.05}}
     full = scene_from_dict(minimal).to_dict()
-    assert full["eps_v"] == 0.0 and full["every"] == 10 and full["fisher"] == "perspective" and full["beta"] == math.inf
+    assert full["stop"]["eps_v"] == 0.0 and full["output"]["every"] == 10
+    assert full["collision"]["fisher"] == "perspective" and full["collision"]["beta"] == math.inf
+    assert "x" not in full and full["refine"] == {"concentration_set": "projections"}
+    assert scene_from_dict(full) == scene_from_dict(minimal)
 
 
 # --- size limits ---------------------------------------------------------------------------
@@ -397,7 +408,7 @@ def test_limits_hold_at_and_around_the_bound(monkeypatch):
     with pytest.raises(SceneError, match="above the limit of 1e"):
         scene_from_dict(tiny)
     monkeypatch.setenv("JKO_CVX_MAX_STEPS", "3e5")
-    assert scene_from_dict(tiny).dt == 1e-6
+    assert scene_from_dict(tiny).time.dt == 1e-6
     monkeypatch.setenv("JKO_CVX_MAX_STEPS", "many")
     with pytest.raises(SceneError, match="JKO_CVX_MAX_STEPS must be a number > 0, got 'many'"):
         scene_from_dict(BASE)
@@ -463,6 +474,6 @@ def test_memory_estimate_counts_dense_hessians_only_where_newton_forms_them():
     from jko_cvx.scene.model import shipped_scene
 
     big = {"v.n": 1025, "x.n": 1025}
-    assert shipped_scene("inhom_gamma3_lambda4", big).v_n == 1025
+    assert shipped_scene("inhom_gamma3_lambda4", big).v.n == 1025
     with pytest.raises(SceneError, match="JKO_CVX_MAX_GIB"):
         shipped_scene("inhom_gamma1p5_before", big)

@@ -39,7 +39,7 @@ def test_gamma1p5_sweep_point_is_n_by_n():
 
     for case in ("before", "after"):
         scene = gamma1p5_scene(case, 41)
-        assert (scene.x_n, scene.v_n) == (41, 41)
+        assert (scene.x.n, scene.v.n) == (41, 41)
 
 
 def test_an_unshipped_lambda_has_strength_lambda_over_2_like_the_shipped_ones():
@@ -65,8 +65,8 @@ def test_gk1_records_run_with_the_policy_they_name(monkeypatch):
         with pytest.raises(Built) as caught:
             records.record_run("g1", 0.5, policy, 0.1)
         scene = caught.value.args[0]
-        assert scene.policy == policy
-        assert (scene.method == "sqp") == (policy != "fixed")  # the halving runs use the paper's SQP
+        assert scene.time.policy == policy
+        assert (scene.collision.method == "sqp") == (policy != "fixed")  # the halving runs use the paper's SQP
 
 
 @pytest.mark.skipif(not paper_available(), reason="the paper's LaTeX is not available")
@@ -78,7 +78,7 @@ def test_gk1_final_scene_has_the_captions_map_parameters():
     caption = tex[: tex.index(r"\label{fig:gk1_final}")].rsplit(r"\caption{", 1)[1]
     delta = float(re.search(r"\\delta=([0-9.]+)", caption).group(1))
     delta0 = float(re.search(r"\\delta_0 = ([0-9.]+)", caption).group(1))
-    spec = gk1_final_scene().refine_v
+    spec = gk1_final_scene().refine.v
     assert (spec.delta, spec.delta0) == (delta, delta0)
 
 

@@ -176,10 +176,10 @@ def mesh_rule_time(data: str, eps_v: float) -> float:
 def _mesh_rule_curve(data: str, n_fine: int = 6001, n_times: int = 160) -> tuple[np.ndarray, np.ndarray]:
     scene = blowup_scene(data, 0.0, 0.01)
     p = scene.initial
-    f0 = GaussianMixture(p["amplitudes"], p["rates"], p["centres"])
+    f0 = GaussianMixture(list(p.amplitudes), list(p.rates), list(p.centres))
     T = blowup_time_gamma1(f0)
-    fine = Grid(np.linspace(-scene.v_L, scene.v_L, n_fine))
-    r, n = scene.refine_v, scene.v_n
+    fine = Grid(np.linspace(-scene.v.L, scene.v.L, n_fine))
+    r, n = scene.refine.v, scene.v.n
     cls = OneBumpMap if r.bumps == 1 else TwoBumpMap
     ts = T * (1 - np.geomspace(0.5, 1e-4, n_times))
     spacing = np.array(

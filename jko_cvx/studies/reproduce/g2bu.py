@@ -43,11 +43,11 @@ from jko_cvx.studies.sweep import run_sweep
 __all__ = ["g2bu_run", "g2bu_scene", "level_set_components", "reproduce_tab_g2bu", "secondary_peaks"]
 
 _SHIPPED = shipped_scene("inhom_gamma2_lambda310")
-A, B, X1 = (_SHIPPED.initial[k] for k in ("a", "b", "x1"))  # eqn:ic_g2 of the shipped scene
+A, B, X1 = _SHIPPED.initial.a, _SHIPPED.initial.b, _SHIPPED.initial.x1  # eqn:ic_g2 of the shipped scene
 T = 1 / B
 RHO0 = 1 / np.sqrt(2 * A)
 LEVEL = 0.1  # the level of sec:sup_g2's connectivity check
-EPS = _SHIPPED.eps_v  # = eps_x: the stopping threshold of alg:SPMCSL-JKO
+EPS = _SHIPPED.stop.eps_v  # = eps_x: the stopping threshold of alg:SPMCSL-JKO
 
 
 EVOLUTION_LAMBDA = 310.0

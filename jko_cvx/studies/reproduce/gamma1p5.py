@@ -37,9 +37,9 @@ from jko_cvx.studies.sweep import run_sweep
 __all__ = ["gamma1p5_run", "gamma1p5_scene", "gamma1p5_uniform", "reproduce_inhom_gamma1p5"]
 
 _SHIPPED = {case: shipped_scene(f"inhom_gamma1p5_{case}") for case in ("before", "after")}
-_CASES = {case: (2 * s.strength, s.initial["b"], s.t_end) for case, s in _SHIPPED.items()}  # lambda, b, t_end
-_C, _D = _SHIPPED["before"].initial["c"], _SHIPPED["before"].initial["d"]  # 2.5, 2.5 in both cases
-_L = _SHIPPED["before"].x_L  # both half-widths (5)
+_CASES = {case: (2 * s.strength, s.initial.b, s.t_end) for case, s in _SHIPPED.items()}  # lambda, b, t_end
+_C, _D = _SHIPPED["before"].initial.c, _SHIPPED["before"].initial.d  # 2.5, 2.5 in both cases
+_L = _SHIPPED["before"].x.L  # both half-widths (5)
 _PAPER = {"before": "blow-up in v before the bumps meet", "after": "blow-up in v after the bumps pass x = 0"}
 PAPER_TIMES = {"before": (0.04, 0.1, 0.2, 0.3, 0.4), "after": (0.1, 0.4, 0.8, 1.2, 1.3)}
 """Snapshot times of ``fig:gk1p5_C5`` and ``fig:gk1p5_C2p5``."""

@@ -27,7 +27,7 @@ __all__ = ["gk1_final_scene", "reproduce_gk1_final"]
 def gk1_final_scene(t_end: float = 0.5):
     """The ``fig:gk1_final`` scene (g1, delta = 0.2, delta0 = 0.5, dt = 0.01, beta = 1000)."""
     s = blowup_scene("g1", 0.0, 0.01, beta=1000.0)
-    return dataclasses.replace(s, refine_v=dataclasses.replace(s.refine_v, delta=0.2, delta0=0.5), t_end=t_end)
+    return s.replace({"refine.v": dataclasses.replace(s.refine.v, delta=0.2, delta0=0.5), "t_end": t_end})
 
 
 def reproduce_gk1_final(out: Path, quick: bool = False, **_sweep_opts: Any) -> pd.DataFrame:

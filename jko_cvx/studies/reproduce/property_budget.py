@@ -16,7 +16,6 @@ momentum by the tilt: the scenes' default), ``"energy"`` (also the second moment
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from pathlib import Path
 from typing import Any
@@ -43,7 +42,7 @@ _SIGN = {"moment2": -1, "moment3": -1, "moment4": -1, "entropy": +1}  # the allo
 
 
 def _refined_v(scene: Scene, vgrid: Grid, f: np.ndarray, conserve_energy: bool):
-    spec = scene.refine_v
+    spec = scene.refine.v
     cls = OneBumpMap if spec.bumps == 1 else TwoBumpMap
     grid = cls.from_density(vgrid, f.max(axis=0), spec.delta0, spec.delta).grid(vgrid.n)
     g = remap(
@@ -51,20 +50,20 @@ def _refined_v(scene: Scene, vgrid: Grid, f: np.ndarray, conserve_energy: bool):
         f,
         grid,
         axis=-1,
-        conserve_momentum=scene.conserve_momentum or conserve_energy,
+        conserve_momentum=scene.collision.conserve_momentum or conserve_energy,
         conserve_energy=conserve_energy,
     )
     return g, grid
 
 
 def _refined_x(scene: Scene, xgrid, f: np.ndarray):
-    spec = scene.refine_x
+    spec = scene.refine.x
     cls = OneBumpMap if spec.bumps == 1 else TwoBumpMap
     fx = f.max(axis=1)
-    proxy = Grid(np.concatenate([[-scene.x_L], xgrid.points, [scene.x_L]]))
+    proxy = Grid(np.concatenate([[-scene.x.L], xgrid.points, [scene.x.L]]))
     mu = cls.from_density(proxy, np.concatenate([[fx[0]], fx, [fx[-1]]]), spec.delta0, spec.delta)
     grid = periodic_map_grid(mu, xgrid.n, xgrid.period)
-    return remap_periodic(xgrid, f, grid, axis=0, conserve_moment=scene.conserve_x_moment), grid
+    return remap_periodic(xgrid, f, grid, axis=0, conserve_moment=scene.x.conserve_moment), grid
 
 
 def property_budget(scene: Scene, t_end: float, v_remap: str = "paper") -> pd.DataFrame:
@@ -77,16 +76,29 @@ def property_budget(scene: Scene, t_end: float, v_remap: str = "paper") -> pd.Da
     f = scene.initial_density(xgrid, vgrid)
     f, vgrid = _refined_v(scene, vgrid, f, energy)
     f, xgrid = _refined_x(scene, xgrid, f)
-    opts = {**scene.options, "tol": 1e-8} if scene.method == "newton" else dict(scene.options)
+    opts = (
+        {**scene.collision.options, "tol": 1e-8}
+        if scene.collision.method == "newton"
+        else dict(scene.collision.options)
+    )
     t, rows = 0.0, []
     while t < t_end * (1 - 1e-12):
-        dt = min(policy.first(float(vgrid.dv.min()), float(xgrid.dx.min()), scene.v_L, scene.x_L), t_end - t)
+        dt = min(policy.first(float(vgrid.dv.min()), float(xgrid.dx.min()), scene.v.L, scene.x.L), t_end - t)
         before = diagnostics(vgrid, f, xgrid)
         stages = {}
-        f = transport_step(xgrid, vgrid.points, f, dt, conserve_moment=scene.conserve_x_moment)
+        f = transport_step(xgrid, vgrid.points, f, dt, conserve_moment=scene.x.conserve_moment)
         stages["transport"] = diagnostics(vgrid, f, xgrid)
-        prob = CollisionProblem(vgrid, kernel, f, dt, scene.strength, scene.beta, scene.fisher, scene.conserve_momentum)
-        res = solve_collision(prob, method=scene.method, **opts)
+        prob = CollisionProblem(
+            vgrid,
+            kernel,
+            f,
+            dt,
+            scene.strength,
+            scene.collision.beta,
+            scene.collision.problem_fisher,
+            scene.collision.conserve_momentum,
+        )
+        res = solve_collision(prob, method=scene.collision.method, **opts)
         f = res.f
         stages["collision"] = diagnostics(vgrid, f, xgrid)
         f, vgrid = _refined_v(scene, vgrid, f, energy)
@@ -120,7 +132,7 @@ def _summary(df: pd.DataFrame) -> dict[str, Any]:
 
 
 def _gamma3(dt: float = 0.05) -> Scene:
-    return dataclasses.replace(inhomogeneous_scene(10.0, 61, 2.0), dt=dt)
+    return inhomogeneous_scene(10.0, 61, 2.0).replace({"time.dt": dt})
 
 
 # label: (scene factory, t_end, v-remaps)

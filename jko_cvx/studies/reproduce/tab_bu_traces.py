@@ -23,7 +23,6 @@ Two mechanisms, both of the paper's grid-point set rule on its C^0-junction maps
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from pathlib import Path
 from typing import Any
@@ -59,9 +58,9 @@ def _junctions(n: int, bumps: int, delta: float) -> list[int]:
 def trace_entry(data: str, eps_v: float, dt: float, beta: float) -> pd.DataFrame:
     """Per-step records of one table entry (see the module docstring); ``attrs['T_b']`` its T_b."""
     scene = blowup_scene(data, eps_v, dt, beta)
-    scene = dataclasses.replace(scene, every=1)
+    scene = scene.replace({"output.every": 1})
     run = simulate(scene)
-    spec = scene.refine_v
+    spec = scene.refine.v
     idx = _junctions(scene.vgrid().n, spec.bumps, spec.delta)
     rows = []
     for snap in run.snapshots:

@@ -18,7 +18,6 @@ per-call overheads dominate).
 
 from __future__ import annotations
 
-import dataclasses
 import os
 import statistics
 import time
@@ -95,7 +94,7 @@ def _step_rows(quick: bool, repeats: int) -> list[dict[str, Any]]:
 def _inhom_scene(n_x: int, n_v: int):
     from jko_cvx.studies.reproduce.inhomogeneous import inhomogeneous_scene
 
-    return dataclasses.replace(inhomogeneous_scene(4.0), x_n=n_x, v_n=n_v)
+    return inhomogeneous_scene(4.0).replace({"x.n": n_x, "v.n": n_v})
 
 
 def _inhom_slices(n_x: int, n_v: int = 121) -> CollisionProblem:
@@ -104,7 +103,14 @@ def _inhom_slices(n_x: int, n_v: int = 121) -> CollisionProblem:
     f = scene.initial_density(xgrid, vgrid)
     f = np.maximum(f, 1e-300)
     return CollisionProblem(
-        vgrid, PowerKernel(scene.gamma), f, scene.dt, scene.strength, scene.beta, scene.fisher, conserve_momentum=True
+        vgrid,
+        PowerKernel(scene.gamma),
+        f,
+        scene.time.dt,
+        scene.strength,
+        scene.collision.beta,
+        scene.collision.problem_fisher,
+        conserve_momentum=True,
     )
 
 
@@ -137,7 +143,7 @@ def _time_step_rows(quick: bool) -> list[dict[str, Any]]:
     rows = []
     steps = 3
     for axis, n_x, n_v in cases:
-        scene = dataclasses.replace(base, x_n=n_x, v_n=n_v, t_end=steps * base.dt, every=10**6)
+        scene = base.replace({"x.n": n_x, "v.n": n_v, "t_end": steps * base.time.dt, "output.every": 10**6})
         t0 = time.perf_counter()
         run = simulate(scene)
         wall = time.perf_counter() - t0
