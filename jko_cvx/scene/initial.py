@@ -14,12 +14,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from jko_cvx.grid import Grid, PeriodicGrid
-from jko_cvx.scene.schema import _ANY, _POS, Rule, SceneError, _Table, key
+from jko_cvx.scene.schema import POSITIVE, REAL, Rule, SceneError, Table, key
 
 __all__ = ["INITIAL_KINDS", "Gamma2Initial", "GaussiansInitial", "Initial", "TwoBumpInitial"]
 
 
-class Initial(_Table):
+class Initial(Table):
     """Shared behaviour of the kinds: ``kind`` (the TOML value) and whether it needs an x-grid."""
 
     kind: ClassVar[str]
@@ -69,10 +69,10 @@ class TwoBumpInitial(Initial):
 
     kind: ClassVar[str] = "two_bump_phase"
 
-    a: float = key(_POS)
-    b: float = key(_POS)
-    c: float = key(_ANY)
-    d: float = key(_ANY)
+    a: float = key(POSITIVE)
+    b: float = key(POSITIVE)
+    c: float = key(REAL)
+    d: float = key(REAL)
 
     def density(self, xgrid: PeriodicGrid | None, vgrid: Grid) -> NDArray[np.float64]:
         """``eqn:f0``: :math:`f_0 = e^{-a (x + c)^2} e^{-b (v - d)^2} + e^{-a (x - c)^2} e^{-b (v + d)^2}`, (Nx, Nv)."""
@@ -89,9 +89,9 @@ class Gamma2Initial(Initial):
 
     kind: ClassVar[str] = "gamma2"
 
-    a: float = key(_POS)
-    b: float = key(_ANY)
-    x1: float = key(_POS)
+    a: float = key(POSITIVE)
+    b: float = key(REAL)
+    x1: float = key(POSITIVE)
 
     def density(self, xgrid: PeriodicGrid | None, vgrid: Grid) -> NDArray[np.float64]:
         """``eqn:ic_g2``: :math:`f_0 = e^{-a (b x + v)^2} / \\sqrt{2\\pi}` for :math:`|x| \\le x_1`, times

@@ -194,9 +194,9 @@ def parse_table(cls: type[T], data: Any, where: str) -> T:
 
 
 _FLOAT = "float"
-_POS = Rule(_FLOAT, lo=0.0, lo_open=True)
+POSITIVE = Rule(_FLOAT, lo=0.0, lo_open=True)
 _NONNEG = Rule(_FLOAT, lo=0.0)
-_ANY = Rule(_FLOAT)
+REAL = Rule(_FLOAT)
 _FRAC = Rule(_FLOAT, lo=0.0, hi=1.0, lo_open=True, hi_open=True)
 _NPTS = Rule("int", lo=3)
 _BOOL = Rule("bool")
@@ -210,7 +210,7 @@ _NAME = Rule(
 )
 
 
-class _Table:
+class Table:
     """Shared behaviour: cross-key checks after the keys parsed (none by default)."""
 
     def check(self, where: str) -> None:
@@ -218,19 +218,19 @@ class _Table:
 
 
 @dataclass(frozen=True)
-class VTable(_Table):
+class VTable(Table):
     """``[v]``: the velocity grid [-L, L] with n points."""
 
-    L: float = key(_POS)
+    L: float = key(POSITIVE)
     n: int = key(_NPTS)
     floor_every_step: bool = key(_BOOL, False)
 
 
 @dataclass(frozen=True)
-class XTable(_Table):
+class XTable(Table):
     """``[x]``: the periodic space grid [-L, L) with n points; optional (homogeneous without it)."""
 
-    L: float = key(_POS)
+    L: float = key(POSITIVE)
     n: int = key(_NPTS)
     conserve_moment: bool = key(_BOOL, True)
 
@@ -238,18 +238,18 @@ class XTable(_Table):
 
 
 @dataclass(frozen=True)
-class TimeTable(_Table):
+class TimeTable(Table):
     """``[time]``: the step policy, its (first / largest) step, the halving floor and what halves the step."""
 
-    dt: float = key(_POS)
+    dt: float = key(POSITIVE)
     policy: str = key(Rule("str", choices=POLICIES), "fixed")
-    eps_t: float = key(_POS, 1e-6)
+    eps_t: float = key(POSITIVE, 1e-6)
     order: int = key(Rule("int", choices=(1, 2)), 1)
     halve_on: str = key(Rule("str", choices=HALVE_ON), "any_failure")
 
 
 @dataclass(frozen=True)
-class RefineAxisTable(_Table):
+class RefineAxisTable(Table):
     """``[refine.v]`` / ``[refine.x]``: the mesh map (one or two bumps), delta0, delta, remesh tolerance."""
 
     bumps: int = key(Rule("int", choices=(1, 2)), 1)
@@ -273,7 +273,7 @@ class RefineTable:
 
 
 @dataclass(frozen=True)
-class CollisionTable(_Table):
+class CollisionTable(Table):
     """``[collision]``: method, Fisher weight and form, momentum constraint; ``options`` checked separately."""
 
     method: str = key(Rule("str", choices=("newton", "sqp", "conic", "nlp")), "newton")
@@ -300,7 +300,7 @@ class CollisionTable(_Table):
 
 
 @dataclass(frozen=True)
-class StopTable(_Table):
+class StopTable(Table):
     """``[stop]``: blow-up thresholds on min dv, min dx and the density spread; stop on solver failure."""
 
     eps_v: float = key(_NONNEG, 0.0)
@@ -310,7 +310,7 @@ class StopTable(_Table):
 
 
 @dataclass(frozen=True)
-class OutputTable(_Table):
+class OutputTable(Table):
     """``[output]``: snapshot every K steps and at given times; checkpoint every K steps."""
 
     every: int = key(_EVERY, 10)
@@ -319,17 +319,17 @@ class OutputTable(_Table):
 
 
 @dataclass(frozen=True)
-class SceneTable(_Table):
+class SceneTable(Table):
     """The top level: name, description, gamma, strength, t_end and the sections."""
 
-    gamma: float = key(_POS)
-    t_end: float = key(_POS)
+    gamma: float = key(POSITIVE)
+    t_end: float = key(POSITIVE)
     v: Mapping[str, Any] = key(_TABLE)
     initial: Mapping[str, Any] = key(_TABLE)
     time: Mapping[str, Any] = key(_TABLE)
     name: str = key(_NAME, "scene")
     description: str = key(Rule("str"), "")
-    strength: float = key(_POS, 1.0)
+    strength: float = key(POSITIVE, 1.0)
     x: Mapping[str, Any] | None = key(_TABLE, None)
     refine: Mapping[str, Any] | None = key(_TABLE, None)
     collision: Mapping[str, Any] | None = key(_TABLE, None)

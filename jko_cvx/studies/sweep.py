@@ -65,12 +65,21 @@ def _sha(text: str) -> str:
     return hashlib.sha256(text.encode()).hexdigest()
 
 
+PACKAGE_ROOT = Path(__file__).resolve().parents[1]
+"""The ``jko_cvx`` package directory (this module sits in ``jko_cvx/studies``)."""
+
+
+def package_files() -> list[Path]:
+    """Every ``.py`` file of the package, sorted: what :func:`_package_hash` covers."""
+    return sorted(PACKAGE_ROOT.rglob("*.py"))
+
+
 @functools.cache
 def _package_hash() -> str:
     """SHA-256 over the relative paths and contents of every ``.py`` file of the package."""
-    root = Path(__file__).resolve().parent
+    root = PACKAGE_ROOT
     h = hashlib.sha256()
-    for path in sorted(root.rglob("*.py")):
+    for path in package_files():
         h.update(str(path.relative_to(root)).encode() + b"\0" + path.read_bytes() + b"\0")
     return h.hexdigest()
 
@@ -110,7 +119,7 @@ def code_provenance(func: Callable[..., Any]) -> dict[str, Any]:
 
     def git(*args: str) -> str | None:
         try:
-            done = subprocess.run(["git", *args], capture_output=True, text=True, cwd=Path(__file__).parent)
+            done = subprocess.run(["git", *args], capture_output=True, text=True, cwd=PACKAGE_ROOT)
         except OSError:
             return None
         return done.stdout.strip() if done.returncode == 0 else None

@@ -6,6 +6,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -111,8 +112,17 @@ def test_two_functions_at_one_point_have_distinct_keys(tmp_path):
     assert [b.y.iloc[0] for b in both] == [2.0, 3.0] and not both[1].cached.any()
 
 
-def test_key_covers_package_code_and_version(tmp_path, monkeypatch):
+def test_the_package_hash_covers_every_module_of_the_package():
     import jko_cvx
+    from jko_cvx.studies.sweep import package_files
+
+    root = Path(jko_cvx.__file__).resolve().parent
+    assert package_files() == sorted(root.rglob("*.py"))
+    assert {root / "grid.py", root / "collision" / "newton.py", root / "engine" / "loop.py"} <= set(package_files())
+
+
+def test_key_covers_package_code_and_version(tmp_path, monkeypatch):
+    import jko_cvx._version
     import jko_cvx.studies.sweep as sweep
 
     mod = _point_module(tmp_path, "pts_pkg", "2")
@@ -120,7 +130,7 @@ def test_key_covers_package_code_and_version(tmp_path, monkeypatch):
     monkeypatch.setattr(sweep, "_package_hash", lambda: "another package source")
     assert point_key(mod.double, {"a": 1.0}) != key
     monkeypatch.undo()
-    monkeypatch.setattr(jko_cvx, "__version__", "9.9.9")
+    monkeypatch.setattr(jko_cvx._version, "__version__", "9.9.9")
     assert point_key(mod.double, {"a": 1.0}) != key
 
 
