@@ -4,12 +4,22 @@ A run directory holds ``scene.json``, ``metadata.json`` (package and solver vers
 scene fingerprint), ``diagnostics.csv``, ``snapshots/step_*.npz``, ``checkpoint.npz`` and, once
 the run has ended, ``verdict.json`` (the CLI adds ``solution.png`` and ``records.png``).
 
-Rules (each refusal is a :class:`~jko_cvx.engine.state.RunDirError` naming the directory):
+Rules (each refusal is a :class:`~jko_cvx.engine.state.RunDirError` naming the directory or file):
 
-* a new run refuses a directory that already holds a run, unless ``overwrite`` (which
-  removes that run's files, and only those);
+* a new run refuses a directory that already holds a run, unless ``overwrite``, which moves
+  that run's files (and only those) aside into ``DIR/.replaced/``, writes the new run's
+  ``scene.json`` and ``metadata.json``, and only then deletes them: a failed overwrite puts the
+  old run back, and one killed meanwhile is put back when the directory is next opened;
 * ``resume`` needs a checkpoint, made from the same scene (the SHA-256 of the canonical JSON
   of ``scene.to_dict()``; a refusal names the keys that differ) by the same package version;
+* every file the run writes has its SHA-256 recorded in ``metadata.json``
+  (:class:`~jko_cvx.engine.state.Ledger`); ``resume`` and :func:`~jko_cvx.engine.run.load_run`
+  refuse a file whose digest differs and a state whose invariants fail
+  (:meth:`~jko_cvx.engine.state.RunState.check`);
+* nothing outside the directory is written, followed or deleted: an entry of the run that is a
+  symbolic link (``.lock``, ``snapshots``, any run file) is refused, not followed, and the lock
+  is opened with ``O_NOFOLLOW``;
+* temporary files a killed write left (``.checkpoint.npz.XXXXXXXX``) are removed on the next open;
 * one run at a time: an exclusive, non-blocking ``fcntl.flock`` on ``DIR/.lock``, held
   until the run returns (the kernel drops it when a process dies, so a killed run leaves no
   stale lock).
@@ -22,6 +32,7 @@ import json
 import os
 import platform
 import re
+import shutil
 import time
 from pathlib import Path
 from typing import Any
@@ -29,7 +40,7 @@ from typing import Any
 import numpy as np
 
 from jko_cvx._version import __version__
-from jko_cvx.engine.state import RunDirError, RunState, read_snapshot, save_text
+from jko_cvx.engine.state import TEMP_FILE, Ledger, RunDirError, RunState, read_snapshot
 from jko_cvx.scene.model import Scene
 
 __all__ = ["RunDir", "canonical_scene", "flat_scene_record", "read_snapshots", "scene_differences", "scene_fingerprint"]
@@ -37,6 +48,7 @@ __all__ = ["RunDir", "canonical_scene", "flat_scene_record", "read_snapshots", "
 RUN_FILES = ("scene.json", "metadata.json", "checkpoint.npz", "diagnostics.csv", "verdict.json")
 FIGURES = ("solution.png", "records.png")
 _SNAPSHOT = re.compile(r"step_(\d+)\.npz")
+_ASIDE = ".replaced"  # an overwritten run, kept until the new run has started
 
 
 def canonical_scene(scene: Scene) -> str:
@@ -100,14 +112,57 @@ def _metadata(scene: Scene) -> dict[str, Any]:
     }
 
 
-def read_snapshots(path: Path, last_step: int) -> list[dict[str, Any]]:
-    """The snapshot files in ``path/snapshots`` of steps ``<= last_step``, in step order."""
+def read_snapshots(path: Path, last_step: int, ledger: Ledger | None = None) -> list[dict[str, Any]]:
+    """The snapshot files in ``path/snapshots`` of steps ``<= last_step``, in step order, each checked
+    against ``ledger`` when given (a snapshot whose step or time is not its name's is refused too)."""
     found = []
     for p in (path / "snapshots").glob("step_*.npz"):
         m = _SNAPSHOT.fullmatch(p.name)
         if m and int(m.group(1)) <= last_step:
             found.append((int(m.group(1)), p))
-    return [read_snapshot(p) for _, p in sorted(found)]
+    snaps = []
+    for step, p in sorted(found):
+        if p.is_symlink():
+            raise RunDirError(f"{p} is a symbolic link: a run's files are never followed; remove it")
+        if ledger is not None:
+            ledger.verify(p)
+        snap = read_snapshot(p)
+        if snap["step"] != step:
+            raise RunDirError(f"snapshot {p} holds step {snap['step']}, not the step its name gives")
+        snaps.append(snap)
+    return snaps
+
+
+def _entries(path: Path) -> list[Path]:
+    """The entries of a run directory that a run writes or deletes (the lock, run files, figures, snapshots)."""
+    names = [path / n for n in (".lock", "snapshots", *RUN_FILES, *FIGURES)]
+    snaps = path / "snapshots"
+    if snaps.is_dir() and not snaps.is_symlink():
+        names += [p for p in snaps.iterdir() if _SNAPSHOT.fullmatch(p.name)]
+    return names
+
+
+def refuse_links(path: Path) -> None:
+    """RunDirError naming the first entry of the run directory ``path`` that is a symbolic link."""
+    for p in _entries(path):
+        if p.is_symlink():
+            raise RunDirError(
+                f"{p} is a symbolic link: a run directory's files are never followed (writing or deleting through "
+                f"it would reach {os.readlink(p)!r}, outside the run); remove the link"
+            )
+
+
+def _remove_temp_files(path: Path) -> None:
+    """Remove temporary files that a killed atomic write left (regular files of our naming only)."""
+    for folder, names in ((path, RUN_FILES), (path / "snapshots", None)):
+        if not folder.is_dir() or folder.is_symlink():
+            continue
+        for p in folder.iterdir():
+            m = TEMP_FILE.fullmatch(p.name)
+            if not m or p.is_symlink() or not p.is_file():
+                continue
+            if (names is None and _SNAPSHOT.fullmatch(m["name"])) or (names is not None and m["name"] in names):
+                p.unlink()
 
 
 class RunDir:
@@ -126,20 +181,26 @@ class RunDir:
         self.provenance = {"scene_sha256": scene_fingerprint(scene), "jko_cvx": __version__}
         self.state: RunState | None = None
         self.snapshots: list[dict[str, Any]] = []
+        self.ledger: Ledger | None = None
         self._lock_fd: int | None = None
 
     @classmethod
     def open(cls, path: str | Path, scene: Scene, *, resume: bool = False, overwrite: bool = False) -> RunDir:
         if resume and overwrite:
             raise ValueError("resume and overwrite exclude each other (resume continues a run, overwrite replaces it)")
+        if not isinstance(path, str | os.PathLike) or not str(path).strip():
+            raise ValueError(f"out must name a run directory (a non-empty path), got {path!r}")
         rd = cls(Path(path), scene)
         if rd.path.exists() and not rd.path.is_dir():
             raise RunDirError(f"run directory {rd.path} exists and is not a directory")
         if resume and not rd.path.is_dir():
             raise RunDirError(f"nothing to resume: run directory {rd.path} does not exist")
         rd.path.mkdir(parents=True, exist_ok=True)
+        refuse_links(rd.path)
         rd._lock()
         try:
+            rd._restore_aside()
+            _remove_temp_files(rd.path)
             rd._resume() if resume else rd._start(overwrite)
         except BaseException:
             rd.close()
@@ -163,7 +224,10 @@ class RunDir:
         import fcntl
 
         lock = self.path / ".lock"
-        fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
+        try:  # O_NOFOLLOW: a planted link is refused, never followed (refuse_links names it first)
+            fd = os.open(lock, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o666)
+        except OSError as exc:
+            raise RunDirError(f"cannot open the lock {lock}: {exc.strerror or exc}") from None
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -187,6 +251,10 @@ class RunDir:
         names = [n for n in RUN_FILES + FIGURES if (self.path / n).exists()]
         return names + (["snapshots/"] if (self.path / "snapshots").is_dir() else [])
 
+    def _run_files(self) -> list[Path]:
+        """This directory's run files (figures and snapshot files included; nothing else in it)."""
+        return [p for p in _entries(self.path) if p.name not in (".lock", "snapshots") and p.exists()]
+
     def _start(self, overwrite: bool) -> None:
         found = self._existing()
         if found and not overwrite:
@@ -194,29 +262,70 @@ class RunDir:
                 f"run directory {self.path} already holds a run ({', '.join(found)}): "
                 "resume it with --resume (resume=True) or replace it with --overwrite (overwrite=True)"
             )
-        if found:
-            self._remove_run()
-        save_text(self.path / "scene.json", json.dumps(self.scene.to_dict(), indent=2, default=str))
-        save_text(self.path / "metadata.json", json.dumps(_metadata(self.scene), indent=2))
+        moved = self._move_aside() if found else []
+        try:
+            self.ledger = Ledger(self.path, _metadata(self.scene))
+            self.ledger.save_text(self.path / "scene.json", json.dumps(self.scene.to_dict(), indent=2, default=str))
+            (self.path / "snapshots").mkdir(exist_ok=True)
+        except BaseException:
+            for p in (self.path / "scene.json", self.path / "metadata.json"):
+                p.unlink(missing_ok=True)
+            self._move_back(moved)
+            raise
+        if moved:
+            shutil.rmtree(self.path / _ASIDE)
 
-    def _remove_run(self) -> None:
-        """Remove this directory's run files (only those: other files in it are left alone)."""
-        for name in RUN_FILES + FIGURES:
-            (self.path / name).unlink(missing_ok=True)
-        snaps = self.path / "snapshots"
-        if snaps.is_dir():
-            for p in snaps.iterdir():
-                if _SNAPSHOT.fullmatch(p.name):
-                    p.unlink()
-            if not any(snaps.iterdir()):
-                snaps.rmdir()
+    def _move_aside(self) -> list[Path]:
+        """Move the old run's files into ``DIR/.replaced/`` (renames in one file system); on failure move
+        back what moved and refuse, leaving the old run as it was."""
+        aside = self.path / _ASIDE
+        aside.mkdir()
+        (aside / "snapshots").mkdir()
+        moved: list[Path] = []
+        try:
+            for p in self._run_files():
+                os.replace(p, aside / p.relative_to(self.path))
+                moved.append(p)
+        except OSError as exc:
+            self._move_back(moved)
+            raise RunDirError(
+                f"cannot replace the run in {self.path}: moving {p} aside failed ({exc.strerror or exc}); "
+                "the old run is left as it was"
+            ) from None
+        return moved
+
+    def _move_back(self, moved: list[Path]) -> None:
+        aside = self.path / _ASIDE
+        for p in reversed(moved):
+            os.replace(aside / p.relative_to(self.path), p)
+        if aside.is_dir():
+            shutil.rmtree(aside)
+
+    def _restore_aside(self) -> None:
+        """Put back a run whose overwrite was killed before the new run started (``DIR/.replaced/`` left)."""
+        aside = self.path / _ASIDE
+        if aside.is_symlink() or (aside.exists() and not aside.is_dir()):
+            raise RunDirError(f"{aside} is not a directory this package made: remove it")
+        if not aside.is_dir():
+            return
+        for p in self._run_files():  # the new run's first files
+            p.unlink()
+        for p in sorted(aside.rglob("*")):
+            if p.is_file() and not p.is_symlink():
+                target = self.path / p.relative_to(aside)
+                target.parent.mkdir(exist_ok=True)
+                os.replace(p, target)
+        shutil.rmtree(aside)
 
     def _resume(self) -> None:
         if not self.checkpoint.exists():
             raise RunDirError(f"nothing to resume in {self.path}: it has no checkpoint.npz (run without --resume)")
+        self.ledger = Ledger.read(self.path)
+        self.ledger.verify(self.checkpoint)
         period = None if self.scene.homogeneous else self.scene.xgrid().period
         state, recorded = RunState.load(self.checkpoint, period)
         self._check_provenance(recorded)
+        state.check(self.checkpoint)
         self.state = state
         self.snapshots = self.read_snapshots(state.step)
 
@@ -241,16 +350,20 @@ class RunDir:
             )
 
     def read_snapshots(self, last_step: int) -> list[dict[str, Any]]:
-        return read_snapshots(self.path, last_step)
+        return read_snapshots(self.path, last_step, self.ledger)
+
+    def save_snapshot(self, path: Path, **record: Any) -> None:
+        """Write a snapshot file (its digest recorded in the ledger)."""
+        self.ledger.save_npz(path, **record)
 
     def save_state(self, state: RunState) -> None:
         """Write the checkpoint, then diagnostics.csv from its rows."""
         import pandas as pd
 
-        state.save(self.checkpoint, self.provenance)
-        save_text(self.path / "diagnostics.csv", pd.DataFrame(state.rows).to_csv(index=False))
+        state.save(self.checkpoint, self.provenance, self.ledger.save_npz)
+        self.ledger.save_text(self.path / "diagnostics.csv", pd.DataFrame(state.rows).to_csv(index=False))
 
     def write_verdict(self, state: RunState) -> None:
         """verdict.json: the verdict, t, the step count and the timings (its presence marks an ended run)."""
         record = {**state.verdict.to_dict(), "t": state.t, "steps": state.step, "seconds": state.seconds}
-        save_text(self.path / "verdict.json", json.dumps(record, indent=2))
+        self.ledger.save_text(self.path / "verdict.json", json.dumps(record, indent=2))

@@ -3,14 +3,28 @@
 :class:`RunState` holds everything the loop needs to continue (time, step, f, both grids, the
 extents the refined grids were built for, the diagnostics rows and the verdict), so a run
 continued from a checkpoint reproduces the uninterrupted run bit for bit.  Every file is
-written atomically (a temporary file renamed over the old one); a file that does not read
-back (truncated, corrupted, not ours) raises :class:`RunDirError` naming it.
+written atomically (a temporary file renamed over the old one, with the permissions the umask
+gives); a file that does not read back (truncated, corrupted, not ours) raises
+:class:`RunDirError` naming it.
+
+A run directory's :class:`Ledger` records the SHA-256 of every file the run writes in
+``metadata.json``, before the file is renamed into place, and checks it when the file is read
+back; :meth:`RunState.check` checks a state's invariants (finite, non-negative f, its mass and
+maximum those of the last diagnostics row, t and step those of that row, time increasing along
+the rows).  Threat model: the digests catch accidents (a file edited, replaced, copied from
+another run or left from older code); they do not stop a deliberate forger who recomputes
+them, which the invariants partly do and ``jko-cvx reproduce NAME --audit K`` (recomputing
+cached points) is for.
 """
 
 from __future__ import annotations
 
+import hashlib
+import itertools
 import json
+import math
 import os
+import re
 import tempfile
 import zipfile
 from collections.abc import Callable
@@ -20,39 +34,166 @@ from typing import Any
 
 import numpy as np
 
+from jko_cvx.diagnostics import diagnostics
 from jko_cvx.engine.verdict import Verdict
 from jko_cvx.grid import Grid, PeriodicGrid
 
-__all__ = ["RunDirError", "RunState", "read_snapshot", "write_snapshot"]
+__all__ = ["Ledger", "RunDirError", "RunState", "read_snapshot", "write_snapshot"]
 
 
 class RunDirError(ValueError):
     """A run directory that cannot be used as asked; the message names the directory or file."""
 
 
-def atomic_write(path: Path, write: Callable[[str], None]) -> None:
-    """Call ``write(tmp)`` on a temporary file beside ``path``, then rename it over ``path``."""
+def _umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+TEMP_FILE = re.compile(r"\.(?P<name>.+)\.[A-Za-z0-9_]{8}")
+"""The name :func:`atomic_write` gives its temporary file beside ``name`` (``tempfile.mkstemp``)."""
+
+
+def atomic_write(path: Path, write: Callable[[str], None], before_replace: Callable[[str], None] | None = None) -> None:
+    """Call ``write(tmp)`` on a temporary file beside ``path``, then rename it over ``path``.
+
+    The file gets mode ``0o666 & ~umask``, like any file the process creates (``mkstemp``
+    alone gives 0o600).  ``before_replace(tmp)``, when given, runs after the file is complete
+    and before it replaces ``path`` (a :class:`Ledger` records its digest there).  An OSError
+    names ``path``, not the temporary file.
+    """
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
+    try:
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
+    except OSError as exc:
+        raise OSError(exc.errno, f"cannot write {path}: {exc.strerror}") from None
     os.close(fd)
     try:
         write(tmp)
+        os.chmod(tmp, 0o666 & ~_umask())
+        if before_replace is not None:
+            before_replace(tmp)
         os.replace(tmp, path)
+    except OSError as exc:
+        raise OSError(exc.errno, f"cannot write {path}: {exc.strerror or exc}") from None
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)
 
 
-def save_npz(path: Path, **arrays) -> None:
+def _npz_writer(arrays: dict[str, Any]) -> Callable[[str], None]:
     def w(tmp: str) -> None:
         with open(tmp, "wb") as fh:
             np.savez(fh, **arrays)
 
-    atomic_write(path, w)
+    return w
+
+
+def save_npz(path: Path, **arrays) -> None:
+    atomic_write(path, _npz_writer(arrays))
 
 
 def save_text(path: Path, text: str) -> None:
     atomic_write(path, lambda tmp: Path(tmp).write_text(text))
+
+
+def file_sha256(path: str | Path) -> str:
+    """SHA-256 (hex) of a file's bytes."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+class Ledger:
+    """The digests of a run directory's files, kept in its ``metadata.json``.
+
+    ``metadata["digests"]`` maps each file's path relative to the directory to the digests it
+    may have: one, or two while a write is under way (the new file's digest is recorded before
+    the rename that puts it in place, so a run killed in between leaves a file the ledger still
+    accepts; the next write settles it).  ``metadata.json`` itself is written atomically and is
+    not in the ledger.
+    """
+
+    def __init__(self, root: Path, metadata: dict[str, Any]) -> None:
+        self.root = root
+        self.metadata = metadata
+        self.metadata.setdefault("digests", {})
+
+    @property
+    def digests(self) -> dict[str, list[str]]:
+        return self.metadata["digests"]
+
+    @classmethod
+    def read(cls, root: Path) -> Ledger:
+        """The ledger of the run in ``root``; RunDirError when metadata.json is missing, damaged or has none."""
+        path = root / "metadata.json"
+        try:
+            metadata = json.loads(path.read_text())
+        except FileNotFoundError:
+            raise RunDirError(f"{path} does not exist: {root} holds no run this jko_cvx wrote") from None
+        except (OSError, ValueError) as exc:
+            raise RunDirError(f"{path} does not read ({type(exc).__name__}: {exc})") from None
+        digests = metadata.get("digests") if isinstance(metadata, dict) else None
+        if not isinstance(digests, dict) or not all(
+            isinstance(v, list) and all(isinstance(d, str) for d in v) for v in digests.values()
+        ):
+            raise RunDirError(
+                f"{path} records no file digests (an earlier jko_cvx wrote it, or it was edited): the run's files "
+                "cannot be checked; start the run again with --overwrite"
+            )
+        return cls(root, metadata)
+
+    def _save(self) -> None:
+        save_text(self.root / "metadata.json", json.dumps(self.metadata, indent=2))
+
+    def _name(self, path: Path) -> str:
+        return path.relative_to(self.root).as_posix()
+
+    def write(self, path: Path, write: Callable[[str], None]) -> None:
+        """Write ``path`` atomically (:func:`atomic_write`), its digest recorded before it is put in place."""
+        name = self._name(path)
+
+        def record(tmp: str) -> None:
+            self.digests[name] = [file_sha256(tmp), *self.digests.get(name, [])[:1]]
+            self._save()
+
+        atomic_write(path, write, record)
+        if len(self.digests[name]) > 1:
+            self.digests[name] = self.digests[name][:1]
+            self._save()
+
+    def save_npz(self, path: Path, **arrays) -> None:
+        self.write(path, _npz_writer(arrays))
+
+    def save_text(self, path: Path, text: str) -> None:
+        self.write(path, lambda tmp: Path(tmp).write_text(text))
+
+    def forget(self, path: Path) -> None:
+        """Drop a file's entry (the file is being removed)."""
+        if self.digests.pop(self._name(path), None) is not None:
+            self._save()
+
+    def verify(self, path: Path) -> None:
+        """RunDirError, naming the file, unless ``path``'s digest is one the ledger recorded for it."""
+        name = self._name(path)
+        if name not in self.digests:
+            raise RunDirError(
+                f"{path} is not one of the files this run wrote (metadata.json records no digest of it); "
+                "it was added or copied from elsewhere: remove it, or start the run again with --overwrite"
+            )
+        try:
+            actual = file_sha256(path)
+        except OSError as exc:
+            raise RunDirError(f"{path} does not read ({exc.strerror or exc})") from None
+        if actual not in self.digests[name]:
+            raise RunDirError(
+                f"{path} has changed since the run wrote it (SHA-256 {actual[:12]}..., metadata.json records "
+                f"{self.digests[name][0][:12]}...): it was edited, replaced or damaged, and is not used; "
+                "restore it, or start the run again with --overwrite"
+            )
 
 
 # what a damaged .npz raises while it is opened or read
@@ -76,13 +217,22 @@ def read_npz(path: Path, what: str, keys: tuple[str, ...]) -> dict[str, np.ndarr
     return data
 
 
-def write_snapshot(path: Path | None, step: int, t: float, xgrid, vgrid: Grid, f: np.ndarray) -> dict[str, Any]:
-    """The snapshot record ``{step, t, v, f[, x]}`` (copies), also written to ``path`` when given."""
+def write_snapshot(
+    path: Path | None,
+    step: int,
+    t: float,
+    xgrid,
+    vgrid: Grid,
+    f: np.ndarray,
+    save: Callable[..., None] = save_npz,
+) -> dict[str, Any]:
+    """The snapshot record ``{step, t, v, f[, x]}`` (copies), also written to ``path`` when given
+    (by ``save(path, **record)``: a run directory's :meth:`Ledger.save_npz`)."""
     snap = {"step": step, "t": t, "v": vgrid.points.copy(), "f": f.copy()}
     if xgrid is not None:
         snap["x"] = xgrid.points.copy()
     if path is not None:
-        save_npz(path, **snap)
+        save(path, **snap)
     return snap
 
 
@@ -123,9 +273,10 @@ class RunState:
         """A blow-up rule fired, or ``t_end`` is reached (to rounding in t)."""
         return self.verdict.blowup or self.t >= t_end * (1 - 1e-12)
 
-    def save(self, path: Path, provenance: dict[str, str]) -> None:
-        """Write the checkpoint (``provenance``: the scene fingerprint and package version, as strings)."""
-        save_npz(
+    def save(self, path: Path, provenance: dict[str, str], save: Callable[..., None] = save_npz) -> None:
+        """Write the checkpoint (``provenance``: the scene fingerprint and package version, as strings)
+        with ``save(path, **arrays)`` (a run directory's :meth:`Ledger.save_npz`)."""
+        save(
             path,
             v_params=np.array([]) if self.v_params is None else self.v_params,
             x_params=np.array([]) if self.x_params is None else self.x_params,
@@ -173,3 +324,39 @@ class RunState:
             raise RunDirError(f"checkpoint {path} does not hold a valid run state ({exc})") from None
         provenance = {k: str(ck[k]) for k in ("scene_sha256", "jko_cvx")}
         return state, provenance
+
+    def check(self, path: Path) -> None:
+        """RunDirError naming ``path`` (the file the state was read from) unless the state is one a run
+        could have reached: f finite and non-negative, rows numbered from step 0 with time increasing,
+        and the last row the diagnostics of this f at this t and step (mass to 1e-12, max f exactly)."""
+
+        def refuse(why: str) -> None:
+            raise RunDirError(f"{path} does not hold a state this run reached ({why}); it is not used")
+
+        if not np.all(np.isfinite(self.f)):
+            refuse("f is not finite")
+        if np.any(self.f < 0):
+            refuse(f"f is negative (min {self.f.min():.3g})")
+        if not self.rows:
+            refuse("no diagnostics rows")
+        try:
+            steps = [int(r["step"]) for r in self.rows]
+            times = [float(r["t"]) for r in self.rows]
+            last_mass, last_max = float(self.rows[-1]["mass"]), float(self.rows[-1]["max_f"])
+        except (KeyError, TypeError, ValueError) as exc:
+            refuse(f"its diagnostics rows lack {exc}")
+        if steps != list(range(len(steps))):
+            refuse("its diagnostics rows are not numbered 0, 1, 2, ...")
+        if any(b <= a for a, b in itertools.pairwise(times)):
+            refuse("time does not increase along its diagnostics rows")
+        if self.step != steps[-1] or self.t != times[-1]:
+            refuse(
+                f"t = {self.t!r}, step {self.step} are not those of its last diagnostics row "
+                f"(t = {times[-1]!r}, step {steps[-1]})"
+            )
+        d = diagnostics(self.vgrid, self.f, self.xgrid)
+        if not (math.isclose(d["mass"], last_mass, rel_tol=1e-12, abs_tol=0.0) and d["max_f"] == last_max):
+            refuse(
+                f"the mass / max f of its f ({d['mass']!r} / {d['max_f']!r}) are not those its last diagnostics "
+                f"row records ({last_mass!r} / {last_max!r})"
+            )
