@@ -184,6 +184,13 @@ def _at_least(low: int):
     return parse
 
 
+def _directory(text: str) -> Path:
+    """An argparse type: a non-empty path (``Path("")`` would silently mean the current directory)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("must name a directory, got an empty path")
+    return Path(text)
+
+
 def _positive(text: str, allow_inf: bool = False) -> float:
     """An argparse type: a finite number > 0 (or inf with ``allow_inf``)."""
     what = "a number > 0 (inf allowed)" if allow_inf else "a finite number > 0"
@@ -204,7 +211,7 @@ def _weight(text: str) -> float:
 def _sweep_arguments(parser: argparse.ArgumentParser, out: str, executor: str, quick_help: str) -> None:
     """The options shared by ``reproduce`` and ``study``: quick form, output, where sweep points run."""
     parser.add_argument("--quick", action="store_true", help=quick_help)
-    parser.add_argument("--out", type=Path, default=Path(out), help="output directory")
+    parser.add_argument("--out", type=_directory, default=Path(out), help="output directory")
     parser.add_argument(
         "--executor", choices=("process", "serial", "dask"), default=executor, help="where sweep points run"
     )
@@ -223,7 +230,7 @@ def main(argv: list[str] | None = None) -> int:
         type=Path,
         help="scene TOML file, or the name of a shipped scene (jko_cvx.scene.shipped_scene_names())",
     )
-    p_run.add_argument("--out", type=Path, default=None, help="run directory (default runs/<scene name>)")
+    p_run.add_argument("--out", type=_directory, default=None, help="run directory (default runs/<scene name>)")
     again = p_run.add_mutually_exclusive_group()
     again.add_argument("--resume", action="store_true", help="continue an interrupted run from its checkpoint")
     again.add_argument("--overwrite", action="store_true", help="replace the run already in the run directory")
@@ -263,7 +270,7 @@ def main(argv: list[str] | None = None) -> int:
     p_cmp.add_argument("--dt", type=_positive, default=0.01)
     p_cmp.add_argument("--beta", type=_weight, default=10.0)
     p_cmp.add_argument("--repeats", type=_at_least(1), default=5)
-    p_cmp.add_argument("--out", type=Path, default=Path("results/compare"), help="output directory")
+    p_cmp.add_argument("--out", type=_directory, default=Path("results/compare"), help="output directory")
     args = parser.parse_args(argv)
     try:
         if args.command == "run":

@@ -28,7 +28,7 @@ import numpy as np
 import pandas as pd
 
 from jko_cvx._version import __version__
-from jko_cvx.engine.state import RunDirError, RunState, read_npz
+from jko_cvx.engine.state import Ledger, RunDirError, RunState, read_npz
 from jko_cvx.engine.verdict import StopReason, Verdict
 from jko_cvx.grid import Grid, PeriodicGrid
 from jko_cvx.scene.model import Scene, scene_from_dict
@@ -195,14 +195,25 @@ def load_run(path: str | Path, *, allow_partial: bool = False) -> Run:
     Raises
     ------
     RunDirError
-        ``path`` is not a run directory, a file in it is missing or damaged (named), or the
-        run has not ended and ``allow_partial`` is false.
+        ``path`` is not a run directory, a file in it is missing, damaged or changed since the
+        run wrote it (its digest is not the one ``metadata.json`` records), the state fails its
+        invariants (:meth:`~jko_cvx.engine.state.RunState.check`), an entry is a symbolic link,
+        or the run has not ended and ``allow_partial`` is false.
     """
     path = Path(path)
     if not path.is_dir():
         raise RunDirError(f"run directory {path} does not exist")
     if not (path / "scene.json").exists():
         raise RunDirError(f"{path} is not a run directory: it has no scene.json")
+    from jko_cvx.engine.rundir import read_snapshots, refuse_links
+
+    refuse_links(path)
+    if (path / ".replaced").exists():
+        raise RunDirError(
+            f"{path}: an overwrite of it was interrupted ({path / '.replaced'} holds the old run); opening it again "
+            "with jko-cvx run (or simulate) puts the old run back"
+        )
+    ledger = Ledger.read(path)
     try:
         record = json.loads((path / "scene.json").read_text())
     except (OSError, ValueError) as exc:
@@ -211,6 +222,11 @@ def load_run(path: str | Path, *, allow_partial: bool = False) -> Run:
     fingerprint = str(read_npz(ck, "checkpoint", ("scene_sha256",))["scene_sha256"])
     scene = _scene_from_record(record, fingerprint, path / "scene.json")
     state, _ = RunState.load(ck, None if scene.homogeneous else scene.xgrid().period)
+    # the files read whole first (a truncated one is named as such), then each against its digest
+    for name in ("scene.json", "checkpoint.npz", "diagnostics.csv", "verdict.json"):
+        if name != "verdict.json" or (path / name).exists():
+            ledger.verify(path / name)
+    state.check(ck)
     verdict_file = path / "verdict.json"
     if verdict_file.exists():
         try:
@@ -222,8 +238,6 @@ def load_run(path: str | Path, *, allow_partial: bool = False) -> Run:
             f"the run in {path} has not ended (no verdict.json; checkpoint at step {state.step}, t = {state.t:g}): "
             "resume it (jko-cvx run SCENE --out DIR --resume) or pass allow_partial=True"
         )
-    from jko_cvx.engine.rundir import read_snapshots
-
-    snaps = read_snapshots(path, state.step)
+    snaps = read_snapshots(path, state.step, ledger)
     diag = pd.DataFrame(state.rows)
     return Run(scene, diag, snaps, state.f, state.vgrid, state.xgrid, state.t, state.verdict, state.seconds)

@@ -124,9 +124,9 @@ def read_snapshots(path: Path, last_step: int, ledger: Ledger | None = None) -> 
     for step, p in sorted(found):
         if p.is_symlink():
             raise RunDirError(f"{p} is a symbolic link: a run's files are never followed; remove it")
+        snap = read_snapshot(p)  # a truncated file is named as such, then its digest is checked
         if ledger is not None:
             ledger.verify(p)
-        snap = read_snapshot(p)
         if snap["step"] != step:
             raise RunDirError(f"snapshot {p} holds step {snap['step']}, not the step its name gives")
         snaps.append(snap)
@@ -321,10 +321,10 @@ class RunDir:
         if not self.checkpoint.exists():
             raise RunDirError(f"nothing to resume in {self.path}: it has no checkpoint.npz (run without --resume)")
         self.ledger = Ledger.read(self.path)
-        self.ledger.verify(self.checkpoint)
         period = None if self.scene.homogeneous else self.scene.xgrid().period
-        state, recorded = RunState.load(self.checkpoint, period)
+        state, recorded = RunState.load(self.checkpoint, period)  # names a truncated file as such
         self._check_provenance(recorded)
+        self.ledger.verify(self.checkpoint)
         state.check(self.checkpoint)
         self.state = state
         self.snapshots = self.read_snapshots(state.step)

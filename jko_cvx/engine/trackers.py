@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from jko_cvx.diagnostics import diagnostics
-from jko_cvx.engine.state import RunState, write_snapshot
+from jko_cvx.engine.state import RunState, save_npz, write_snapshot
 from jko_cvx.engine.verdict import StopReason
 
 if TYPE_CHECKING:
@@ -213,7 +213,8 @@ class Snapshots(Tracker):
     """Keeps snapshots: at step 0, every ``every`` steps, at the first step reaching each of ``times``,
     at the last step, and (if the run stopped on a solver failure) of the state it stopped in.
 
-    ``path`` maps a step to its file (None: memory only); ``taken`` are those of a resumed run.
+    ``path`` maps a step to its file (None: memory only), written by ``save(path, **record)`` (a run
+    directory's ledger); ``taken`` are those of a resumed run.
     """
 
     def __init__(
@@ -223,13 +224,15 @@ class Snapshots(Tracker):
         t_end: float,
         path: Callable[[int], Path] | None = None,
         taken: list[dict[str, Any]] | None = None,
+        save: Callable[..., None] = save_npz,
     ) -> None:
-        self.every, self.times, self.t_end, self.path = every, times, t_end, path
+        self.every, self.times, self.t_end, self.path, self.save = every, times, t_end, path, save
         self.snapshots: list[dict[str, Any]] = list(taken or [])
 
     def take(self, state: RunState) -> None:
         file = None if self.path is None else self.path(state.step)
-        self.snapshots.append(write_snapshot(file, state.step, state.t, state.xgrid, state.vgrid, state.f))
+        snap = write_snapshot(file, state.step, state.t, state.xgrid, state.vgrid, state.f, self.save)
+        self.snapshots.append(snap)
 
     def start(self, state: RunState) -> None:
         if not self.snapshots:
@@ -287,6 +290,7 @@ def default_trackers(
         scene.t_end,
         None if rundir is None else rundir.snapshot_path,
         snapshots,
+        save_npz if rundir is None else rundir.save_snapshot,
     )
     trackers: list[Tracker] = [Diagnostics(), UnresolvedV(GRID_RESOLUTION * scene.v.L), EpsV(scene.stop.eps_v)]
     if not scene.homogeneous:

@@ -1,0 +1,225 @@
+"""Run data that cannot be silently tampered with, nothing written outside the run directory,
+an overwrite that is all or nothing, stray temporary files removed, modes from the umask."""
+
+import json
+import os
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import jko_cvx.engine.rundir as rundir_module
+from jko_cvx import load_run
+from jko_cvx.cli import main
+from jko_cvx.engine.loop import simulate
+from jko_cvx.engine.state import RunDirError, file_sha256
+from jko_cvx.scene import scene_from_dict
+
+SMALL = {
+    "name": "small",
+    "gamma": 1.0,
+    "t_end": 0.05,
+    "v": {"L": 2.0, "n": 41},
+    "initial": {"kind": "gaussians", "amplitudes": [1.0], "rates": [2.0], "centres": [0.0]},
+    "time": {"dt": 0.01},
+    "output": {"every": 2, "checkpoint_every": 2},
+}
+
+
+@pytest.fixture
+def run_dir(tmp_path):
+    out = tmp_path / "run"
+    simulate(scene_from_dict(SMALL), out=out, progress=False)
+    return out
+
+
+def _files(root: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+def _edit_npz(path: Path, **changes) -> None:
+    with np.load(path) as z:
+        arrays = {k: z[k] for k in z.files}
+    for k, fn in changes.items():
+        arrays[k] = fn(arrays[k])
+    with open(path, "wb") as fh:
+        np.savez(fh, **arrays)
+
+
+def _forge_digest(root: Path, name: str) -> None:
+    """What a deliberate edit would do: recompute the digest the ledger records."""
+    meta = json.loads((root / "metadata.json").read_text())
+    meta["digests"][name] = [file_sha256(root / name)]
+    (root / "metadata.json").write_text(json.dumps(meta))
+
+
+EDITS = {
+    "scaled by 1.01": {"f": lambda f: f * 1.01},
+    "negated": {"f": lambda f: -f},
+    "NaN": {"f": lambda f: np.where(np.arange(f.size).reshape(f.shape) == 3, np.nan, f)},
+    "rewound to step 3": {"t": lambda t: np.array(0.03), "step": lambda s: np.array(3)},
+}
+
+
+@pytest.mark.parametrize("edit", EDITS)
+@pytest.mark.parametrize("forged", [False, True], ids=["digest kept", "digest recomputed"])
+def test_an_edited_checkpoint_is_refused_on_resume_and_by_load_run(run_dir, edit, forged):
+    ck = run_dir / "checkpoint.npz"
+    _edit_npz(ck, **EDITS[edit])
+    if forged:
+        _forge_digest(run_dir, "checkpoint.npz")
+    why = "does not hold a state this run reached" if forged else "has changed since the run wrote it"
+    with pytest.raises(RunDirError, match=rf"{ck}.*{why}"):
+        simulate(scene_from_dict(SMALL), out=run_dir, resume=True, progress=False)
+    with pytest.raises(RunDirError, match=rf"{ck}.*{why}"):
+        load_run(run_dir)
+
+
+def test_an_edited_snapshot_or_diagnostics_file_is_refused_by_load_run(run_dir):
+    snap = run_dir / "snapshots" / "step_0000002.npz"
+    original = snap.read_bytes()
+    _edit_npz(snap, f=lambda f: f * 2)
+    with pytest.raises(RunDirError, match=rf"{snap} has changed since the run wrote it"):
+        load_run(run_dir)
+    snap.write_bytes(original)
+    load_run(run_dir)  # restored: accepted again
+    diag = run_dir / "diagnostics.csv"
+    diag.write_text(diag.read_text().replace("0.01", "0.02"))
+    with pytest.raises(RunDirError, match=rf"{diag} has changed"):
+        load_run(run_dir)
+
+
+def test_a_snapshot_the_run_did_not_write_is_refused(run_dir):
+    shutil.copy(run_dir / "snapshots" / "step_0000002.npz", run_dir / "snapshots" / "step_0000003.npz")
+    with pytest.raises(RunDirError, match=r"step_0000003\.npz is not one of the files this run wrote"):
+        load_run(run_dir)
+
+
+def test_a_run_without_digests_is_refused(run_dir):
+    meta = json.loads((run_dir / "metadata.json").read_text())
+    del meta["digests"]
+    (run_dir / "metadata.json").write_text(json.dumps(meta))
+    for call in (lambda: load_run(run_dir), lambda: simulate(scene_from_dict(SMALL), out=run_dir, resume=True)):
+        with pytest.raises(RunDirError, match="records no file digests"):
+            call()
+
+
+def test_a_run_killed_between_recording_a_digest_and_the_rename_still_resumes(run_dir):
+    """The ledger records the new file's digest before the rename: a kill in between leaves the
+    old file in place, which the ledger still accepts (and the next write settles)."""
+    meta = json.loads((run_dir / "metadata.json").read_text())
+    meta["digests"]["checkpoint.npz"] = ["0" * 64, *meta["digests"]["checkpoint.npz"]]
+    (run_dir / "metadata.json").write_text(json.dumps(meta))
+    simulate(scene_from_dict(SMALL), out=run_dir, resume=True, progress=False)
+    assert len(json.loads((run_dir / "metadata.json").read_text())["digests"]["checkpoint.npz"]) == 1
+
+
+def test_a_planted_lock_link_is_not_followed(tmp_path):
+    target = tmp_path / "precious.txt"
+    target.write_text("keep me")
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / ".lock").symlink_to(target)
+    with pytest.raises(RunDirError, match=r"\.lock is a symbolic link"):
+        simulate(scene_from_dict(SMALL), out=out, progress=False)
+    assert target.read_text() == "keep me"
+    assert (out / ".lock").is_symlink() and not (out / "scene.json").exists()
+
+
+@pytest.mark.parametrize("entry", ["snapshots", "checkpoint.npz", "scene.json"])
+def test_a_planted_link_in_a_run_is_refused_before_anything_is_deleted(run_dir, tmp_path, entry):
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    source = run_dir / entry
+    moved = elsewhere / entry
+    shutil.move(source, moved)
+    source.symlink_to(moved)
+    before, before_run = _files(elsewhere), _files(run_dir)
+    with pytest.raises(RunDirError, match=rf"{entry} is a symbolic link"):
+        simulate(scene_from_dict(SMALL), out=run_dir, overwrite=True, progress=False)
+    with pytest.raises(RunDirError, match=rf"{entry} is a symbolic link"):
+        load_run(run_dir)
+    assert _files(elsewhere) == before and _files(run_dir) == before_run
+
+
+def test_an_empty_out_is_refused(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(ValueError, match="out must name a run directory"):
+        simulate(scene_from_dict(SMALL), out="", progress=False)
+    with pytest.raises(SystemExit) as exit_:
+        main(["run", "--out", "", "--quiet"])
+    assert exit_.value.code == 2 and "--out: must name a directory" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_failed_overwrite_leaves_the_old_run_intact(run_dir, monkeypatch):
+    before = _files(run_dir)
+
+    def broken(scene):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(rundir_module, "_metadata", broken)
+    with pytest.raises(OSError, match="No space left"):
+        simulate(scene_from_dict({**SMALL, "t_end": 0.03}), out=run_dir, overwrite=True, progress=False)
+    after = _files(run_dir)
+    after.pop(".lock", None), before.pop(".lock", None)
+    assert after == before
+    load_run(run_dir)
+
+
+def test_an_overwrite_whose_move_fails_puts_back_what_it_moved(run_dir, monkeypatch):
+    before = _files(run_dir)
+    real, calls = os.replace, []
+
+    def flaky(src, dst):
+        calls.append(src)
+        if len(calls) == 4:
+            raise PermissionError(13, "Permission denied")
+        return real(src, dst)
+
+    monkeypatch.setattr(rundir_module.os, "replace", flaky)
+    with pytest.raises(RunDirError, match="the old run is left as it was"):
+        simulate(scene_from_dict({**SMALL, "t_end": 0.03}), out=run_dir, overwrite=True, progress=False)
+    monkeypatch.undo()
+    after = _files(run_dir)
+    after.pop(".lock", None), before.pop(".lock", None)
+    assert after == before and not (run_dir / ".replaced").exists()
+
+
+def test_an_overwrite_killed_midway_is_put_back_on_the_next_open(run_dir):
+    before = _files(run_dir)
+    aside = run_dir / ".replaced"
+    (aside / "snapshots").mkdir(parents=True)
+    for p in sorted(run_dir.rglob("*")):  # the state a kill leaves: old run aside, the new one begun
+        if p.is_file() and ".replaced" not in p.parts and p.name != ".lock":
+            os.replace(p, aside / p.relative_to(run_dir))
+    (run_dir / "scene.json").write_text("{}")
+    with pytest.raises(RunDirError, match="an overwrite of it was interrupted"):
+        load_run(run_dir)
+    with pytest.raises(RunDirError, match="already holds a run"):
+        simulate(scene_from_dict(SMALL), out=run_dir, progress=False)
+    after = _files(run_dir)
+    after.pop(".lock", None), before.pop(".lock", None)
+    assert after == before
+    load_run(run_dir)
+
+
+def test_stray_temporary_files_of_a_killed_write_are_removed(run_dir):
+    strays = [run_dir / ".checkpoint.npz.ab12cd34", run_dir / "snapshots" / ".step_0000004.npz.x_y9Zq0w"]
+    keep = [run_dir / ".notes.txt.abcdefgh", run_dir / "snapshots" / "mine.txt"]
+    for p in strays + keep:
+        p.write_text("partial")
+    simulate(scene_from_dict(SMALL), out=run_dir, resume=True, progress=False)
+    assert not any(p.exists() for p in strays) and all(p.exists() for p in keep)
+
+
+@pytest.mark.parametrize("umask", [0o022, 0o077, 0o002])
+def test_run_files_follow_the_umask(tmp_path, umask):
+    old = os.umask(umask)
+    try:
+        simulate(scene_from_dict(SMALL), out=tmp_path / "run", progress=False)
+    finally:
+        os.umask(old)
+    modes = {p.name: p.stat().st_mode & 0o777 for p in (tmp_path / "run").rglob("*") if p.is_file()}
+    assert set(modes.values()) == {0o666 & ~umask}, modes
