@@ -83,7 +83,7 @@ def evolve_fixed_grid(
         Collision solver; ``options`` are passed to it.  Newton is the default because it
         reaches the same error against the exact solutions 4-19 times faster than the
         conic reference and converges where the paper's SQP fails on vacuum tails
-        (``jko-cvx study work_precision_run``, studies/results/work_precision_run.md).
+        (``jko-cvx study work_precision_run``).
     time_order : {1, 2}, default 1
         1: one JKO step per time step (first order in dt).  2: the Richardson-extrapolated
         step of :func:`jko_cvx.time_order.collision_step_order2` (three solves per step,

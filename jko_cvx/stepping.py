@@ -77,8 +77,8 @@ class HalvingStep:
 
     With ``reset=True`` (policy ``"halving_reset"``, this package's earlier rule) every
     step restarts at ``dt`` and the policy gives up once the halved step would fall to
-    ``eps_t`` or below; the run never ends on ``eps_t``.  Measured on ``gk1_records``: see
-    ``studies/README.md``.
+    ``eps_t`` or below; the run never ends on ``eps_t``.  The two rules are compared on the
+    adaptive g1 runs of ``gk1_records`` (the paper-variants study).
 
     Raises
     ------

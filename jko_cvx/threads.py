@@ -5,7 +5,7 @@ iteration.  OpenBLAS's default (one thread per core inside every call) is the wr
 parallelism for that: each call is too small to share, and with another busy process on
 the machine the threads spin and wait for each other (measured on 2 cores with one busy
 process: a 240 x 240 Cholesky 6.3 ms with the default threads against 1.05 ms with one;
-batched Newton at N_v = 481 several times slower, see ``studies/results/bench_threads.md``).
+batched Newton at N_v = 481 several times slower: the thread benchmark of the results pages).
 The package therefore
 
 * limits BLAS/LAPACK to :func:`blas_threads` threads (default 1) around its batched

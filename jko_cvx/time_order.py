@@ -19,7 +19,7 @@ so the local error is :math:`O(\\Delta t^3)` and the method is of order 2.  Why 
   first order for the JKO step: the step is backward Euler plus an :math:`O(\\Delta t^2)`
   kinetic-energy correction (the :math:`-2 m^2/s^2` term of :math:`\\partial_f J`), which the
   extrapolation does not cancel (measured in ``jko-cvx study work_precision_peer``, section
-  "Order in time" of studies/results/work_precision_peer.md, where it is ``midpoint``: orders
+  "Order in time", where it is ``midpoint``: orders
   0.92-1.00);
 * Richardson uses the solvers unchanged, on the same grid, batched over x-slices, at three
   solves per step (two of :math:`\\Delta t/2`, one of :math:`\\Delta t`).

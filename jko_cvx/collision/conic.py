@@ -164,7 +164,7 @@ class ConicOptions(Options):
     verbose: bool = option(False, Spec("bool"))
     # Judge OPTIMAL_INACCURATE by the certificate: fixed-grid runs at gamma = 2.5 and 3 then
     # certify 320 of 320 steps, against 308 (and 317-319 at tol 1e-9 / 1e-8, with 50-100x
-    # larger residuals): studies/results/conic_defaults.md.  Not on the scene allow-list.
+    # larger residuals; the conic-defaults study).  Not on the scene allow-list.
     accept_inaccurate: bool = option(True, Spec("bool", scene=False))
 
     def __post_init__(self) -> None:
@@ -584,7 +584,7 @@ def solve_conic(
     accept_inaccurate : bool, default True
         A last solve reported ``OPTIMAL_INACCURATE`` (Clarabel AlmostSolved) is judged by
         the certificate like any other (``INACCURATE`` only where it fails; ``False``:
-        always).  Measured (``studies/results/conic_defaults.md``): such points at gamma =
+        always).  Measured (the conic-defaults study): such points at gamma =
         2.5 and 3 have KKT 6e-10 to 3e-9 and pass the second-order test.
 
     Returns

@@ -63,7 +63,7 @@ from jko_cvx.collision.options import Options, Spec, option
 from jko_cvx.collision.problem import CollisionProblem, TermParts, add_pentadiagonal
 from jko_cvx.collision.result import CollisionResult, Status
 from jko_cvx.collision.sqp import explicit_step
-from jko_cvx.collision.structured import dense_kernel_direction  # h15
+from jko_cvx.collision.structured import dense_kernel_direction
 from jko_cvx.collision.terms import (
     FISHER_TERMS,
     band_coefficients,
@@ -72,7 +72,7 @@ from jko_cvx.collision.terms import (
     wasserstein_value,
 )
 from jko_cvx.kernels import FluxBlock
-from jko_cvx.threads import blas_limited  # h15
+from jko_cvx.threads import blas_limited
 
 __all__ = ["NewtonOptions", "NewtonState", "solve_newton"]
 
@@ -264,7 +264,7 @@ def _direction(problem: CollisionProblem, bands, g: NDArray) -> tuple[NDArray, N
     if fb.kind in ("diagonal", "rank1"):
         x, pd = _structured_direction(fb, scale, bands, rhs)
     else:
-        # h15: dense kernels go through jko_cvx.collision.structured (exact O(N) solves for
+        # dense kernels go through jko_cvx.collision.structured (exact O(N) solves for
         # gamma = 3 and even gamma >= 4, certified CG otherwise, the per-slice Cholesky as
         # fallback; threaded).  The momentum-plane flag lets a low-rank block drop its terms
         # along the constraint's normal (the constrained step is the same).
@@ -773,7 +773,7 @@ def _single(res: CollisionResult) -> CollisionResult:
     )
 
 
-@blas_limited  # h15: BLAS threads per jko_cvx.threads
+@blas_limited  # BLAS threads per jko_cvx.threads
 def solve_newton(
     problem: CollisionProblem,
     *,

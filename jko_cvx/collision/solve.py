@@ -86,7 +86,7 @@ def solve_collision(problem: CollisionProblem, method: str = "conic", **options:
     unknown = sorted(set(options) - set(allowed))
     if unknown:
         raise TypeError(f"unknown option(s) {unknown} for method={method!r}; allowed: {allowed}")
-    with blas_limits():  # h15: BLAS threads per jko_cvx.threads (default 1; slices run in threads)
+    with blas_limits():  # BLAS threads per jko_cvx.threads (default 1; slices run in threads)
         if problem.batched and not getattr(func, "batched", False):
             return _solve_slices(problem, func, method, options)
         return func(problem, **options)

@@ -39,8 +39,8 @@ stay positive says nothing about convergence, so it never passes the test); ``"c
 the step and takes :math:`\\zeta` as Algorithm 1 computes it; ``"none"`` is Algorithm 1 as
 written, without the cut: an iterate with some :math:`f_j \\le 0` has left the domain of
 :math:`J` (the log and perspective Fisher terms, the Wasserstein term), and the solve stops
-there as ``NUMERICAL_ERROR`` (``info["left_domain"]``: the iteration).  Measured on the
-adaptive g1 runs of ``gk1_records``: ``studies/results/reproduce/paper_variants.md``.
+there as ``NUMERICAL_ERROR`` (``info["left_domain"]``: the iteration).  The three are compared
+on the adaptive g1 runs of ``gk1_records`` (the paper-variants study).
 
 The exit flag is Algorithm 1's: :math:`e_f = 1` iff :math:`l = I_{max}`, i.e. iff
 :math:`I_{max}` iterations ran, also when the :math:`\\zeta` test passes on exactly the

@@ -100,7 +100,7 @@ __all__ = [
 LINALG_ENV = "JKO_CVX_NEWTON_LINALG"
 _MODES = ("auto", "dense")
 # CG on G^-1 H_s: stop when the G^-1-norm of the residual falls below _CG_RTOL times that
-# of the right-hand side (measured on the gamma = 3/2 batch of studies/bench_scale.py: 30
+# of the right-hand side (measured on a gamma = 3/2 batch of the scale benchmark: 30
 # products with E in the 6 Newton iterations at N_v = 481, 50 at 1025, each block
 # iterating until its slowest slice has converged); after _CG_MAXIT iterations the slice
 # goes to the dense Cholesky.

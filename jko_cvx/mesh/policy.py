@@ -168,7 +168,7 @@ class RemeshPolicy:
         the remap of the paper's algorithm onto a grid that did not move.  Without it a fixed
         v-grid keeps whatever the collision leaves at the edges: on the uniform 481 x 481
         gamma = 3/2 grid the edge lines in v drained to 1e-17, and Newton could not certify the
-        slices that carried them (``studies/results/grid_convergence_failure*.json``).
+        slices that carried them.
         """
         energy = self.v is not None and self.v.conserve_energy
         return remap(vgrid, f, vgrid, axis=-1, conserve_momentum=self.conserve_momentum, conserve_energy=energy)

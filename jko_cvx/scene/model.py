@@ -62,8 +62,8 @@ class Scene:
     (``collision.conserve_momentum``, ``collision.options``, ``output.times`` sorted); see the
     module docstring of :mod:`jko_cvx.scene` for the layout.
 
-    Two switches between the paper's algorithms as written and this package's rule (measured in
-    ``studies/results/reproduce/paper_variants.md``):
+    Two switches between the paper's algorithms as written and this package's rule (both measured
+    in the paper-variants study):
 
     * ``time.halve_on`` (halving policies): ``"any_failure"`` (default) halves the
       step after any collision solve the engine does not accept (not certified, non-convex,

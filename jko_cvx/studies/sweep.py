@@ -172,7 +172,7 @@ def _read_entry(path: Path, key: str, point: Mapping[str, Any]) -> dict | None:
 def cached_entries(cache_dir: str | Path) -> list[tuple[dict, dict]]:
     """Every (point, result) in ``cache_dir``, whatever code wrote it, each entry's digest checked.
 
-    For reports built from a stopped sweep's cache (``studies/grid_convergence_partial.py``),
+    For reports built from a stopped sweep's cache,
     which must state the code the entries came from themselves: the key, which covers the
     code, is not compared here.  Raises ``ValueError`` naming an entry that does not parse
     or fails its digest (edited or truncated) rather than leaving it out.

@@ -1,4 +1,4 @@
-"""The grid-convergence study the paper lacks (issue 15): ``jko-cvx reproduce grid_convergence``.
+"""The grid-convergence study the paper lacks: ``jko-cvx reproduce grid_convergence``.
 
 The paper answers "blow-up or not" on one grid per case.  This entry reruns two of its
 inhomogeneous experiments on successively refined grids and asks whether the quantities
@@ -341,7 +341,7 @@ def write_report(
             "- " + ", ".join(f"{k} = {v}" for k, v in p.items()) for p in missing
         )
     (out / "grid_convergence.md").write_text(
-        "# Grid convergence of sec:sp_inhom_gamma_1p5 and tab:g2bu (issue 15)\n\n"
+        "# Grid convergence of sec:sp_inhom_gamma_1p5 and tab:g2bu\n\n"
         + (__doc__ or "").split("\n\n", 1)[1].split("\n\nFor a quantity")[0]
         + absent
         + "\n\n## gamma = 3/2: every run\n\n"

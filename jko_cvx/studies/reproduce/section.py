@@ -69,7 +69,7 @@ SECTION = (
     "g2bu_loglog",
 )
 """The entries of the paper's numerical section, in the order they start: by CPU time, longest first
-(``studies/results/regenerate_timing.csv``, one entry at a time on 2 cores: ``inhom_gamma1p5``
+(measured one entry at a time on 2 cores: ``inhom_gamma1p5``
 first, the entries of a few seconds last), then the entries that read others' files (an entry starts after
 the one before it has, so these come last).  ``grid_convergence``
 (the study the paper lacks, 41 minutes on its own) is not part of the section: run it by name."""

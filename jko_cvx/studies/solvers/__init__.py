@@ -1,7 +1,7 @@
-"""Solver studies of issue 6: ``jko-cvx study NAME [--quick]``.
+"""Solver studies: ``jko-cvx study NAME [--quick]``.
 
 Each entry writes a CSV and a Markdown table and PNG figures into the output directory
-(``studies/results/`` for the shipped ones):
+(the repository's ``studies/results/`` holds the shipped ones):
 
 * ``work_precision_step``: error against time for one collision step, every solver family
   over its tolerance sweep (:mod:`.workprecision`);

@@ -71,7 +71,7 @@ def _ratio_grid(ratio: float, n: int = 121) -> Grid:
 
 
 def extreme_cases() -> list[ExtremeCase]:
-    """The hard cases of issue 6 (``heavy`` ones only in the full study)."""
+    """The library of hard collision steps (``heavy`` ones only in the full study)."""
     G = Grid.uniform(-2.0, 2.0, 121)
     G4 = Grid.uniform(-4.0, 4.0, 121)
     r3, r4 = _ratio_grid(1e3), _ratio_grid(1e4)

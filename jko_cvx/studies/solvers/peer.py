@@ -1,4 +1,4 @@
-"""Accuracy per second: the JKO methods against a finite-volume peer, and the order in time (issue 17).
+"""Accuracy per second: the JKO methods against a finite-volume peer, and the order in time.
 
 ``jko-cvx study work_precision_peer [--quick]`` writes ``work_precision_peer.{csv,md,png}`` and
 ``work_precision_peer_time_order.{csv,png}`` (tables in the one Markdown file).
