@@ -33,7 +33,7 @@ EXPECTED_ERRORS = (ValueError, TypeError, OSError, ImportError)
 
 
 def _run_scene(scene_path: Path | None, out: Path | None, resume: bool, overwrite: bool, quiet: bool) -> int:
-    from jko_cvx.engine.interrupts import RunInterrupted
+    from jko_cvx.engine._interrupts import RunInterrupted
     from jko_cvx.engine.loop import simulate
     from jko_cvx.engine.plot import save_figures
     from jko_cvx.scene.model import default_scene, load_scene

@@ -16,7 +16,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from jko_cvx.collision import CollisionProblem, CollisionResult, solve_collision
-from jko_cvx.collision.checks import check_bool
+from jko_cvx.collision._checks import check_bool
 from jko_cvx.grid import Grid
 from jko_cvx.kernels import PowerKernel
 from jko_cvx.limits import STEPS_ENV, Limits

@@ -4,7 +4,7 @@ Part 1 (batched Newton): the batch of ``studies/bench_threads.py`` (32 slices of
 ``inhom_gamma3_lambda4`` datum on its refined v-grid, log Fisher beta = 1000, dt = 0.02,
 strength 2, tol = 1e-8), gamma = 3 and 3/2, N_v = 121, 241, 481, 1025, in the default
 environment (the package's defaults: :mod:`jko_cvx.threads` thread control and the
-structured solves of :mod:`jko_cvx.collision.structured`), side by side with the dense
+structured solves of :mod:`jko_cvx.collision._structured`), side by side with the dense
 Cholesky (``JKO_CVX_NEWTON_LINALG=dense``, same process, same thread control; up to
 N_v = 481).  Medians of ``--repeats`` solves after a warm-up, wall and process CPU
 seconds; the cost exponent p of time ~ N_v^p from 121 to 481 (target: p <= 1.5, every
@@ -35,7 +35,7 @@ import numpy as np
 import pandas as pd
 from bench_threads import SCENE, inhom_batch, time_solves
 
-from jko_cvx.collision.structured import LINALG_ENV
+from jko_cvx.collision._structured import LINALG_ENV
 from jko_cvx.engine.loop import simulate
 from jko_cvx.scene.model import load_scene
 from jko_cvx.studies.sweep import code_identity

@@ -14,7 +14,7 @@ medians are taken under the same machine conditions:
 * ``control, dense``: the package's thread control (:mod:`jko_cvx.threads`: one BLAS
   thread, slices in threads over the cores) with the dense Cholesky;
 * ``control, structured``: the package's default (thread control and
-  :mod:`jko_cvx.collision.structured`).
+  :mod:`jko_cvx.collision._structured`).
 
 Every configuration is measured without and with another busy process (``python -c
 'while True: pass'``, started for the busy rows and stopped after them).  The machine may

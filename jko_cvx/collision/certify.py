@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from jko_cvx.collision.checks import check_bool, check_unit
+from jko_cvx.collision._checks import check_bool, check_unit
 from jko_cvx.collision.problem import CollisionProblem, KKTResidual
 from jko_cvx.collision.result import Status
 

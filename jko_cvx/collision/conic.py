@@ -52,8 +52,8 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
+from jko_cvx.collision._checks import check_options_dict
 from jko_cvx.collision.certify import certify
-from jko_cvx.collision.checks import check_options_dict
 from jko_cvx.collision.options import Options, Spec, option
 from jko_cvx.collision.problem import CollisionProblem
 from jko_cvx.collision.result import CollisionResult, Status

@@ -51,19 +51,19 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.linalg import lapack
 
-from jko_cvx.collision.certify import certify
-from jko_cvx.collision.linalg import (
+from jko_cvx.collision._linalg import (
     divergence,
     divergence_adjoint,
     pentadiagonal_cholesky,
     pentadiagonal_cholesky_batch,
     pentadiagonal_solve_batch,
 )
+from jko_cvx.collision._structured import dense_kernel_direction
+from jko_cvx.collision.certify import certify
 from jko_cvx.collision.options import Options, Spec, option
 from jko_cvx.collision.problem import CollisionProblem, TermParts, add_pentadiagonal
 from jko_cvx.collision.result import CollisionResult, Status
 from jko_cvx.collision.sqp import explicit_step
-from jko_cvx.collision.structured import dense_kernel_direction
 from jko_cvx.collision.terms import (
     FISHER_TERMS,
     band_coefficients,
@@ -168,7 +168,7 @@ def _structured_direction(fb: FluxBlock, scale: float, bands, rhs: NDArray) -> t
     case, Sherman-Morrison.  By the matrix determinant lemma ``B - s u u'`` is positive
     definite iff ``B`` is and ``1 - s u' B^-1 u > 0``.  From ``_CHAIN_MIN`` slices the
     factorisations and solves are chained LAPACK calls
-    (:func:`~jko_cvx.collision.linalg.pentadiagonal_cholesky_batch`), bitwise those of one
+    (:func:`~jko_cvx.collision._linalg.pentadiagonal_cholesky_batch`), bitwise those of one
     call per slice; the Sherman-Morrison update is per slice.
     """
     diag, off1, off2 = bands
@@ -264,7 +264,7 @@ def _direction(problem: CollisionProblem, bands, g: NDArray) -> tuple[NDArray, N
     if fb.kind in ("diagonal", "rank1"):
         x, pd = _structured_direction(fb, scale, bands, rhs)
     else:
-        # dense kernels go through jko_cvx.collision.structured (exact O(N) solves for
+        # dense kernels go through jko_cvx.collision._structured (exact O(N) solves for
         # gamma = 3 and even gamma >= 4, certified CG otherwise, the per-slice Cholesky as
         # fallback; threaded).  The momentum-plane flag lets a low-rank block drop its terms
         # along the constraint's normal (the constrained step is the same).
@@ -529,7 +529,7 @@ def _residual_test(
 
     ``parts`` is the gradient split of the ``check`` slices only (``_fused``); a slice's
     residual is its own whatever the other slices of the batch
-    (:func:`~jko_cvx.collision.linalg.solve_sym_tridiagonal`), so only those are computed.
+    (:func:`~jko_cvx.collision._linalg.solve_sym_tridiagonal`), so only those are computed.
     A residual that no longer halves while the Newton decrement is at rounding level
     (``_STALL_CHECKS`` times) has reached its floor.  Returns the stopped slices.
     """

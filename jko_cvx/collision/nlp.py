@@ -50,8 +50,8 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
+from jko_cvx.collision._linalg import divergence
 from jko_cvx.collision.certify import certify
-from jko_cvx.collision.linalg import divergence
 from jko_cvx.collision.options import Options, Spec, option
 from jko_cvx.collision.problem import CollisionProblem, KKTResidual
 from jko_cvx.collision.result import CollisionResult, Status

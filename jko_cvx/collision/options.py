@@ -5,7 +5,7 @@ Every option of a collision method is a field of that method's options dataclass
 :class:`~jko_cvx.collision.sqp.SqpOptions`, :class:`~jko_cvx.collision.nlp.NlpOptions`), declared
 with :func:`option`: its default and a :class:`Spec` (type, range, choices, and whether a
 scene may set it).  :class:`Options` validates every field once, on construction, with the
-checks of :mod:`jko_cvx.collision.checks`; the scene layer derives its allow-list from the same
+checks of :mod:`jko_cvx.collision._checks`; the scene layer derives its allow-list from the same
 specs (:func:`scene_specs`), so the two cannot drift apart.
 
 Examples
@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from jko_cvx.collision.checks import check_bool, check_callable, check_choice, check_int, check_unit
+from jko_cvx.collision._checks import check_bool, check_callable, check_choice, check_int, check_unit
 
 __all__ = ["KINDS", "Options", "Spec", "option", "scene_specs"]
 

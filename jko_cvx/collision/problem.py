@@ -75,7 +75,7 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import ArrayLike, NDArray
 
-from jko_cvx.collision.linalg import divergence, divergence_adjoint, solve_sym_tridiagonal
+from jko_cvx.collision._linalg import divergence, divergence_adjoint, solve_sym_tridiagonal
 from jko_cvx.collision.terms import FISHER_TERMS, reduced_bands, wasserstein_derivatives, wasserstein_value
 from jko_cvx.grid import Grid
 from jko_cvx.kernels import EnergyOperator, PowerKernel

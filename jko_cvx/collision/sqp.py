@@ -60,8 +60,8 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 from scipy.linalg import lapack
 
+from jko_cvx.collision._linalg import divergence, divergence_adjoint, solve_sym_tridiagonal
 from jko_cvx.collision.certify import certify
-from jko_cvx.collision.linalg import divergence, divergence_adjoint, solve_sym_tridiagonal
 from jko_cvx.collision.options import Options, Spec, option
 from jko_cvx.collision.problem import CollisionProblem
 from jko_cvx.collision.result import CollisionResult, Status

@@ -4,21 +4,21 @@ Each step: choose dt (policy), transport in x (inhomogeneous scenes only), colli
 (batched over x-slices), retry with a halved dt on solver failure (halving policy; which
 failures halve it: ``time.halve_on``), mesh refinement in v and x with mass-conserving
 remapping (the maps' sets: ``refine.concentration_set``).  The loop carries one
-:class:`~jko_cvx.engine.state.RunState`; after each accepted step the trackers
+:class:`~jko_cvx.engine._state.RunState`; after each accepted step the trackers
 (:mod:`jko_cvx.engine.trackers`) record the diagnostics, apply the blow-up rules (min dv < eps_v:
 B_v; min dx < eps_x: B_x; min_spread_v < spread_v where the scene sets ``stop.spread_v``:
 B_v), keep snapshots and write checkpoints; a solver failure the policy cannot cure is
 ``e_f`` (counted as B_v when ``stop.on_solver_failure``).  The outcome is a
 :class:`~jko_cvx.engine.verdict.Verdict`.
 
-With ``out`` the run lives in a directory (:mod:`jko_cvx.engine.rundir`: provenance, lock,
+With ``out`` the run lives in a directory (:mod:`jko_cvx.engine._rundir`: provenance, lock,
 resume and overwrite rules): scene, metadata, diagnostics.csv, snapshots (every K steps and
 at the first step reaching each of the scene's ``output.times``), a checkpoint every K
 steps and the verdict, all written atomically, so a killed run loses at most K steps and
 ``resume=True`` continues it to exactly the result of an uninterrupted run (the loop is
 deterministic and the checkpoint holds the whole state).  SIGINT / SIGTERM write a
 checkpoint of the last accepted step and raise
-:class:`~jko_cvx.engine.interrupts.RunInterrupted`.
+:class:`~jko_cvx.engine._interrupts.RunInterrupted`.
 """
 
 from __future__ import annotations
@@ -34,13 +34,13 @@ import numpy as np
 import pandas as pd
 
 from jko_cvx.collision import CollisionProblem, Status, solve_collision
-from jko_cvx.collision.checks import check_bool
-from jko_cvx.engine.interrupts import InterruptGuard, RunInterrupted
+from jko_cvx.collision._checks import check_bool
+from jko_cvx.engine._interrupts import InterruptGuard, RunInterrupted
+from jko_cvx.engine._rundir import RunDir
+from jko_cvx.engine._state import RunState
 from jko_cvx.engine.run import Run, load_run
-from jko_cvx.engine.rundir import RunDir
-from jko_cvx.engine.state import RunState
-from jko_cvx.engine.trackers import Snapshots, SolverFailure, StepInfo, Tracker, default_trackers
-from jko_cvx.engine.verdict import StopReason, Verdict
+from jko_cvx.engine.trackers import Snapshots, StepInfo, Tracker, default_trackers
+from jko_cvx.engine.verdict import SolverFailureRule, StopReason, Verdict
 from jko_cvx.kernels import PowerKernel
 from jko_cvx.mesh.policy import RemeshPolicy
 from jko_cvx.scene.limits import check_limits
@@ -235,7 +235,7 @@ class Stepper:
 
 
 def _loop(scene: Scene, stepper: Stepper, state: RunState, trackers: list[Tracker], guard: InterruptGuard) -> None:
-    failure = SolverFailure(scene.stop.on_solver_failure)
+    failure = SolverFailureRule(scene.stop.on_solver_failure)
     while not state.done(scene.t_end):
         out = stepper.solve(state)
         if out.stop is not None:  # never accepted, whatever stop.on_solver_failure says
@@ -280,7 +280,7 @@ def simulate(
         The scene's step count or memory estimate is beyond the limits of
         :mod:`jko_cvx.scene.limits` (nothing has been written).
     RunDirError
-        ``out`` cannot be used as asked (see :mod:`jko_cvx.engine.rundir`); nothing has been run.
+        ``out`` cannot be used as asked (see :mod:`jko_cvx.engine._rundir`); nothing has been run.
     RunInterrupted
         SIGINT / SIGTERM arrived (only with ``out``, from the main thread); the checkpoint holds
         the last accepted step.

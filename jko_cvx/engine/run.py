@@ -28,7 +28,8 @@ import numpy as np
 import pandas as pd
 
 from jko_cvx._version import __version__
-from jko_cvx.engine.state import Ledger, RunDirError, RunState, read_npz
+from jko_cvx.engine._state import Ledger, RunState, read_npz
+from jko_cvx.engine.errors import RunDirError
 from jko_cvx.engine.verdict import StopReason, Verdict
 from jko_cvx.grid import Grid, PeriodicGrid
 from jko_cvx.scene.model import Scene, scene_from_dict
@@ -123,7 +124,7 @@ class Run:
 
 
 def _attrs(run: Run) -> dict[str, Any]:
-    from jko_cvx.engine.rundir import canonical_scene, scene_fingerprint
+    from jko_cvx.engine._rundir import canonical_scene, scene_fingerprint
 
     v = run.verdict
     return {
@@ -163,7 +164,7 @@ def export_netcdf(run: Run, path: str | Path) -> Path:
 
 def _scene_from_record(record: dict[str, Any], fingerprint: str, where: Path) -> Scene:
     """Rebuild the scene recorded in ``scene.json``; it must reproduce the recorded fingerprint."""
-    from jko_cvx.engine.rundir import flat_scene_record, scene_fingerprint
+    from jko_cvx.engine._rundir import flat_scene_record, scene_fingerprint
 
     if flat_scene_record(record):
         raise RunDirError(
@@ -197,7 +198,7 @@ def load_run(path: str | Path, *, allow_partial: bool = False) -> Run:
     RunDirError
         ``path`` is not a run directory, a file in it is missing, damaged or changed since the
         run wrote it (its digest is not the one ``metadata.json`` records), the state fails its
-        invariants (:meth:`~jko_cvx.engine.state.RunState.check`), an entry is a symbolic link,
+        invariants (:meth:`~jko_cvx.engine._state.RunState.check`), an entry is a symbolic link,
         or the run has not ended and ``allow_partial`` is false.
     """
     path = Path(path)
@@ -205,7 +206,7 @@ def load_run(path: str | Path, *, allow_partial: bool = False) -> Run:
         raise RunDirError(f"run directory {path} does not exist")
     if not (path / "scene.json").exists():
         raise RunDirError(f"{path} is not a run directory: it has no scene.json")
-    from jko_cvx.engine.rundir import read_snapshots, refuse_links
+    from jko_cvx.engine._rundir import read_snapshots, refuse_links
 
     refuse_links(path)
     if (path / ".replaced").exists():

@@ -1,6 +1,6 @@
 """Observers of the time loop (trackers in py-pde's sense): records, stopping rules, output, progress.
 
-The loop (:func:`jko_cvx.engine.loop.simulate`) advances a :class:`~jko_cvx.engine.state.RunState`
+The loop (:func:`jko_cvx.engine.loop.simulate`) advances a :class:`~jko_cvx.engine._state.RunState`
 one accepted step at a time and then calls, in order, ``handle(state, step)`` of each
 tracker; ``start(state)`` runs once before the first step (also on resume) and
 ``finish(state)`` once at the end.  Order matters and is fixed by :func:`default_trackers`:
@@ -20,11 +20,11 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from jko_cvx.diagnostics import diagnostics
-from jko_cvx.engine.state import RunState, save_npz, write_snapshot
+from jko_cvx.engine._state import RunState, save_npz, write_snapshot
 from jko_cvx.engine.verdict import StopReason
 
 if TYPE_CHECKING:
-    from jko_cvx.engine.rundir import RunDir
+    from jko_cvx.engine._rundir import RunDir
     from jko_cvx.scene.model import Scene
     from jko_cvx.stepping import StepPolicy
 
@@ -37,7 +37,6 @@ __all__ = [
     "EpsX",
     "Progress",
     "Snapshots",
-    "SolverFailure",
     "SpreadV",
     "StepInfo",
     "StopRule",
@@ -181,26 +180,6 @@ class EpsT(Tracker):
         text = self.policy.end(step.dt)  # the policy's floor (HalvingStep.end)
         if text is not None:
             state.verdict = state.verdict.stopped(StopReason.EPS_T, state.t, text)
-
-
-class SolverFailure:
-    """``e_f``: a collision solve the step policy could not cure; stops the run (as ``B_v``) when ``stop``."""
-
-    def __init__(self, stop: bool) -> None:
-        self.stop = bool(stop)
-
-    def record(self, state: RunState, statuses: list[str], dt: float = 0.0) -> bool:
-        """Record the failure of the step of length ``dt`` from ``state.t``; True when the run must stop.
-
-        ``T_b`` is the end of the failing step, ``state.t + dt``: ``alg:MR_JKO_ver2`` advances
-        ``t`` by the step whose solve set ``e_f`` before it tests the indicators.
-        """
-        if self.stop:
-            reason = f"{StopReason.SOLVER_FAILURE.value} ({', '.join(statuses)})"
-            state.verdict = state.verdict.stopped(StopReason.SOLVER_FAILURE, state.t + dt, reason)
-        else:
-            state.verdict = state.verdict.solver_failed()
-        return self.stop
 
 
 def reaches(times: tuple[float, ...], t_prev: float, t: float) -> bool:

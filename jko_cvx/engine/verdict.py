@@ -15,9 +15,12 @@ import dataclasses
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from enum import Enum
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-__all__ = ["StopReason", "Verdict"]
+if TYPE_CHECKING:
+    from jko_cvx.engine._state import RunState
+
+__all__ = ["SolverFailureRule", "StopReason", "Verdict"]
 
 
 class StopReason(Enum):
@@ -119,3 +122,23 @@ class Verdict(Mapping):
         if "blowup" in d and bool(d["blowup"]) != v.blowup:
             raise ValueError(f"verdict record says blowup = {d['blowup']} but stop = {stop.name}")
         return v
+
+
+class SolverFailureRule:
+    """``e_f``: a collision solve the step policy could not cure; stops the run (as ``B_v``) when ``stop``."""
+
+    def __init__(self, stop: bool) -> None:
+        self.stop = bool(stop)
+
+    def record(self, state: RunState, statuses: list[str], dt: float = 0.0) -> bool:
+        """Record the failure of the step of length ``dt`` from ``state.t``; True when the run must stop.
+
+        ``T_b`` is the end of the failing step, ``state.t + dt``: ``alg:MR_JKO_ver2`` advances
+        ``t`` by the step whose solve set ``e_f`` before it tests the indicators.
+        """
+        if self.stop:
+            reason = f"{StopReason.SOLVER_FAILURE.value} ({', '.join(statuses)})"
+            state.verdict = state.verdict.stopped(StopReason.SOLVER_FAILURE, state.t + dt, reason)
+        else:
+            state.verdict = state.verdict.solver_failed()
+        return self.stop

@@ -10,7 +10,7 @@ Two estimates, both cheap arithmetic on the scene:
   Hessians and their factors, about forty work arrays of the density's size, and the
   ``S`` snapshots a run keeps (``steps / output.every`` plus ``output.times``).  For
   gamma = 1, 2 and 3 Newton forms no dense Hessian (banded, rank one, or the exact
-  banded-plus-rank-two solve of :mod:`jko_cvx.collision.structured`), so the dense part is
+  banded-plus-rank-two solve of :mod:`jko_cvx.collision._structured`), so the dense part is
   the energy matrix and one factor per thread, ``8 (4 N_v^2)``: measured 0.57 GiB at
   1025 x 1025, gamma = 3 (the scale benchmark), where the per-slice count
   gave 32 GiB.

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from scipy.linalg import lapack
 
-from jko_cvx.collision.linalg import pentadiagonal_cholesky_batch, pentadiagonal_solve_batch
+from jko_cvx.collision._linalg import pentadiagonal_cholesky_batch, pentadiagonal_solve_batch
 from jko_cvx.collision.newton import _CHAIN_MIN, _structured_direction
 from jko_cvx.kernels import FluxBlock
 

@@ -12,9 +12,9 @@ import pytest
 from scipy.linalg import lapack
 
 from jko_cvx import CollisionProblem, Grid, PowerKernel, Status
-from jko_cvx.collision import structured
+from jko_cvx.collision import _structured as structured
+from jko_cvx.collision._linalg import _solve_one, _thomas, divergence, divergence_adjoint, solve_sym_tridiagonal
 from jko_cvx.collision.certify import _judge, certify
-from jko_cvx.collision.linalg import _solve_one, _thomas, divergence, divergence_adjoint, solve_sym_tridiagonal
 from jko_cvx.collision.newton import _fused
 from jko_cvx.collision.problem import TermParts
 from jko_cvx.collision.terms import FISHER_TERMS, reduced_bands, wasserstein_derivatives

@@ -86,7 +86,7 @@ def test_batched_problem_evaluates_rowwise(rng):
 def test_batched_tridiagonal_solves_match_dense_solves_with_and_without_definiteness():
     """solve_sym_tridiagonal: a batch goes to LAPACK as one block-diagonal system; a batch with an
     indefinite row falls back to the elimination loop; a shared matrix broadcasts over rhs rows."""
-    from jko_cvx.collision.linalg import solve_sym_tridiagonal
+    from jko_cvx.collision._linalg import solve_sym_tridiagonal
 
     rng = np.random.default_rng(3)
     rows, n = 7, 12

@@ -1,11 +1,11 @@
-"""Structured Newton directions for dense kernels (jko_cvx.collision.structured) against dense linear algebra."""
+"""Structured Newton directions for dense kernels (jko_cvx.collision._structured) against dense linear algebra."""
 
 import numpy as np
 import pytest
 
 from jko_cvx import CollisionProblem, Grid, PowerKernel, Status
-from jko_cvx.collision import structured
-from jko_cvx.collision.linalg import divergence
+from jko_cvx.collision import _structured as structured
+from jko_cvx.collision._linalg import divergence
 from jko_cvx.collision.newton import _PD_TOL, _fused, _newton_direction, solve_newton
 from jko_cvx.collision.problem import add_pentadiagonal
 

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from jko_cvx import CollisionProblem, Grid, PowerKernel
-from jko_cvx.collision.linalg import solve_sym_tridiagonal
+from jko_cvx.collision._linalg import solve_sym_tridiagonal
 from jko_cvx.collision.problem import TermParts
 
 

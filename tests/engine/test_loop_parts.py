@@ -8,8 +8,9 @@ import pandas as pd
 import pytest
 
 from jko_cvx.diagnostics import diagnostics
-from jko_cvx.engine.interrupts import InterruptGuard
-from jko_cvx.engine.state import RunDirError, RunState
+from jko_cvx.engine._interrupts import InterruptGuard
+from jko_cvx.engine._state import RunState
+from jko_cvx.engine.errors import RunDirError
 from jko_cvx.engine.trackers import (
     Checkpoints,
     Diagnostics,
@@ -17,11 +18,10 @@ from jko_cvx.engine.trackers import (
     EpsX,
     Progress,
     Snapshots,
-    SolverFailure,
     SpreadV,
     StepInfo,
 )
-from jko_cvx.engine.verdict import StopReason, Verdict
+from jko_cvx.engine.verdict import SolverFailureRule, StopReason, Verdict
 from jko_cvx.grid import Grid, PeriodicGrid
 
 
@@ -103,9 +103,9 @@ def test_each_stop_rule_fires_strictly_below_its_threshold(rule, column, reason,
 
 def test_solver_failure_stops_only_when_the_scene_says_so():
     state = _state(t=0.3)
-    assert not SolverFailure(stop=False).record(state, ["MAX_ITERATIONS"])
+    assert not SolverFailureRule(stop=False).record(state, ["MAX_ITERATIONS"])
     assert state.verdict.e_f and not state.verdict.blowup
-    assert SolverFailure(stop=True).record(state, ["MAX_ITERATIONS", "NOT_CERTIFIED"])
+    assert SolverFailureRule(stop=True).record(state, ["MAX_ITERATIONS", "NOT_CERTIFIED"])
     v = state.verdict
     assert v.stop is StopReason.SOLVER_FAILURE and v.B_v and v.T_b == 0.3
     assert v.reason == "collision solver failed (MAX_ITERATIONS, NOT_CERTIFIED)"

@@ -12,10 +12,10 @@ import pytest
 
 import jko_cvx
 from jko_cvx.cli import main
+from jko_cvx.engine.errors import RunDirError
 from jko_cvx.engine.loop import simulate
 from jko_cvx.engine.plot import exact_max_f, plot_records, plot_solution, refinement_switches, save_figures
 from jko_cvx.engine.run import Run
-from jko_cvx.engine.state import RunDirError
 from jko_cvx.engine.verdict import StopReason
 from jko_cvx.scene.model import default_scene, load_scene
 

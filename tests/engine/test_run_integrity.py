@@ -9,11 +9,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import jko_cvx.engine.rundir as rundir_module
+import jko_cvx.engine._rundir as rundir_module
 from jko_cvx import load_run
 from jko_cvx.cli import main
+from jko_cvx.engine._state import file_sha256
+from jko_cvx.engine.errors import RunDirError
 from jko_cvx.engine.loop import simulate
-from jko_cvx.engine.state import RunDirError, file_sha256
 from jko_cvx.scene import scene_from_dict
 
 SMALL = {

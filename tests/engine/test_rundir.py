@@ -13,12 +13,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
-import jko_cvx.engine.rundir as rundir_module
+import jko_cvx.engine._rundir as rundir_module
 from jko_cvx import load_run
 from jko_cvx.cli import main
+from jko_cvx.engine._rundir import RunDir, scene_differences, scene_fingerprint
+from jko_cvx.engine.errors import RunDirError
 from jko_cvx.engine.loop import simulate
-from jko_cvx.engine.rundir import RunDir, scene_differences, scene_fingerprint
-from jko_cvx.engine.state import RunDirError
 from jko_cvx.scene.model import load_scene, scene_from_dict
 
 SMALL = {

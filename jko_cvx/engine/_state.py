@@ -35,14 +35,11 @@ from typing import Any
 import numpy as np
 
 from jko_cvx.diagnostics import diagnostics
+from jko_cvx.engine.errors import RunDirError
 from jko_cvx.engine.verdict import Verdict
 from jko_cvx.grid import Grid, PeriodicGrid
 
-__all__ = ["Ledger", "RunDirError", "RunState", "read_snapshot", "write_snapshot"]
-
-
-class RunDirError(ValueError):
-    """A run directory that cannot be used as asked; the message names the directory or file."""
+__all__ = ["Ledger", "RunState", "read_snapshot", "write_snapshot"]
 
 
 def _umask() -> int:

@@ -83,7 +83,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.linalg import lapack
 
-from jko_cvx.collision.linalg import pentadiagonal_cholesky
+from jko_cvx.collision._linalg import pentadiagonal_cholesky
 from jko_cvx.kernels import EnergyOperator, FluxBlock
 from jko_cvx.threads import map_chunks
 

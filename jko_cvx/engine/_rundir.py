@@ -4,7 +4,7 @@ A run directory holds ``scene.json``, ``metadata.json`` (package and solver vers
 scene fingerprint), ``diagnostics.csv``, ``snapshots/step_*.npz``, ``checkpoint.npz`` and, once
 the run has ended, ``verdict.json`` (the CLI adds ``solution.png`` and ``records.png``).
 
-Rules (each refusal is a :class:`~jko_cvx.engine.state.RunDirError` naming the directory or file):
+Rules (each refusal is a :class:`~jko_cvx.engine.errors.RunDirError` naming the directory or file):
 
 * a new run refuses a directory that already holds a run, unless ``overwrite``, which moves
   that run's files (and only those) aside into ``DIR/.replaced/``, writes the new run's
@@ -13,9 +13,9 @@ Rules (each refusal is a :class:`~jko_cvx.engine.state.RunDirError` naming the d
 * ``resume`` needs a checkpoint, made from the same scene (the SHA-256 of the canonical JSON
   of ``scene.to_dict()``; a refusal names the keys that differ) by the same package version;
 * every file the run writes has its SHA-256 recorded in ``metadata.json``
-  (:class:`~jko_cvx.engine.state.Ledger`); ``resume`` and :func:`~jko_cvx.engine.run.load_run`
+  (:class:`~jko_cvx.engine._state.Ledger`); ``resume`` and :func:`~jko_cvx.engine.run.load_run`
   refuse a file whose digest differs and a state whose invariants fail
-  (:meth:`~jko_cvx.engine.state.RunState.check`);
+  (:meth:`~jko_cvx.engine._state.RunState.check`);
 * nothing outside the directory is written, followed or deleted: an entry of the run that is a
   symbolic link (``.lock``, ``snapshots``, any run file) is refused, not followed, and the lock
   is opened with ``O_NOFOLLOW``;
@@ -40,7 +40,8 @@ from typing import Any
 import numpy as np
 
 from jko_cvx._version import __version__
-from jko_cvx.engine.state import TEMP_FILE, Ledger, RunDirError, RunState, read_snapshot
+from jko_cvx.engine._state import TEMP_FILE, Ledger, RunState, read_snapshot
+from jko_cvx.engine.errors import RunDirError
 from jko_cvx.scene.model import Scene
 
 __all__ = ["RunDir", "canonical_scene", "flat_scene_record", "read_snapshots", "scene_differences", "scene_fingerprint"]
