@@ -138,9 +138,9 @@ class CollisionResult:
 
     @property
     def message(self) -> str | list[str]:
-        """Human-readable status message(s)."""
+        """Human-readable status message(s); a solver's ``info["hint"]`` (the likely cause of a failure) follows."""
         if isinstance(self.status, Status):
-            return self.status.value
+            return self.status.value + (f"; {self.info['hint']}" if self.info.get("hint") else "")
         return [s.value for s in np.ravel(self.status)]
 
     def __repr__(self) -> str:

@@ -430,6 +430,12 @@ def solve_sqp(
             "qp": opts.qp, "kkt": cert.kkt}  # fmt: skip
     if left_domain is not None:
         info["left_domain"] = left_domain
+    if not cert.status.success and problem.cfl() > 1:
+        # the likely cause: the explicit first step empties cells above CFL ~ 1 (CollisionProblem.cfl)
+        info["hint"] = (
+            f"the step's explicit CFL number is {problem.cfl():.3g} > 1, where the paper's SQP stalls "
+            "(its explicit first step empties low-density cells): take a smaller dt, or method='newton' / 'conic'"
+        )
     return CollisionResult.from_certificate(problem, f, m, cert, "sqp", it, time.perf_counter() - t0, info)
 
 

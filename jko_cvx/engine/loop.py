@@ -238,10 +238,16 @@ def _loop(scene: Scene, stepper: Stepper, state: RunState, trackers: list[Tracke
     failure = SolverFailureRule(scene.stop.on_solver_failure)
     while not state.done(scene.t_end):
         out = stepper.solve(state)
-        if out.stop is not None:  # never accepted, whatever stop.on_solver_failure says
+        stop = out.stop is not None  # never accepted, whatever stop.on_solver_failure says
+        if stop:
             state.verdict = state.verdict.stopped(StopReason.SOLVER_FAILURE, state.t + out.dt, out.stop)
-            break
-        if not out.ok and failure.record(state, _failed_statuses(out.res), out.dt):
+        elif not out.ok:
+            stop = failure.record(state, _failed_statuses(out.res), out.dt)
+        if stop:
+            if state.step == 0:  # a run that never took a step is not a blow-up at dt
+                state.verdict = state.verdict.no_step(
+                    f"{StopReason.NO_STEP.value}: the first collision solve failed ({state.verdict.reason})"
+                )
             break
         with guard.deferred():
             info = stepper.commit(state, out)

@@ -21,6 +21,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from jko_cvx.engine.verdict import StopReason
+
 if TYPE_CHECKING:
     from jko_cvx.engine.run import Run
 
@@ -112,8 +114,16 @@ def plot_records(run: Run, ax=None):
         a.axvline(T, color="k", ls="--", lw=0.8, label=f"exact T = {T:.4g}")
     if run.blowup:
         a.axvline(run.verdict.T_b, color="r", lw=0.8, label=f"T_b = {run.verdict.T_b:.4g}")
+    v = run.verdict
+    if not v.certified:  # drawn from uncertified states: say so, claim no verdict
+        title = f"NOT CERTIFIED: {v.uncertified_steps} uncertified step(s) from t = {v.first_uncertified_t:.4g}"
+        a.axvline(v.first_uncertified_t, color="m", lw=0.8, ls=":", label="first uncertified step")
+    elif run.blowup:
+        title = f"blow-up at T_b = {v.T_b:.4g}"
+    else:
+        title = "no blow-up" if v.stop is StopReason.T_END else v.reason
     a.set_xlabel("t"), a.legend(fontsize=7)
-    a.set_title(f"{sc.name}: " + (f"blow-up at T_b = {run.verdict.T_b:.4g}" if run.blowup else "no blow-up"))
+    a.set_title(f"{sc.name}: {title}")
     fig.tight_layout()
     return fig
 

@@ -32,14 +32,15 @@ class StopReason(Enum):
     SPREAD_V = "min spread_v < spread_v"
     SOLVER_FAILURE = "collision solver failed"
     EPS_T = "dt <= eps_t"
+    NO_STEP = "no step was accepted"
 
     @property
     def blowup(self) -> bool:
-        """Every reason but reaching ``t_end`` flags blow-up."""
-        return self is not StopReason.T_END
+        """Every reason but reaching ``t_end`` and a run that never took a step flags blow-up."""
+        return self not in (StopReason.T_END, StopReason.NO_STEP)
 
 
-_KEYS = ("blowup", "T_b", "B_x", "B_v", "e_f", "reason", "stop")
+_KEYS = ("blowup", "T_b", "B_x", "B_v", "e_f", "reason", "stop", "uncertified_steps", "first_uncertified_t")
 
 
 @dataclass(frozen=True)
@@ -57,6 +58,15 @@ class Verdict(Mapping):
         run (``stop.on_solver_failure = false``).
     reason : str
         The rule with the value that fired it, e.g. ``"min dv = 0.000244 < eps_v"``.
+    uncertified_steps : int
+        Steps whose collision solve failed and whose state the run carried on from
+        (``stop.on_solver_failure = false``, as the paper's ``tab:bu`` runs); every verdict
+        drawn after one is drawn from uncertified states (:attr:`certified` is False).
+    first_uncertified_t : float or None
+        The time of the first such state.
+
+    A run that never accepted a step (its first solve failed and stopped it) stops with
+    :attr:`StopReason.NO_STEP`: not a blow-up, ``T_b`` None.
     """
 
     stop: StopReason = StopReason.T_END
@@ -65,23 +75,50 @@ class Verdict(Mapping):
     B_v: bool = False
     e_f: bool = False
     reason: str = StopReason.T_END.value
+    uncertified_steps: int = 0
+    first_uncertified_t: float | None = None
 
     @property
     def blowup(self) -> bool:
         return self.stop.blowup
 
+    @property
+    def certified(self) -> bool:
+        """Every state the verdict is drawn from came from a certified collision solve."""
+        return self.uncertified_steps == 0
+
+    def describe(self) -> str:
+        """The verdict in words, saying so where it is drawn from uncertified states."""
+        if self.certified:
+            return f"blow-up = {self.blowup}"
+        claim = "undetermined" if not self.blowup else "True, from uncertified states"
+        return (
+            f"blow-up = {claim} (NOT CERTIFIED: {self.uncertified_steps} step(s) carried a failed collision "
+            f"solve, from t = {self.first_uncertified_t:.6g}; stop.on_solver_failure = false)"
+        )
+
     def stopped(self, stop: StopReason, t: float, reason: str) -> Verdict:
         """The verdict after rule ``stop`` fired at time ``t`` (flags accumulate; the last reason wins)."""
         if not stop.blowup:
-            raise ValueError("stopped() records a blow-up rule; reaching t_end is the default verdict")
+            raise ValueError("stopped() records a blow-up rule; reaching t_end is the default verdict, no_step its own")
         flag = {"B_x": True} if stop is StopReason.EPS_X else {"B_v": True}
         # the step collapses below eps_t only through repeated failed solves (alg:MR_JKO_ver2)
         e_f = self.e_f or stop in (StopReason.SOLVER_FAILURE, StopReason.EPS_T)
         return dataclasses.replace(self, stop=stop, T_b=float(t), reason=reason, e_f=e_f, **flag)
 
-    def solver_failed(self) -> Verdict:
-        """The verdict after a failed solve that does not stop the run (only ``e_f`` is set)."""
-        return dataclasses.replace(self, e_f=True)
+    def no_step(self, reason: str) -> Verdict:
+        """The verdict of a run whose first step failed and stopped it: no blow-up, no ``T_b``."""
+        return dataclasses.replace(
+            self, stop=StopReason.NO_STEP, T_b=None, B_v=False, B_x=False, e_f=True, reason=reason
+        )
+
+    def solver_failed(self, t: float) -> Verdict:
+        """The verdict after a failed solve that does not stop the run: ``e_f`` set, the uncertified
+        state at time ``t`` counted."""
+        first = float(t) if self.first_uncertified_t is None else self.first_uncertified_t
+        return dataclasses.replace(
+            self, e_f=True, uncertified_steps=self.uncertified_steps + 1, first_uncertified_t=first
+        )
 
     # the Mapping interface of the earlier dict verdict
     def __getitem__(self, key: str) -> Any:
@@ -116,6 +153,8 @@ class Verdict(Mapping):
                 B_v=bool(d["B_v"]),
                 e_f=bool(d["e_f"]),
                 reason=str(d["reason"]),
+                uncertified_steps=int(d["uncertified_steps"]),
+                first_uncertified_t=None if d["first_uncertified_t"] is None else float(d["first_uncertified_t"]),
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"not a verdict record ({type(exc).__name__}: {exc}): {dict(d)!r}") from None
@@ -140,5 +179,5 @@ class SolverFailureRule:
             reason = f"{StopReason.SOLVER_FAILURE.value} ({', '.join(statuses)})"
             state.verdict = state.verdict.stopped(StopReason.SOLVER_FAILURE, state.t + dt, reason)
         else:
-            state.verdict = state.verdict.solver_failed()
+            state.verdict = state.verdict.solver_failed(state.t + dt)
         return self.stop

@@ -48,6 +48,8 @@ def test_verdict_default_is_no_blowup_and_reads_as_the_old_mapping():
         "e_f": False,
         "reason": "reached t_end",
         "stop": "T_END",
+        "uncertified_steps": 0,
+        "first_uncertified_t": None,
     }
     assert v["T_b"] is None and v["reason"] == "reached t_end"
     with pytest.raises(KeyError):
@@ -66,7 +68,7 @@ def test_stop_rules_accumulate_flags_and_the_last_reason_wins():
 
 
 def test_verdict_round_trips_and_rejects_inconsistent_records():
-    v = Verdict().solver_failed().stopped(StopReason.SPREAD_V, 0.25, "min spread_v = 0.1 < spread_v")
+    v = Verdict().solver_failed(0.1).stopped(StopReason.SPREAD_V, 0.25, "min spread_v = 0.1 < spread_v")
     assert Verdict.from_dict(v.to_dict()) == v
     assert Verdict.from_dict(v.to_dict()) != Verdict()
     with pytest.raises(ValueError, match="blowup = False but stop = SPREAD_V"):
@@ -200,7 +202,7 @@ def test_run_state_checkpoint_round_trips_exactly(tmp_path, inhomogeneous):
     state = _state(t=0.30000000000000004, step=3, inhomogeneous=inhomogeneous)
     state.v_params = np.array([0.1, 0.7])
     Diagnostics().start(state)
-    state.verdict = Verdict().solver_failed()
+    state.verdict = Verdict().solver_failed(0.1)
     state.seconds["collision"] = 1.25
     state.save(tmp_path / "ck.npz", {"scene_sha256": "abc", "jko_cvx": "9.9"})
     back, prov = RunState.load(tmp_path / "ck.npz", None if state.xgrid is None else state.xgrid.period)
@@ -261,4 +263,4 @@ def test_the_run_is_done_at_t_end_to_rounding_or_at_blowup():
     assert state.done(1.0) and not _state(t=1.0 - 1e-9).done(1.0)  # ten steps of 0.1 sum to 0.9999999999999999
     blown = _state(t=0.2, verdict=Verdict().stopped(StopReason.EPS_V, 0.2, "min dv = 1e-05 < eps_v"))
     assert blown.done(1.0)
-    assert not _state(t=0.2, verdict=Verdict().solver_failed()).done(1.0)  # e_f alone does not stop a run
+    assert not _state(t=0.2, verdict=Verdict().solver_failed(0.1)).done(1.0)  # e_f alone does not stop a run

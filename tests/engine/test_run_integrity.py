@@ -17,15 +17,7 @@ from jko_cvx.engine.errors import RunDirError
 from jko_cvx.engine.loop import simulate
 from jko_cvx.scene import scene_from_dict
 
-SMALL = {
-    "name": "small",
-    "gamma": 1.0,
-    "t_end": 0.05,
-    "v": {"L": 2.0, "n": 41},
-    "initial": {"kind": "gaussians", "amplitudes": [1.0], "rates": [2.0], "centres": [0.0]},
-    "time": {"dt": 0.01},
-    "output": {"every": 2, "checkpoint_every": 2},
-}
+from .test_rundir import SMALL
 
 
 @pytest.fixture

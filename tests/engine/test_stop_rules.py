@@ -16,7 +16,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from jko_cvx.engine._state import RunState
 from jko_cvx.engine.loop import simulate
+from jko_cvx.engine.verdict import StopReason, Verdict
+from jko_cvx.grid import Grid
 from jko_cvx.scene.model import scene_from_dict
 
 # 16 velocity points on [-1.5, 1.5]: dv = 0.2; 10 cell-centred x-points on [-4, 4): dx = 0.8.
@@ -124,22 +127,31 @@ def test_B_v_on_a_refined_grid_stops_at_the_first_step_below_eps_v():
 def test_solver_failure_sets_e_f_and_counts_as_B_v_when_asked():
     """A collision solve that fails (Newton with one iteration) is the exit flag e_f = 1.
 
-    With ``on_solver_failure`` the run stops at the failed step, not applying it (t = 0), with
-    T_b the end of that step (alg:MR_JKO_ver2 adds dt before it tests the indicators: T_b = 0.1),
-    and the failure counts as blow-up in v (alg:SPMCSL-JKO); without it the run goes on to t_end
-    with e_f recorded and no blow-up.
+    With ``on_solver_failure`` the run stops at the failed step, not applying it, with T_b the
+    end of that step (alg:MR_JKO_ver2 adds dt before it tests the indicators) and the failure
+    counted as blow-up in v (alg:SPMCSL-JKO); when that step is the first, no step was taken and
+    the run is not a blow-up (stop NO_STEP).  Without it the run goes on to t_end with e_f
+    recorded, every uncertified step counted and neither verdict claimed.
     """
+    from jko_cvx.engine.verdict import SolverFailureRule
+
     opts = {"method": "newton", "beta": 30.0, "fisher": "log", "options": {"max_iter": 1}}
     stopped = simulate(_scene(collision=opts))
     v = stopped.verdict
-    assert v["blowup"] and v["e_f"] and v["B_v"] and not v["B_x"]
-    assert v["T_b"] == pytest.approx(0.1) and stopped.t == 0.0 and len(stopped.diagnostics) == 1
+    assert v.stop is StopReason.NO_STEP and not v["blowup"] and v["e_f"] and not v["B_v"] and not v["B_x"]
+    assert v["T_b"] is None and stopped.t == 0.0 and len(stopped.diagnostics) == 1
     assert "collision solver failed" in v["reason"] and "MAX_ITERATIONS" in v["reason"]
+    # the rule itself, on a state two steps in
+    state = RunState(0.2, 2, np.ones(3), Grid.uniform(-1.0, 1.0, 3), None, None, None, [], Verdict())
+    assert SolverFailureRule(stop=True).record(state, ["MAX_ITERATIONS"], dt=0.1)
+    assert state.verdict.stop is StopReason.SOLVER_FAILURE and state.verdict.blowup and state.verdict.B_v
+    assert state.verdict.T_b == pytest.approx(0.3)
     going = simulate(_scene(collision=opts, stop={"eps_v": 0.0, "eps_x": 0.0, "on_solver_failure": False}))
     v = going.verdict
-    assert v["e_f"] and not v["blowup"] and not v["B_v"] and not v["B_x"]
+    assert v["e_f"] and not v["blowup"] and not v["B_v"] and not v["B_x"] and not v.certified
     assert going.t == pytest.approx(0.3) and v["reason"] == "reached t_end"
     assert (going.diagnostics.failed.iloc[1:] == 10).all()  # every slice of every step failed
+    assert v.uncertified_steps == 3 and v.first_uncertified_t == pytest.approx(0.1)
 
 
 def test_t_end_is_reached_exactly_with_a_shortened_last_step():
