@@ -175,6 +175,9 @@ def test_scene_time_order_2_homogeneous_is_the_richardson_run():
         "v.n": 61,
         "t_end": 0.2,
         "time.dt": 0.05,
+        # tol 1e-8 is the engine's; the fourth step's residual stalls at its rounding floor, measured
+        # 2.5e-9 to 1.8e-8 across OpenBLAS kernels, so certification at 1e-7 leaves room on any machine
+        "collision.options": {"kkt_tol": 1e-7},
     }
     for order in (1, 2):
         s = _scene({**homogeneous, "time.order": order})
@@ -182,7 +185,7 @@ def test_scene_time_order_2_homogeneous_is_the_richardson_run():
         f0 = run.snapshots[0]["f"]
         ref = evolve_fixed_grid(
             s.vgrid(), PowerKernel(s.gamma), f0, 0.05, 0.2, strength=s.strength, beta=s.collision.beta,
-            fisher=s.collision.problem_fisher, time_order=order, tol=1e-8,
+            fisher=s.collision.problem_fisher, time_order=order, tol=1e-8, kkt_tol=1e-7,
         )  # fmt: skip
         np.testing.assert_allclose(run.f, ref.f[-1], rtol=0, atol=1e-12 * ref.f[-1].max())
         assert s.time.order == order and run.t == pytest.approx(0.2)
