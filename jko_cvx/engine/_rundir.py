@@ -115,7 +115,7 @@ def _metadata(scene: Scene) -> dict[str, Any]:
 
 def read_snapshots(path: Path, last_step: int, ledger: Ledger | None = None) -> list[dict[str, Any]]:
     """The snapshot files in ``path/snapshots`` of steps ``<= last_step``, in step order, each checked
-    against ``ledger`` when given (a snapshot whose step or time is not its name's is refused too)."""
+    against ``ledger`` when given (a snapshot whose step is not its name's is refused too)."""
     found = []
     for p in (path / "snapshots").glob("step_*.npz"):
         m = _SNAPSHOT.fullmatch(p.name)
