@@ -110,8 +110,8 @@ class Ledger:
     ``metadata["digests"]`` maps each file's path relative to the directory to the digests it
     may have: one, or two while a write is under way (the new file's digest is recorded before
     the rename that puts it in place, so a run killed in between leaves a file the ledger still
-    accepts; once the rename is done the entry is settled to the new digest alone).  ``metadata.json`` itself is written atomically and is
-    not in the ledger.
+    accepts; once the rename is done the entry is settled to the new digest alone).
+    ``metadata.json`` itself is written atomically and is not in the ledger.
     """
 
     def __init__(self, root: Path, metadata: dict[str, Any]) -> None:
