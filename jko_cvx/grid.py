@@ -28,10 +28,15 @@ def _is_real(x: object) -> bool:
     return isinstance(x, Real) and not isinstance(x, (bool, np.bool_))
 
 
+MAX_POINTS = 10_000_000
+"""The most points a grid may have (80 MB of coordinates; a collision step on it is far beyond reach)."""
+
+
 def _check_count(name: str, n: object, minimum: int = 3) -> int:
-    """``n`` as an int ``>= minimum`` (an integral float such as 5.0 passes), else ``ValueError`` naming it."""
-    if not (_is_real(n) and float(n).is_integer() and n >= minimum):
-        raise ValueError(f"{name} must be an integer >= {minimum}, got {n!r}")
+    """``n`` as an int in ``[minimum, MAX_POINTS]`` (an integral float such as 5.0 passes), else ``ValueError``
+    naming it (``True`` is not a count)."""
+    if isinstance(n, bool) or not (_is_real(n) and float(n).is_integer() and minimum <= n <= MAX_POINTS):
+        raise ValueError(f"{name} must be an integer in [{minimum}, {MAX_POINTS}], got {n!r}")
     return int(n)
 
 

@@ -216,9 +216,28 @@ def scene_from_dict(d: Mapping[str, Any], limits: Limits | None = None) -> Scene
     )
     check_limits(scene, limits)  # before anything of the run's size is allocated
     f0 = scene.initial_density(scene.xgrid(), scene.vgrid())
+    _check_initial_density(scene, f0)
+    return scene
+
+
+def _check_initial_density(scene: Scene, f0: np.ndarray) -> None:
+    """Refuse, before any file is written, an f0 that makes the first collision step fail from the data alone."""
     if not (np.all(np.isfinite(f0)) and f0.max() > 0):
         raise SceneError("initial: f0 is zero or not finite on the grid (check its parameters against v.L and x.L)")
-    return scene
+    tiny = np.finfo(float).tiny
+    if f0.max() < tiny:
+        raise SceneError(
+            f"initial: max f0 = {f0.max():.3g} is below the smallest normal float ({tiny:.3g}): the density "
+            "underflows; scale initial.amplitudes up (the equation is invariant under mass scaling with time)"
+        )
+    # homogeneous only: with an x-grid the transport's floor makes every f* positive before a collision
+    if scene.collision.fisher == "log" and scene.homogeneous and f0.min() <= 0:
+        zeros = int(np.sum(f0 <= 0))
+        raise SceneError(
+            f"initial: with collision.fisher = 'log' f0 must be > 0 at every grid point (the log Fisher term is "
+            f"undefined at 0), but it is 0 at {zeros} of {f0.size} points (exp underflow): widen the bumps "
+            "(smaller initial.rates / initial.a, initial.b) or use collision.fisher = 'perspective'"
+        )
 
 
 def _parse_initial(data: Any, has_x: bool) -> Initial:

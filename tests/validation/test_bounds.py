@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from jko_cvx import CollisionProblem, Grid, PowerKernel, Status, solve_collision
+from jko_cvx import CollisionProblem, Grid, PeriodicGrid, PowerKernel, Status, solve_collision
 from jko_cvx.scene.model import SceneError, scene_from_dict
 
 G = Grid.uniform(-2.0, 2.0, 21)
@@ -64,10 +64,16 @@ def test_grid_and_kernel_bounds():
     assert Grid([0.0, 0.5, 1.0]).n == 3 and Grid.uniform(-1, 1, 3).n == 3
     with pytest.raises(ValueError, match="at least 3"):
         Grid([0.0, 1.0])
-    with pytest.raises(ValueError, match="n must be an integer >= 3"):
+    with pytest.raises(ValueError, match=r"n must be an integer in \[3, 10000000\]"):
         Grid.uniform(-1, 1, 2)
-    with pytest.raises(ValueError, match="n must be an integer >= 3"):
+    with pytest.raises(ValueError, match=r"n must be an integer in \[3, 10000000\]"):
         Grid.uniform(-1, 1, 3.5)
+    # the size is checked before any work (10**9 points would allocate 8 GB), and True is no count
+    for n in (10_000_001, 10**9, True):
+        with pytest.raises(ValueError, match=r"n must be an integer in \[3, 10000000\], got"):
+            Grid.uniform(-1, 1, n)
+        with pytest.raises(ValueError, match=r"n must be an integer in \[3, 10000000\], got"):
+            PeriodicGrid.uniform(1.0, n)
     with pytest.raises(ValueError, match="a must be smaller than b"):
         Grid.uniform(1.0, 1.0, 5)
     with pytest.raises(ValueError, match="strictly increasing"):

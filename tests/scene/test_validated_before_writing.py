@@ -1,0 +1,54 @@
+"""What makes the first step fail from the scene's data alone is refused at load, naming the key,
+before any file is written."""
+
+import pytest
+
+from jko_cvx.cli import main
+from jko_cvx.engine.loop import simulate
+from jko_cvx.scene import SceneError, scene_from_dict, with_overrides
+
+BASE = {
+    "name": "base",
+    "gamma": 1.0,
+    "t_end": 0.02,
+    "v": {"L": 2.0, "n": 41},
+    "initial": {"kind": "gaussians", "amplitudes": [1.0], "rates": [2.0], "centres": [0.0]},
+    "time": {"dt": 0.01},
+    "collision": {"beta": 100.0, "fisher": "log"},
+}
+
+
+@pytest.mark.parametrize(
+    "overrides, message",
+    [
+        ({"initial.rates": [1e6]}, r"collision\.fisher = 'log' f0 must be > 0 at every grid point .* 0 at 40 of 41"),
+        ({"initial.rates": [400.0]}, r"collision\.fisher = 'log' f0 must be > 0"),
+        ({"initial.amplitudes": [1e-320]}, r"initial: max f0 = .* below the smallest normal float"),
+    ],
+)
+def test_a_first_step_that_must_fail_is_refused_at_load(tmp_path, overrides, message):
+    doc = with_overrides(BASE, overrides)
+    with pytest.raises(SceneError, match=message):
+        scene_from_dict(doc)
+    # the same through the CLI: exit 2, the message, and no run directory
+    toml = tmp_path / "s.toml"
+    lines = [
+        'name = "s"', "gamma = 1.0", "t_end = 0.02",
+        "[v]", "L = 2.0", "n = 41",
+        "[initial]", 'kind = "gaussians"',
+        f"amplitudes = {doc['initial']['amplitudes']}", f"rates = {doc['initial']['rates']}", "centres = [0.0]",
+        "[time]", "dt = 0.01", "[collision]", "beta = 100.0", 'fisher = "log"',
+    ]  # fmt: skip
+    toml.write_text("\n".join(lines) + "\n")
+    assert main(["run", str(toml), "--out", str(tmp_path / "run"), "--quiet"]) == 2
+    assert not (tmp_path / "run").exists()
+
+
+def test_the_same_data_with_the_perspective_form_is_not_refused():
+    """Zeros are admissible where the Fisher term is the perspective cone (or absent): the conic
+    reference steps from them (Newton's barrier-free start cannot, and says so in its status)."""
+    for fisher in ("perspective", "none"):
+        scene_from_dict(with_overrides(BASE, {"initial.rates": [400.0], "collision.fisher": fisher}))
+    conic = {"initial.rates": [400.0], "collision.fisher": "perspective", "collision.method": "conic"}
+    run = simulate(scene_from_dict(with_overrides(BASE, conic)))
+    assert run.verdict.certified and run.steps == 2 and not run.diagnostics.failed.any()
