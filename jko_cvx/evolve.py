@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from jko_cvx._numbers import real_array
 from jko_cvx.collision import CollisionProblem, CollisionResult, solve_collision
 from jko_cvx.collision._checks import check_bool
 from jko_cvx.grid import Grid
@@ -133,10 +134,7 @@ def _check_evolve_args(grid, kernel, f0, dt, t_end, strength, beta, fisher, time
         raise ValueError(f"t_end must be a finite number > 0, got {t_end!r}")
     if time_order not in (1, 2) or isinstance(time_order, bool):
         raise ValueError(f"time_order must be 1 or 2, got {time_order!r}")
-    try:
-        f = np.asarray(f0, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise TypeError(f"f0 must be an array of real numbers, got {type(f0).__name__}") from exc
+    f = real_array("f0", f0)
     if isinstance(grid, Grid) and f.shape != (grid.n,):
         raise ValueError(f"f0 must have shape ({grid.n},) (one value per grid point), got {f.shape}")
     # Validate everything (grid, f0, dt, ...) once, before the loop; the problem's own

@@ -15,17 +15,14 @@ diagnostics); DESIGN.md asks for one consistent choice and this is it.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from numbers import Real
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from jko_cvx._numbers import is_real, real_array, real_scalar
+
 __all__ = ["Grid", "PeriodicGrid"]
 
-
-def _is_real(x: object) -> bool:
-    """A real number (Python or NumPy), not a bool or a string that float() would parse."""
-    return isinstance(x, Real) and not isinstance(x, (bool, np.bool_))
 
 
 MAX_POINTS = 10_000_000
@@ -35,7 +32,7 @@ MAX_POINTS = 10_000_000
 def _check_count(name: str, n: object, minimum: int = 3) -> int:
     """``n`` as an int in ``[minimum, MAX_POINTS]`` (an integral float such as 5.0 passes), else ``ValueError``
     naming it (``True`` is not a count)."""
-    if isinstance(n, bool) or not (_is_real(n) and float(n).is_integer() and minimum <= n <= MAX_POINTS):
+    if isinstance(n, bool) or not (is_real(n) and float(n).is_integer() and minimum <= n <= MAX_POINTS):
         raise ValueError(f"{name} must be an integer in [{minimum}, {MAX_POINTS}], got {n!r}")
     return int(n)
 
@@ -70,10 +67,7 @@ class Grid:
     h: NDArray[np.float64] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
-        try:
-            pts = np.array(self.points, dtype=float, copy=True)
-        except (TypeError, ValueError) as exc:
-            raise TypeError(f"points must be a 1-D array of real numbers, got {self.points!r}") from exc
+        pts = real_array("points", self.points)
         if pts.ndim != 1:
             raise ValueError(f"points must be one-dimensional, got shape {pts.shape}")
         if pts.size < 3:
@@ -106,7 +100,7 @@ class Grid:
         ValueError
             If ``a >= b``, either end is not finite, or ``n < 3``.
         """
-        if not (_is_real(a) and _is_real(b) and np.isfinite(a) and np.isfinite(b)):
+        if not (is_real(a) and is_real(b) and np.isfinite(a) and np.isfinite(b)):
             raise ValueError(f"a and b must be finite, got a={a!r}, b={b!r}")
         if not a < b:
             raise ValueError(f"a must be smaller than b, got a={a!r}, b={b!r}")
@@ -163,12 +157,12 @@ class PeriodicGrid:
     h: NDArray[np.float64] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
-        pts = np.array(self.points, dtype=float, copy=True)
+        pts = real_array("points", self.points)
         if pts.ndim != 1 or pts.size < 3:
             raise ValueError(f"points must be one-dimensional with at least 3 entries, got shape {pts.shape}")
         if not np.all(np.isfinite(pts)) or not np.all(np.diff(pts) > 0):
             raise ValueError("points must be finite and strictly increasing")
-        P = float(self.period)
+        P = real_scalar("period", self.period)
         if not (np.isfinite(P) and pts[-1] - pts[0] < P):
             raise ValueError(
                 f"period must be finite and exceed points[-1] - points[0] = {pts[-1] - pts[0]!r}, got {P!r}"
@@ -184,7 +178,7 @@ class PeriodicGrid:
     @classmethod
     def uniform(cls, half_width: float, n: int) -> PeriodicGrid:
         """``n`` cell-centred points on ``[-L, L)``: :math:`x_i = -L + (i + 1/2)\\,2L/n`."""
-        if not (_is_real(half_width) and np.isfinite(half_width) and half_width > 0):
+        if not (is_real(half_width) and np.isfinite(half_width) and half_width > 0):
             raise ValueError(f"half_width must be a finite number > 0, got {half_width!r}")
         n = _check_count("n", n)
         dx = 2 * half_width / n

@@ -32,6 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from jko_cvx._numbers import real_scalar
 from jko_cvx.grid import Grid
 
 __all__ = ["DenseEnergy", "EnergyOperator", "EnergySplit", "LowRankEnergy", "PowerKernel"]
@@ -290,10 +291,7 @@ class PowerKernel:
     gamma: float
 
     def __post_init__(self) -> None:
-        try:
-            g = float(self.gamma)
-        except (TypeError, ValueError) as exc:
-            raise TypeError(f"gamma must be a real number, got {self.gamma!r}") from exc
+        g = real_scalar("gamma", self.gamma)
         if not np.isfinite(g) or g <= 0:
             raise ValueError(f"gamma must be a finite number > 0, got {self.gamma!r}")
         object.__setattr__(self, "gamma", g)

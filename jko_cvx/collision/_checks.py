@@ -6,6 +6,7 @@ numbers, and only ``True``/``False`` are booleans (``check_convexity="no"`` is r
 
 from __future__ import annotations
 
+import inspect
 from collections.abc import Callable
 from numbers import Integral, Real
 from typing import Any
@@ -36,10 +37,25 @@ def check_bool(name: str, value: object) -> bool:
     return bool(value)
 
 
-def check_callable(name: str, value: object) -> Callable[..., Any] | None:
-    """``value`` if it is None or callable, else ``TypeError`` naming ``name``."""
+def check_callable(name: str, value: object, signature: str | None = None) -> Callable[..., Any] | None:
+    """``value`` if it is None or callable, else ``TypeError`` naming ``name``.
+
+    With ``signature`` (``"callback(l, f, m, zeta)"``), the callable must accept that many
+    positional arguments: a wrong signature is refused here, naming the option and the
+    expected call, not by Python's own ``TypeError`` in the middle of a solve.
+    """
     if value is not None and not callable(value):
         raise TypeError(f"{name} must be None or a callable, got {value!r}")
+    if value is not None and signature is not None:
+        nargs = signature.count(",") + 1
+        try:
+            inspect.signature(value).bind(*range(nargs))
+        except TypeError as exc:
+            raise TypeError(
+                f"{name} is called as {signature}; {value!r} cannot take those {nargs} arguments ({exc})"
+            ) from None
+        except ValueError:  # no signature to inspect (some builtins): let the call decide
+            pass
     return value  # type: ignore[return-value]
 
 

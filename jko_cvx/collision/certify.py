@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from jko_cvx._numbers import real_array
 from jko_cvx.collision._checks import check_bool, check_unit
 from jko_cvx.collision.problem import CollisionProblem, KKTResidual
 from jko_cvx.collision.result import Status
@@ -103,8 +104,8 @@ def certify(
     """
     kkt_tol = check_unit("kkt_tol", kkt_tol)
     check_convexity = check_bool("check_convexity", check_convexity)
-    f = np.asarray(f, dtype=float)
-    m = np.asarray(m, dtype=float)
+    f = real_array("f", f)
+    m = real_array("m", m)
     with np.errstate(all="ignore"):
         if residual is None:
             kkt = problem.kkt_residual(f, m) if kkt is None else kkt

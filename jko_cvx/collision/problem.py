@@ -75,6 +75,7 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import ArrayLike, NDArray
 
+from jko_cvx._numbers import real_array, real_scalar
 from jko_cvx.collision._linalg import divergence, divergence_adjoint, solve_sym_tridiagonal
 from jko_cvx.collision.terms import FISHER_TERMS, reduced_bands, wasserstein_derivatives, wasserstein_value
 from jko_cvx.grid import Grid
@@ -115,10 +116,7 @@ class TermParts:
 
 
 def _check_positive_finite(name: str, value: object, allow_inf: bool = False) -> float:
-    try:
-        x = float(value)  # type: ignore[arg-type]
-    except (TypeError, ValueError) as exc:
-        raise TypeError(f"{name} must be a real number, got {value!r}") from exc
+    x = real_scalar(name, value)
     if np.isnan(x) or x <= 0 or (np.isinf(x) and not allow_inf):
         rng = "(0, inf]" if allow_inf else "(0, inf)"
         raise ValueError(f"{name} must lie in {rng}, got {value!r}")
@@ -227,10 +225,7 @@ class CollisionProblem:
 
     # ------------------------------------------------------------------ basics
     def _validate_density(self, f_star: ArrayLike) -> NDArray[np.float64]:
-        try:
-            f = np.array(f_star, dtype=float)
-        except (TypeError, ValueError) as exc:
-            raise TypeError(f"f_star must be an array of real numbers, got {type(f_star).__name__}") from exc
+        f = real_array("f_star", f_star)
         if f.ndim not in (1, 2) or f.shape[-1] != self.grid.n:
             raise ValueError(
                 f"f_star must have shape ({self.grid.n},) or (B, {self.grid.n}) to match the grid, got {f.shape}"

@@ -60,6 +60,7 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 from scipy.linalg import lapack
 
+from jko_cvx.collision._checks import check_callable
 from jko_cvx.collision._linalg import divergence, divergence_adjoint, solve_sym_tridiagonal
 from jko_cvx.collision.certify import certify
 from jko_cvx.collision.options import Options, Spec, option
@@ -324,6 +325,11 @@ class _OsqpStep:
 _UNIT = Spec("float", lo=0.0, hi=1.0, lo_open=True, hi_open=True)
 
 
+def _check_callback(label: str, value: object) -> Any:
+    """The SQP's callback is called once per iteration with four positional arguments."""
+    return check_callable(label, value, signature="callback(l, f, m, zeta)")
+
+
 @dataclass(frozen=True)
 class SqpOptions(Options):
     """The options of :func:`solve_sqp`, checked once on construction (see its docstring for each).
@@ -340,7 +346,7 @@ class SqpOptions(Options):
     qp: str = option("banded", Spec("str", choices=("banded", "osqp")))
     floor: float | None = option(None, Spec("float", lo=0.0))
     check_convexity: bool = option(True, Spec("bool"))
-    callback: Callable[..., Any] | None = option(None, Spec("callable", scene=False))
+    callback: Callable[..., Any] | None = option(None, Spec("callable", scene=False, check_with=_check_callback))
     safeguard: str = option("floor", Spec("str", choices=SAFEGUARDS))
 
 
