@@ -34,7 +34,7 @@ def test_numpy_numbers_and_zero_dimensional_arrays_are_numbers():
 
 @pytest.mark.parametrize("gamma", [True, "1", 1j, None])
 def test_kernel_exponent_must_be_real(gamma):
-    with pytest.raises(TypeError, match="^gamma must be a real number"):
+    with pytest.raises(TypeError, match=r"^gamma must be a real number"):
         PowerKernel(gamma)
 
 
@@ -63,20 +63,20 @@ def test_integer_arrays_and_lists_are_real():
 
 
 def test_grid_points_must_be_real():
-    with pytest.raises(TypeError, match="^points must be .*dtype complex"):
+    with pytest.raises(TypeError, match=r"^points must be .*dtype complex"):
         Grid(np.linspace(0, 1, 5) + 0j)
-    with pytest.raises(TypeError, match="^points must be .*masked"):
+    with pytest.raises(TypeError, match=r"^points must be .*masked"):
         Grid(np.ma.masked_array(np.linspace(0, 1, 5)))
-    with pytest.raises(TypeError, match="^points must be .*dtype bool"):
+    with pytest.raises(TypeError, match=r"^points must be .*dtype bool"):
         Grid(np.array([False, True, True]))
-    with pytest.raises(TypeError, match="^period must be a real number"):
+    with pytest.raises(TypeError, match=r"^period must be a real number"):
         PeriodicGrid(np.linspace(0, 1, 5), "2")
 
 
 def test_certify_refuses_complex_iterates():
     prob = CollisionProblem(GRID, K, F, dt=0.01, beta=10.0)
     res = solve_collision(prob, "newton")
-    with pytest.raises(TypeError, match="^f must be .*complex"):
+    with pytest.raises(TypeError, match=r"^f must be .*complex"):
         certify(prob, res.f + 0j, res.m, kkt_tol=1e-8)
 
 
