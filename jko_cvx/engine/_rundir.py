@@ -338,7 +338,7 @@ class RunDir:
                     diff = "scene.json records it as flat fields (v_n, dt, ...), the layout of an earlier jko_cvx"
                 else:
                     diff = "; ".join(scene_differences(old, json.loads(canonical_scene(self.scene))))
-            except (OSError, ValueError) as exc:
+            except (OSError, ValueError, RecursionError) as exc:
                 diff = f"the keys cannot be named: scene.json does not read ({exc})"
             raise RunDirError(
                 f"cannot resume {self.path}: the scene is not the one its checkpoint was made from ({diff}); "

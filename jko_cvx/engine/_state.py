@@ -131,7 +131,7 @@ class Ledger:
             metadata = json.loads(path.read_text())
         except FileNotFoundError:
             raise RunDirError(f"{path} does not exist: {root} holds no run this jko_cvx wrote") from None
-        except (OSError, ValueError) as exc:
+        except (OSError, ValueError, RecursionError) as exc:
             raise RunDirError(f"{path} does not read ({type(exc).__name__}: {exc})") from None
         digests = metadata.get("digests") if isinstance(metadata, dict) else None
         if not isinstance(digests, dict) or not all(
@@ -194,7 +194,8 @@ class Ledger:
 
 
 # what a damaged .npz raises while it is opened or read
-_READ_ERRORS = (OSError, EOFError, KeyError, ValueError, TypeError, zipfile.BadZipFile, json.JSONDecodeError)
+# RecursionError: json.loads of a document nested thousands deep
+_READ_ERRORS = (OSError, EOFError, KeyError, ValueError, TypeError, RecursionError, zipfile.BadZipFile)
 
 
 def read_npz(path: Path, what: str, keys: tuple[str, ...]) -> dict[str, np.ndarray]:

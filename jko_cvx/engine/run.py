@@ -217,7 +217,7 @@ def load_run(path: str | Path, *, allow_partial: bool = False) -> Run:
     ledger = Ledger.read(path)
     try:
         record = json.loads((path / "scene.json").read_text())
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError, RecursionError) as exc:
         raise RunDirError(f"{path / 'scene.json'} does not read ({type(exc).__name__}: {exc})") from None
     ck = path / "checkpoint.npz"
     fingerprint = str(read_npz(ck, "checkpoint", ("scene_sha256",))["scene_sha256"])
@@ -232,7 +232,7 @@ def load_run(path: str | Path, *, allow_partial: bool = False) -> Run:
     if verdict_file.exists():
         try:
             json.loads(verdict_file.read_text())["stop"]
-        except (OSError, ValueError, KeyError, TypeError) as exc:
+        except (OSError, ValueError, KeyError, TypeError, RecursionError) as exc:
             raise RunDirError(f"{verdict_file} does not read ({type(exc).__name__}: {exc})") from None
     elif not allow_partial:
         raise RunDirError(

@@ -326,19 +326,39 @@ def with_overrides(data: Mapping[str, Any], overrides: Mapping[str, Any] | None)
     return out
 
 
+MAX_SCENE_BYTES = 1 << 20
+"""The largest scene file read (1 MiB; the shipped scenes are under 4 kB)."""
+
+
 def _read_toml(path: Path) -> dict[str, Any]:
     if path.is_dir():
         raise SceneError(f"scene path {str(path)!r} is a directory, not a TOML file")
     try:
         with path.open("rb") as fh:
-            return tomllib.load(fh)
+            raw = fh.read(MAX_SCENE_BYTES + 1)
     except FileNotFoundError:
         hint = f" (shipped scenes: {', '.join(shipped_scene_names())})" if path.suffix != ".toml" else ""
         raise SceneError(f"scene file not found: {str(path)!r}{hint}") from None
     except OSError as exc:
         raise SceneError(f"cannot read scene file {str(path)!r}: {exc.strerror or exc}") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise SceneError(f"scene file {str(path)!r} is not valid TOML: {exc}") from None
+    if len(raw) > MAX_SCENE_BYTES:
+        raise SceneError(f"scene file {str(path)!r} is larger than {MAX_SCENE_BYTES} bytes: not a scene")
+    try:
+        # a UTF-8 byte-order mark (some editors write one) is not part of the TOML document
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise SceneError(f"scene file {str(path)!r} is not UTF-8 text: {exc.reason} at byte {exc.start}") from None
+    return parse_toml(text, repr(str(path)))
+
+
+def parse_toml(text: str, source: str = "scene") -> dict[str, Any]:
+    """The TOML document ``text`` as a dict; any syntax error is a :class:`SceneError` naming ``source``."""
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneError(f"scene file {source} is not valid TOML: {exc}") from None
+    except RecursionError:  # tomllib parses nested arrays and inline tables recursively
+        raise SceneError(f"scene file {source} is not a scene: its arrays or tables are nested too deeply") from None
 
 
 def load_scene(path: str | Path, overrides: Mapping[str, Any] | None = None, limits: Limits | None = None) -> Scene:

@@ -199,6 +199,11 @@ _NONNEG = Rule(_FLOAT, lo=0.0)
 REAL = Rule(_FLOAT)
 _FRAC = Rule(_FLOAT, lo=0.0, hi=1.0, lo_open=True, hi_open=True)
 _NPTS = Rule("int", lo=3)
+# squares of velocities and of grid spacings (the Wasserstein term, the mesh maps) must stay
+# normal floats: |v|^2 below 1.8e308 and dv^2 above 2.2e-308
+_HALF_WIDTH = Rule(
+    _FLOAT, lo=1e-150, hi=1e150, text="a number in [1e-150, 1e150] (squared lengths must stay floating-point)"
+)
 _BOOL = Rule("bool")
 _EVERY = Rule("int", lo=1)
 _TABLE = Rule("table")
@@ -221,7 +226,7 @@ class Table:
 class VTable(Table):
     """``[v]``: the velocity grid [-L, L] with n points."""
 
-    L: float = key(POSITIVE)
+    L: float = key(_HALF_WIDTH)
     n: int = key(_NPTS)
     floor_every_step: bool = key(_BOOL, False)
 
@@ -230,7 +235,7 @@ class VTable(Table):
 class XTable(Table):
     """``[x]``: the periodic space grid [-L, L) with n points; optional (homogeneous without it)."""
 
-    L: float = key(POSITIVE)
+    L: float = key(_HALF_WIDTH)
     n: int = key(_NPTS)
     conserve_moment: bool = key(_BOOL, True)
 

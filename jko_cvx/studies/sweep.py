@@ -161,7 +161,7 @@ def _read_entry(path: Path, key: str, point: Mapping[str, Any]) -> dict | None:
             if entry.get("digest") != _sha(_canonical(body))
             else None
         )
-    except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError) as exc:
+    except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError, RecursionError) as exc:
         problem = f"does not parse ({type(exc).__name__}: {exc})"
     if problem is None:
         return entry["result"]
@@ -182,7 +182,7 @@ def cached_entries(cache_dir: str | Path) -> list[tuple[dict, dict]]:
         try:
             entry = json.loads(path.read_text())
             body = {k: entry[k] for k in ("key", "point", "result")}
-        except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError) as exc:
+        except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError, RecursionError) as exc:
             raise ValueError(f"cache entry {path} does not parse ({type(exc).__name__}: {exc})") from None
         if entry.get("digest") != _sha(_canonical(body)):
             raise ValueError(f"cache entry {path} fails its digest: refusing to report from it")

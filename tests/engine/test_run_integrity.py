@@ -216,3 +216,10 @@ def test_run_files_follow_the_umask(tmp_path, umask):
         os.umask(old)
     modes = {p.name: p.stat().st_mode & 0o777 for p in (tmp_path / "run").rglob("*") if p.is_file()}
     assert set(modes.values()) == {0o666 & ~umask}, modes
+
+
+@pytest.mark.parametrize("name", ["metadata.json", "scene.json", "verdict.json"])
+def test_a_json_file_nested_thousands_deep_is_a_run_dir_error(run_dir, name):
+    (run_dir / name).write_text("[" * 100_000 + "]" * 100_000)
+    with pytest.raises(RunDirError, match=name.replace(".", r"\.")):
+        load_run(run_dir)

@@ -337,7 +337,7 @@ def test_a_directory_or_missing_file_as_the_scene_is_named(tmp_path):
     with pytest.raises(SceneError, match=r"bad\.toml' is not valid TOML"):
         load_scene(bad)
     bad.write_bytes(b"\xff\xfe gamma = 1\n")
-    with pytest.raises(SceneError, match=r"bad\.toml' is not valid TOML"):
+    with pytest.raises(SceneError, match=r"bad\.toml' is not UTF-8 text"):
         load_scene(bad)
 
 
