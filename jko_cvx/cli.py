@@ -59,7 +59,16 @@ def _run_scene(scene_path: Path | None, out: Path | None, resume: bool, overwrit
         )
         return 130
     wall = time.perf_counter() - t0
-    save_figures(run, out)
+    try:
+        save_figures(run, out)
+    except KeyboardInterrupt:  # the run itself is complete and on disk; only figures are missing
+        cmd = ["jko-cvx", "run", *([] if scene_path is None else [str(scene_path)]), "--out", str(out), "--resume"]
+        print(
+            f"\njko-cvx: interrupted while drawing the figures; the run in {out} is complete "
+            f"(verdict.json written: {run.summary()}).\nRedraw the figures with:\n  {shlex.join(cmd)}",
+            file=sys.stderr,
+        )
+        return 130
     print(f"jko-cvx {__version__}: {scene.name} -- {scene.description}")
     print(f"  {run.summary()}")
     print(
@@ -220,6 +229,19 @@ def _sweep_arguments(parser: argparse.ArgumentParser, out: str, executor: str, q
 
 
 def main(argv: list[str] | None = None) -> int:
+    """The ``jko-cvx`` command: 0 on success, 2 on bad input, 130 when interrupted (SIGINT)."""
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:  # SIGINT outside a run's own handling: while loading, in a study, a table
+        print(
+            "\njko-cvx: interrupted; run the same command again (reproductions and studies reuse the points "
+            "already cached in their output directory)",
+            file=sys.stderr,
+        )
+        return 130
+
+
+def _main(argv: list[str] | None) -> int:
     parser = argparse.ArgumentParser(prog="jko-cvx", description=__doc__.split("\n")[0])
     parser.add_argument("--version", action="version", version=f"jko-cvx {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)

@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from jko_cvx.engine._state import atomic_write
 from jko_cvx.engine.verdict import StopReason
 
 if TYPE_CHECKING:
@@ -142,5 +143,6 @@ def save_figures(run: Run, out: str | Path, dpi: int = 110) -> list[Path]:
     plot_records(run, ax=rec.subplots())
     paths = [Path(out) / "solution.png", Path(out) / "records.png"]
     for fig, path in zip((sol, rec), paths, strict=True):
-        fig.savefig(path, dpi=dpi)
+        # a figure interrupted mid-write must not be left as a truncated PNG
+        atomic_write(path, lambda tmp, fig=fig: fig.savefig(tmp, dpi=dpi, format="png"))
     return paths

@@ -58,7 +58,10 @@ def test_bad_bytes_are_a_scene_error_naming_the_file(tmp_path, content, message)
 @pytest.mark.parametrize("table", ["v", "x"])
 @pytest.mark.parametrize("half_width", [1e308, 1e151, 1e-200])
 def test_a_half_width_whose_square_leaves_the_float_range_is_named(tmp_path, table, half_width):
-    text = TEXT.replace("L = 2.0", f"L = {half_width!r}") if table == "v" else TEXT + f"\n[x]\nL = {half_width!r}\nn = 8\n"
+    if table == "v":
+        text = TEXT.replace("L = 2.0", f"L = {half_width!r}")
+    else:
+        text = TEXT + f"\n[x]\nL = {half_width!r}\nn = 8\n"
     path = tmp_path / "s.toml"
     path.write_text(text)
     with pytest.raises(SceneError, match=rf"^{table}\.L must be a number in \[1e-150, 1e150\]"):
