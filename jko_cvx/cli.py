@@ -155,7 +155,12 @@ def _reproduce(args) -> int:
         func = reproduce_section
     else:
         func = REPRODUCTIONS[entry]
-    return _run_named("reproduce", func, args, progress_kw={"progress": True, "fresh": args.fresh})
+    opts = {"progress": True, "fresh": args.fresh}
+    if args.audit:
+        if args.fresh:
+            raise ValueError("--audit K checks cached points against recomputed ones; --fresh ignores the cache")
+        opts["audit"] = args.audit
+    return _run_named("reproduce", func, args, progress_kw=opts)
 
 
 def _run_named(command: str, func, args, progress_kw: dict) -> int:
@@ -277,6 +282,13 @@ def _main(argv: list[str] | None) -> int:
     )
     _sweep_arguments(p_rep, "results/reproduce", "process", "a reduced version (under 2 minutes)")
     p_rep.add_argument("--fresh", action="store_true", help="ignore the sweep cache: recompute every point")
+    p_rep.add_argument(
+        "--audit",
+        type=_at_least(0),
+        default=0,
+        metavar="K",
+        help="recompute K randomly chosen cached points and compare them with the cache bit for bit",
+    )
     from jko_cvx.studies.solvers import STUDIES
 
     p_std = sub.add_parser("study", help="a solver study: work-precision (also vs the FV peer), cost growth, extremes")

@@ -25,6 +25,13 @@ a SHA-256 digest of its content; an entry that does not parse, records another k
 point, or fails its digest (truncated, tampered with) is recomputed with a
 :class:`StaleCacheWarning` naming the file.  ``fresh=True`` (``jko-cvx reproduce --fresh``)
 ignores the cache and recomputes every point.
+
+Digests catch accidents (a truncated write, an edited file, an entry of older code); they do
+not stop a deliberate forgery, whose author can recompute the digest too.  For that,
+``audit=K`` (``jko-cvx reproduce NAME --audit K``) recomputes K randomly chosen cached points
+and compares each result with its entry bit for bit (measured wall times excepted:
+:data:`TIMING_KEY`); any mismatch raises :class:`CacheAuditError` naming the files and the
+keys that differ, and nothing is served.
 """
 
 from __future__ import annotations
@@ -34,6 +41,9 @@ import hashlib
 import inspect
 import json
 import os
+import random
+import re
+import secrets
 import sys
 import tempfile
 import threading
@@ -47,6 +57,8 @@ from typing import Any
 import pandas as pd
 
 __all__ = [
+    "TIMING_KEY",
+    "CacheAuditError",
     "StaleCacheWarning",
     "cached_entries",
     "code_identity",
@@ -55,6 +67,14 @@ __all__ = [
     "run_sweep",
     "shared_points",
 ]
+
+
+TIMING_KEY = re.compile(r"seconds|wall|speed-up|.+_s|.+_seconds")
+"""Result keys that hold a measured wall time (or a ratio of two): an audit does not compare them."""
+
+
+class CacheAuditError(ValueError):
+    """A cached result that recomputing its point does not reproduce (see ``run_sweep(audit=...)``)."""
 
 
 class StaleCacheWarning(UserWarning):
@@ -301,6 +321,8 @@ def run_sweep(
     progress: bool = True,
     desc: str = "sweep",
     fresh: bool = False,
+    audit: int = 0,
+    audit_seed: int | None = None,
 ) -> pd.DataFrame:
     """Evaluate ``func(**point)`` at every point, reusing cached results; one row per point.
 
@@ -324,6 +346,13 @@ def run_sweep(
         Label of the progress bar.
     fresh : bool, default False
         Ignore the cache: compute every point and overwrite its entry.
+    audit : int, default 0
+        Recompute this many randomly chosen cached points (all of them if fewer) and compare
+        their results with the cache bit for bit, keys matching :data:`TIMING_KEY` excepted;
+        a mismatch raises :class:`CacheAuditError` and no table is returned.  A line on
+        stderr reports what was audited and the seed.
+    audit_seed : int, optional
+        Seed of the choice of audited points (default: a fresh random seed, reported).
 
     Returns
     -------
@@ -340,12 +369,20 @@ def run_sweep(
         raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
     if not isinstance(fresh, bool):
         raise TypeError(f"fresh must be a bool, got {fresh!r}")
+    if isinstance(audit, bool) or not isinstance(audit, int) or audit < 0:
+        raise ValueError(f"audit must be an integer >= 0 (cached points to recompute), got {audit!r}")
+    if audit_seed is not None and (isinstance(audit_seed, bool) or not isinstance(audit_seed, int)):
+        raise TypeError(f"audit_seed must be None or an integer, got {audit_seed!r}")
     keys = [point_key(func, p) for p in points]
     cache = Path(cache_dir)
     cache.mkdir(parents=True, exist_ok=True)
     results = {} if fresh else _read_cache(cache, dict(zip(keys, points, strict=True)))
     cached = set(results)
     todo = {k: p for k, p in zip(keys, points, strict=True) if k not in results}
+    seed = secrets.randbits(32) if audit_seed is None else audit_seed
+    audited = random.Random(seed).sample(sorted(cached), min(audit, len(cached))) if audit else []
+    recomputed: dict[str, dict] = {}
+    points_by_key = dict(zip(keys, points, strict=True))
 
     bar = None
     if progress:
@@ -356,27 +393,57 @@ def run_sweep(
     def store(key: str, result: dict) -> None:
         if not isinstance(result, dict):
             raise TypeError(f"{func.__qualname__} must return a dict, got {type(result).__name__}")
+        if key in cached:  # an audited point: compared, never written over its entry
+            recomputed[key] = result
+            return
         _write_atomic(cache / f"{key}.json", _entry(key, todo[key], result))
         results[key] = result
         if bar is not None:
             bar.update(1)
 
+    work = {**todo, **{k: points_by_key[k] for k in audited}}
     try:
-        if todo and (executor == "serial" and scheduler is None):
-            for key, point in todo.items():
+        if work and (executor == "serial" and scheduler is None):
+            for key, point in work.items():
                 store(key, _call(func, point))
-        elif todo:
+        elif work:
             with ExitStack() as stack:
                 pool = _open_executor(stack, executor, scheduler, workers)
-                futures: dict[Future, str] = {_submit(pool, func, k, p): k for k, p in todo.items()}
+                futures: dict[Future, str] = {_submit(pool, func, k, p): k for k, p in work.items()}
                 with _lock_released():  # other holders of a shared pool run meanwhile (holding)
                     for fut in as_completed(futures):
                         store(futures[fut], fut.result())
     finally:
         if bar is not None:
             bar.close()
+    if audit:
+        _check_audit(cache, results, recomputed, audited, len(cached), seed)
     rows = [{**p, **results[k], "cached": k in cached} for k, p in zip(keys, points, strict=True)]
     return pd.DataFrame(rows)
+
+
+def _check_audit(
+    cache: Path, results: dict[str, dict], recomputed: dict[str, dict], audited: list[str], n_cached: int, seed: int
+) -> None:
+    """Compare the recomputed results of the audited keys with their cache entries; raise on any difference."""
+    bad = []
+    for key in audited:
+        old, new = results[key], recomputed[key]
+        names = sorted(set(old) | set(new))
+        differ = [n for n in names if not TIMING_KEY.fullmatch(n) and _canonical(old.get(n)) != _canonical(new.get(n))]
+        if differ:
+            shown = ", ".join(f"{n}: cached {old.get(n)!r}, recomputed {new.get(n)!r}" for n in differ[:3])
+            bad.append(f"{cache / (key + '.json')} ({shown}{', ...' if len(differ) > 3 else ''})")
+    if bad:
+        raise CacheAuditError(
+            f"audit of {cache}: {len(bad)} of {len(audited)} recomputed points differ from the cache "
+            f"(seed {seed}): " + "; ".join(bad) + ". Refusing to report from it; rerun with fresh=True (--fresh)"
+        )
+    print(
+        f"audit of {cache}: {len(audited)} of {n_cached} cached points recomputed, identical bit for bit "
+        f"(wall times excepted; seed {seed})",
+        file=sys.stderr,
+    )
 
 
 def _checked_points(points: Iterable[Mapping[str, Any]]) -> list[dict[str, Any]]:

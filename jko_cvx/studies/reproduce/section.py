@@ -134,6 +134,7 @@ def reproduce_section(
     workers: int | None = None,
     progress: bool = True,
     fresh: bool = False,
+    audit: int = 0,
     entries: tuple[str, ...] | None = None,
 ) -> pd.DataFrame:
     """Run every entry of :data:`SECTION` (or ``entries``, in SECTION's order) into ``out``, on one shared pool.
@@ -155,6 +156,9 @@ def reproduce_section(
         Print a line as each entry finishes.
     fresh : bool
         Ignore the sweep caches (``--fresh``).
+    audit : int
+        Recompute this many cached points of each sweep and compare them with the cache
+        (``--audit K``; see :func:`jko_cvx.studies.sweep.run_sweep`).
     entries : tuple of str, optional
         A subset of :data:`SECTION`; an entry that needs one left out reads its files from ``out``.
         Default: every entry.
@@ -202,7 +206,7 @@ def reproduce_section(
                 os.environ[THREADS_ENV] = "1"
                 stack.callback(os.environ.pop, THREADS_ENV, None)
         call = {"out": out, "quick": quick, "executor": shared, "scheduler": scheduler, "workers": workers}
-        call.update(progress=False, fresh=fresh)
+        call.update(progress=False, fresh=fresh, **({"audit": audit} if audit else {}))
         threads = executor != "serial" or scheduler is not None
         state = {n: _Entry(n) for n in names}
         lock = threading.Lock()
