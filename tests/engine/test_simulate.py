@@ -18,6 +18,8 @@ from jko_cvx.engine.verdict import StopReason
 from jko_cvx.scene.model import SceneError, default_scene, load_scene, scene_from_dict, with_overrides
 from jko_cvx.studies.reproduce.ibu import bump_positions
 
+from ._inject import failing
+
 SCENES = Path(__file__).parents[2] / "jko_cvx" / "scene" / "shipped"
 
 BASE = {
@@ -208,7 +210,9 @@ def test_halving_reset_policy_cures_a_failing_step():
 
 def test_halving_as_written_carries_the_halved_step_and_ends_on_eps_t():
     """alg:MR_JKO_ver2 as written: dt = dt0 once, halved while the solve fails, never grown again;
-    the loop ends after the first accepted step <= eps_t (StopReason.EPS_T, counted as e_f)."""
+    the loop ends after the first accepted step <= eps_t (StopReason.EPS_T, counted as e_f).  The solves
+    fail above a step size that shrinks as steps are accepted (0.05, then 0.025 after two steps, then
+    0.00625 after five), imposed so that the outcome does not hang on an iteration count."""
     s = default_scene().replace(
         {
             "time.policy": "halving",
@@ -216,10 +220,14 @@ def test_halving_as_written_carries_the_halved_step_and_ends_on_eps_t():
             "time.eps_t": 0.05 / 2**3 * 1.01,
             "t_end": 2.0,
             "stop.on_solver_failure": True,
-            "collision.options": {"max_iter": 5},
         }
     )
-    run = simulate(s)
+
+    def shrinking(attempt, accepted, dt):
+        return dt > (0.05 if accepted < 2 else 0.025 if accepted < 5 else 0.00625) * (1 + 1e-9)
+
+    with failing(shrinking):
+        run = simulate(s)
     d = run.diagnostics
     dt = d.dt.to_numpy()[1:]
     assert np.all(np.diff(dt) <= 0), "the step never grows again"
@@ -227,7 +235,9 @@ def test_halving_as_written_carries_the_halved_step_and_ends_on_eps_t():
     assert np.allclose(dt, 0.05 / 2.0 ** d.retries.cumsum().to_numpy()[1:]), "each retry halves the carried step"
     assert run.verdict.stop is StopReason.EPS_T and run.verdict["e_f"] and run.verdict["B_v"]
     assert dt[-1] <= s.time.eps_t < dt[-2] and run.verdict["T_b"] == pytest.approx(run.t)
-    reset = simulate(s.replace({"time.policy": "halving_reset"}))  # the variant never stops on eps_t
+    np.testing.assert_allclose(dt, [0.05, 0.05, 0.025, 0.025, 0.025, 0.00625], rtol=1e-12)
+    with failing(shrinking):
+        reset = simulate(s.replace({"time.policy": "halving_reset"}))  # the variant never stops on eps_t
     assert reset.verdict.stop is not StopReason.EPS_T
 
 

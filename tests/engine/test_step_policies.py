@@ -13,6 +13,8 @@ from jko_cvx.engine.verdict import StopReason
 from jko_cvx.scene.model import scene_from_dict
 from jko_cvx.stepping import CFLStep, FixedStep, HalvingStep, step_policy
 
+from ._inject import failing
+
 
 def test_cfl_policy_takes_each_limit_with_its_own_axis_length():
     c = CFLStep(0.5)
@@ -141,7 +143,8 @@ def test_fixed_scene_takes_dt_even_where_the_cfl_rule_would_not():
 
 
 def _failing(eps_t):
-    """Homogeneous step that Newton with two iterations solves at dt = 0.01 but not at 0.02 or 0.04."""
+    """A homogeneous scene whose steps fail above dt = 0.015 (imposed by :func:`_run`: 0.02 and 0.04 fail,
+    0.01 is solved)."""
     return scene_from_dict(
         {
             "name": "halving",
@@ -150,15 +153,21 @@ def _failing(eps_t):
             "v": {"L": 2.0, "n": 21},
             "initial": {"kind": "gaussians", "amplitudes": [1.0], "rates": [2.0], "centres": [0.0]},
             "time": {"policy": "halving", "dt": 0.04, "eps_t": eps_t},
-            "collision": {"method": "newton", "beta": 30.0, "options": {"max_iter": 2}},
+            "collision": {"method": "newton", "beta": 30.0},
             "stop": {"on_solver_failure": True},
         }
     )
 
 
+def _run(scene, **kwargs):
+    """simulate(scene) with every collision solve above dt = 0.015 failing with MAX_ITERATIONS."""
+    with failing(lambda attempt, accepted, dt: dt > 0.015):
+        return simulate(scene, **kwargs)
+
+
 def test_halving_scene_cures_the_step_when_eps_t_allows_it():
     """0.02 (t_end caps dt0 = 0.04) fails, 0.01 succeeds: two steps of 0.01."""
-    run = simulate(_failing(eps_t=0.0099))
+    run = _run(_failing(eps_t=0.0099))
     assert not run.blowup and not run.verdict["e_f"] and run.t == pytest.approx(0.02)
     np.testing.assert_allclose(run.diagnostics.dt.to_numpy(), [0.0, 0.01, 0.01], rtol=1e-14)
 
@@ -166,7 +175,7 @@ def test_halving_scene_cures_the_step_when_eps_t_allows_it():
 def test_halving_reset_scene_gives_up_when_the_half_step_reaches_eps_t():
     """halving_reset with eps_t = 0.01: the half step 0.01 is not above eps_t, the policy gives up (e_f),
     T_b the end of the failed step 0.02."""
-    run = simulate(_failing(eps_t=0.01).replace({"time.policy": "halving_reset"}))
+    run = _run(_failing(eps_t=0.01).replace({"time.policy": "halving_reset"}))
     v = run.verdict
     # the first step failed: no step was accepted, which is not a blow-up at dt
     assert v.stop is StopReason.NO_STEP and not v["blowup"] and v["e_f"] and v["T_b"] is None and run.t == 0.0
@@ -176,7 +185,7 @@ def test_halving_reset_scene_gives_up_when_the_half_step_reaches_eps_t():
 def test_halving_scene_ends_on_eps_t_after_the_step_that_reaches_it():
     """halving as written with eps_t = 0.01: 0.02 fails, 0.01 succeeds and is accepted, and the run ends
     there (dt <= eps_t: StopReason.EPS_T, counted as e_f and B_v) with T_b = t = 0.01."""
-    run = simulate(_failing(eps_t=0.01))
+    run = _run(_failing(eps_t=0.01))
     v = run.verdict
     assert v.stop is StopReason.EPS_T and v["blowup"] and v["e_f"] and v["B_v"] and not v["B_x"]
     assert v["T_b"] == pytest.approx(0.01) and run.t == pytest.approx(0.01)
@@ -185,7 +194,7 @@ def test_halving_scene_ends_on_eps_t_after_the_step_that_reaches_it():
 
 
 def test_a_fixed_step_that_fails_is_not_retried():
-    run = simulate(_failing(eps_t=1e-6).replace({"time.policy": "fixed", "time.dt": 0.02}))
+    run = _run(_failing(eps_t=1e-6).replace({"time.policy": "fixed", "time.dt": 0.02}))
     assert run.verdict.stop is StopReason.NO_STEP and not run.blowup and run.verdict["e_f"] and run.t == 0.0
 
 
@@ -235,8 +244,8 @@ def test_max_iterations_rule_stops_on_an_uncertified_step_without_halving(on_fai
 
 def test_max_iterations_rule_still_halves_on_the_exit_flag():
     """The step that fails with MAX_ITERATIONS is halved under both rules, with the same records."""
-    base = simulate(_failing(eps_t=0.0099))
-    paper = simulate(_failing(eps_t=0.0099).replace({"time.halve_on": "max_iterations"}))
+    base = _run(_failing(eps_t=0.0099))
+    paper = _run(_failing(eps_t=0.0099).replace({"time.halve_on": "max_iterations"}))
     assert not paper.blowup and paper.t == pytest.approx(0.02)
     np.testing.assert_array_equal(paper.diagnostics.dt.to_numpy(), base.diagnostics.dt.to_numpy())
     assert paper.diagnostics.retries.tolist() == base.diagnostics.retries.tolist() == [0, 1, 0]
@@ -244,4 +253,4 @@ def test_max_iterations_rule_still_halves_on_the_exit_flag():
 
 def test_attempts_must_be_a_list_and_is_refused_before_the_run():
     with pytest.raises(TypeError, match="attempts must be a list"):
-        simulate(_failing(eps_t=0.0099), attempts=())
+        _run(_failing(eps_t=0.0099), attempts=())
