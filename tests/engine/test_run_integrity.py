@@ -223,3 +223,31 @@ def test_a_json_file_nested_thousands_deep_is_a_run_dir_error(run_dir, name):
     (run_dir / name).write_text("[" * 100_000 + "]" * 100_000)
     with pytest.raises(RunDirError, match=name.replace(".", r"\.")):
         load_run(run_dir)
+
+
+@pytest.mark.parametrize(
+    "error",
+    [OSError(27, "File too large"), OSError(28, "No space left on device"), PermissionError(13, "Permission denied")],
+    ids=["EFBIG", "ENOSPC", "EACCES"],
+)
+def test_a_write_that_fails_names_the_run_file_not_a_temporary_one(run_dir, monkeypatch, capsys, error):
+    """A full disk or an unwritable run directory: exit 2, one line naming the file in the run
+    directory (the temporary file beside it is an implementation detail, and is removed)."""
+    import jko_cvx.engine._state as state_module
+
+    real = np.savez
+
+    def failing_savez(fh, **arrays):
+        if "f" in arrays and "t" in arrays and "rows" in arrays:  # the checkpoint
+            raise error
+        real(fh, **arrays)
+
+    monkeypatch.setattr(state_module.np, "savez", failing_savez)
+    toml = run_dir.parent / "small.toml"
+    from .test_interrupt_anywhere import _toml
+
+    toml.write_text(_toml(SMALL))
+    assert main(["run", str(toml), "--out", str(run_dir), "--overwrite", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"cannot write {run_dir / 'checkpoint.npz'}" in err[0] and error.strerror in err[0]
+    assert not [p.name for p in run_dir.iterdir() if p.name.startswith(".checkpoint.npz.")]
