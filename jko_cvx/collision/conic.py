@@ -173,6 +173,19 @@ class ConicOptions(Options):
             object.__setattr__(self, "dc_tol", min(1e-2, 10 * self.tol**0.5))
         if self.solver_options is None:
             object.__setattr__(self, "solver_options", {})
+        if self.solver == "CLARABEL" and self.solver_options:
+            import clarabel
+
+            # the settings object's fields, and the two keys CVXPY's interface takes itself
+            known = {k for k in dir(clarabel.DefaultSettings()) if not k.startswith("_")}
+            from cvxpy.reductions.solvers.conic_solvers.clarabel_conif import CLARABEL
+
+            known |= {"use_quad_obj", getattr(CLARABEL, "ACCEPT_UNKNOWN", "use_quad_obj")}
+            unknown = sorted(set(self.solver_options) - known)
+            if unknown:
+                raise TypeError(
+                    f"solver_options {unknown} are not settings of CLARABEL; its settings: {sorted(known)}"
+                )
 
     @classmethod
     def checked(cls, problem: CollisionProblem, **options: Any) -> ConicOptions:
@@ -430,6 +443,12 @@ def _dc_loop(problem: CollisionProblem, filled: _Filled, opts: ConicOptions, t_s
         except cp.error.SolverError:
             loop.claimed, loop.raw_status = Status.SOLVER_ERROR, "SolverError"
             break
+        except TypeError as exc:
+            if not opts.solver_options:
+                raise
+            # the solver's own refusal of a key (only CLARABEL's settings are known beforehand)
+            keys = sorted(opts.solver_options)
+            raise TypeError(f"solver_options {keys} for solver {opts.solver!r}: {exc}") from None
         loop.passes += 1
         loop.raw_status = model.problem.status
         stats = model.problem.solver_stats

@@ -93,3 +93,10 @@ def test_sqp_callbacks_that_fit_are_called():
     solve_collision(prob, "sqp", callback=lambda *args: seen.append(len(args)))
     solve_collision(prob, "sqp", callback=lambda it, f, m, zeta, extra=None: seen.append(4))
     assert seen and set(seen) == {4}
+
+
+@pytest.mark.parametrize("solver", ["CLARABEL", "SCS"])
+def test_an_unknown_solver_setting_is_named_with_the_solver(solver):
+    prob = CollisionProblem(GRID, K, F, dt=0.01, beta=10.0)
+    with pytest.raises(TypeError, match=rf"solver_options \['eps_absolute'\] .*{solver}"):
+        solve_collision(prob, "conic", solver=solver, solver_options={"eps_absolute": 1e-9})
