@@ -1430,7 +1430,7 @@ CLAIMS += (
 # --- README's "Bad input" table (studies/misuse_probe.py): every row ---------------------------------------
 
 
-_MISUSE_ROWS = 43  # rows of misuse_scene_cli.csv; _misuse_row refuses a file with another count
+_MISUSE_ROWS = 49  # rows of misuse_scene_cli.csv; _misuse_row refuses a file with another count
 
 
 def _misuse_row(d: pd.DataFrame, i: int) -> tuple[str, ...]:
