@@ -285,8 +285,7 @@ def explicit_step(problem: CollisionProblem) -> tuple[NDArray[np.float64], NDArr
     """
     f, m = problem.initial_point()
     with np.errstate(all="ignore"):
-        gf, gm = problem.gradient(f, m)
-        return sqp_step(problem, f, m, gf, gm)
+        return gradient_and_sqp_step(problem, f, m)[2:]  # bitwise sqp_step at problem.gradient
 
 
 # ---- the QP of one iteration by OSQP, the options, the iteration
