@@ -780,6 +780,10 @@ def _attempt(P: CollisionProblem, m0: NDArray | None, opts: NewtonOptions, run: 
         st.mu = _MU_START * np.abs(st.phi) / P.grid.length
         st.phi = _merit(P, st.f, st.m, st.mu)
     out = _iterate(P, st, opts, run)
+    if run.barrier:
+        # The factorised Hessian was the barrier function's (more positive definite than
+        # J's): the certificate runs the second-order test on J itself.
+        out["second"] = np.full(out["second"].shape, None, dtype=object)
     return _finalise(P, out, warm, opts, t0)
 
 

@@ -92,3 +92,16 @@ def test_where_the_reference_finds_a_non_minimiser_newton_reports_nonconvex(name
     res = solve_newton(P)
     assert res.status == Status.NONCONVEX
     assert P.convexity_margin(res.f, res.m) < 0
+
+
+def test_the_barrier_attempt_judges_second_order_on_j_itself():
+    """At the peak's KKT point (dt = 0.3) the barrier function's Hessian is positive definite but J's
+    is not: the barrier attempt alone must report NONCONVEX, not certify a non-minimiser."""
+    from jko_cvx.collision.newton import NewtonOptions, _Attempt, _attempt
+
+    grid, gamma, f_star, dt, beta = CASES["non-convex step (peak, dt=0.3)"]
+    P = CollisionProblem(grid, PowerKernel(gamma), f_star, dt, beta=beta)
+    res = _attempt(P.rows(slice(None)), None, NewtonOptions(), _Attempt(False, False, barrier=True))
+    assert res.kkt_residual[0] <= 1e-10  # a stationary point ...
+    assert not P.is_local_minimiser(res.f[0], res.m[0])  # ... that is not a minimiser
+    assert res.status[0] == Status.NONCONVEX
