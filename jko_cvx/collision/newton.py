@@ -21,7 +21,12 @@ exactly feasible).  A slice whose iterates jam at the vacuum boundary (a run of 
 steps while the model still promises a decrease) is solved again with interior damping:
 Levenberg-Marquardt in the relative metric of f (``info["interior_damping"]``); if that
 does not converge either, a third time without either device, and the attempt with the
-smaller KKT residual is returned (``info["jammed"]`` marks these slices).  The
+smaller KKT residual is returned (``info["jammed"]`` marks these slices).  A slice still
+without a solution is solved once more on the barrier function
+:math:`J - \\mu \\sum_j h_j \\log f_j` with :math:`\\mu \\to 0` (``info["barrier"]``): large
+steps (explicit CFL numbers of 20 and more) empty cells, and a minimiser on the vacuum
+boundary is no interior stationary point, which the two attempts before only creep
+towards (linearly, at KKT 1e-9 to 1e-3 after their iteration limits).  The
 solver stops on the KKT residual of
 :class:`~jko_cvx.collision.problem.CollisionProblem` (``tol``), never on step length
 alone, and :func:`~jko_cvx.collision.certify.certify` judges the point (``kkt_tol``).
@@ -103,6 +108,12 @@ _PD_TOL = 1e-10
 # (<= 1e-14), after which the residual counts as stalled at its rounding floor (status
 # NOT_CERTIFIED rather than iterating to max_iter).
 _STALL_CHECKS = 3
+# The barrier attempt (see _with_barrier): the first weight, relative to the scale of the
+# reduced gradient, and its reduction after each full step.
+_MU_START = 1e-3
+_MU_SHRINK = 0.1
+_BARRIER_STALL = 8
+_MU_CENTRED = 1e-3  # mu is lowered after a full step whose decrement is at most this
 
 
 def _fused(
@@ -361,6 +372,34 @@ def _objective_interior(problem: CollisionProblem, f: NDArray, m: NDArray) -> ND
     return val + problem.energy_coef * problem.energy.quadratic(f)
 
 
+def _merit(problem: CollisionProblem, f: NDArray, m: NDArray, mu: NDArray | None) -> NDArray:
+    """:math:`J(f, m)`, or with ``mu`` the barrier function :math:`J - \\mu \\sum_j h_j \\log f_j`."""
+    val = _objective_interior(problem, f, m)
+    if mu is None:
+        return val
+    return val - mu * (np.log(f) @ problem.grid.h)
+
+
+def _with_barrier(problem: CollisionProblem, f: NDArray, mu: NDArray, g: NDArray, bands) -> tuple[NDArray, tuple]:
+    """Reduced gradient and Hessian bands of the barrier function :math:`J - \\mu \\sum_j h_j \\log f_j`.
+
+    With :math:`T = -\\operatorname{diag}(1/h) D` the barrier adds :math:`D^\\top (\\mu / f)` to the
+    reduced gradient and :math:`T^\\top \\operatorname{diag}(\\mu h / f^2)\\, T` (tridiagonal) to
+    the reduced Hessian.  A minimiser on the vacuum boundary (cells emptied by a large step)
+    is no stationary point of J in the interior, so plain Newton only creeps towards it;
+    the barrier's minimisers are interior and tend to it as :math:`\\mu \\to 0`.  At a
+    minimiser of the barrier function the unconstrained gradient in :math:`f_j` is
+    :math:`\\mu h_j / f_j`, which the KKT residual weighs by :math:`f_j / \\max f`: a residual of
+    order :math:`\\mu`, so a small enough :math:`\\mu` passes the unmodified test.
+    """
+    _, _, _, aa, _, bb, _, o1b, _, _ = band_coefficients(problem.grid)
+    h = problem.grid.h
+    c = mu[:, None] * h / (f * f)
+    diag, off1, off2 = bands
+    g = g + divergence_adjoint(mu[:, None] / f)
+    return g, (diag + aa * c[:, :-1] + bb * c[:, 1:], off1 + o1b * c[:, 1:-1], off2)
+
+
 def _newton_direction(H: NDArray, rhs: NDArray | None) -> tuple[NDArray | None, NDArray[np.bool_]]:
     """Solve ``H x = rhs`` slice by slice; flag slices whose H is not positive definite.
 
@@ -419,6 +458,7 @@ class _Attempt:
 
     damping: bool
     jam_exit: bool
+    barrier: bool = False
 
 
 @dataclass
@@ -447,6 +487,7 @@ class NewtonState:
     stall: NDArray[np.int_]  # consecutive checks without progress at rounding level
     decrement: NDArray[np.float64]  # last Newton decrement -g.p/|phi|
     flat: NDArray[np.int_]  # consecutive jammed steps
+    mu: NDArray[np.float64]  # barrier weight (0 outside the barrier attempt, see _with_barrier)
 
     @classmethod
     def initial(cls, m: NDArray, f: NDArray, phi: NDArray, status: NDArray) -> NewtonState:
@@ -455,7 +496,7 @@ class NewtonState:
         return cls(
             np.arange(b), m, f, phi, status, np.zeros(b, dtype=int), np.full(b, np.nan), np.zeros(b, dtype=bool),
             np.zeros(b, dtype=bool), np.zeros(b, dtype=bool), np.zeros(b, dtype=bool), np.zeros(b, dtype=int),
-            np.full(b, np.inf), np.zeros(b, dtype=int),
+            np.full(b, np.inf), np.zeros(b, dtype=int), np.zeros(b),
         )  # fmt: skip
 
     def take(self, keep: NDArray[np.bool_]) -> NewtonState:
@@ -543,8 +584,13 @@ def _residual_test(
     st.kkt_here |= check
     done = check & (kk <= opts.tol)
     worse = check & ~done & (prev == prev) & (kk > 0.5 * prev) & (st.decrement <= 1e-14)
+    # In the barrier attempt the decrement is that of the barrier function, which reaches
+    # rounding level while lowering mu still lowers the residual: there a stall is a run of
+    # checks in which the residual falls by less than 10 % each.
+    barrier = st.mu > 0
+    worse = np.where(barrier, check & ~done & (prev == prev) & (kk > 0.9 * prev) & (st.decrement <= 1e-10), worse)
     st.stall = np.where(check, np.where(worse, st.stall + 1, 0), st.stall)
-    stop = done | (check & (st.stall >= _STALL_CHECKS))
+    stop = done | (check & (st.stall >= np.where(barrier, _BARRIER_STALL, _STALL_CHECKS)))
     if stop.any():
         # pd is the (shifted) Cholesky of the reduced Hessian at this very point: the
         # second-order test comes for free; certify() judges the point at the end.
@@ -570,24 +616,35 @@ def _no_descent(st: NewtonState, g: NDArray, bands, p: NDArray, valid: NDArray) 
 
 
 def _line_search(
-    Pa: CollisionProblem, m: NDArray, p: NDArray, alpha: NDArray, phi0: NDArray, slope: NDArray, dec: NDArray
+    Pa: CollisionProblem,
+    m: NDArray,
+    p: NDArray,
+    alpha: NDArray,
+    phi0: NDArray,
+    slope: NDArray,
+    dec: NDArray,
+    mu: NDArray | None = None,
 ) -> tuple[NDArray[np.bool_], NDArray, NDArray]:
     """Armijo backtracking on J from ``m`` along ``p``, starting at the boundary-safe ``alpha``.
 
     Where the predicted decrease is below the rounding of J (decrement <= 1e-12) Armijo
     cannot tell (it would truncate the steps at random); the quadratic model is exact
-    there, so the full, boundary-safe step is taken.  Returns (accepted, alpha, J at the
+    there, so the full, boundary-safe step is taken.  With ``mu`` the merit function is the
+    barrier one (:func:`_merit`).  Returns (accepted, alpha, the merit function at the
     accepted point, NaN where it was taken without a trial).
     """
     h = Pa.grid.h
     accepted = dec <= 1e-12
+    if mu is not None and accepted.any():
+        # The barrier drives f_j towards rounding level: a full step must still keep f > 0.
+        accepted &= (Pa.f_star - divergence(m + alpha[:, None] * p) / h > 0).all(axis=-1)
     phi_new = np.full_like(phi0, np.nan)
     for _ in range(_MAX_BACKTRACKS):
         if accepted.all():
             break
         trial = m + alpha[:, None] * p
         ft = Pa.f_star - divergence(trial) / h
-        phit = _objective_interior(Pa, ft, trial)
+        phit = _merit(Pa, ft, trial, mu)
         ok = ~accepted & (ft > 0).all(axis=-1) & (phit <= phi0 + _ARMIJO * alpha * slope)
         phi_new = np.where(ok, phit, phi_new)
         accepted |= ok
@@ -596,7 +653,12 @@ def _line_search(
 
 
 def _step(Pa: CollisionProblem, st: NewtonState, g: NDArray, p: NDArray, bands, run: _Attempt, tol: float) -> None:
-    """Damp, line-search and take the step on every slice of ``st``; jam bookkeeping."""
+    """Damp, line-search and take the step on every slice of ``st``; jam bookkeeping.
+
+    In the barrier attempt ``g``, ``bands`` and ``st.phi`` are those of the barrier
+    function (:func:`_with_barrier`), and ``mu`` is lowered after each full step.
+    """
+    mu = st.mu if run.barrier else None
     p, alpha = _interior_damped(Pa, bands, g, st.f, p, np.full(st.rows.size, run.damping))
     slope = np.einsum("bi,bi->b", g, p)
     dec = -slope / np.maximum(np.abs(st.phi), _TINY)
@@ -605,7 +667,7 @@ def _step(Pa: CollisionProblem, st: NewtonState, g: NDArray, p: NDArray, bands, 
     # and the residual far below dec, so the KKT residual is checked once dec reaches tol
     # (or the rounding level 1e-13, below which it cannot fall further).
     st.near = dec <= max(tol, 1e-13)
-    accepted, alpha, phi_new = _line_search(Pa, st.m, p, alpha, st.phi, slope, dec)
+    accepted, alpha, phi_new = _line_search(Pa, st.m, p, alpha, st.phi, slope, dec, mu)
     if accepted.all():
         st.m = st.m + alpha[:, None] * p
         st.f = Pa.f_star - divergence(st.m) / Pa.grid.h
@@ -617,7 +679,15 @@ def _step(Pa: CollisionProblem, st: NewtonState, g: NDArray, p: NDArray, bands, 
     st.phi = np.where(accepted, phi_new, st.phi)
     if fresh.any():
         Pu = Pa if fresh.all() else Pa.rows(fresh)
-        st.phi[fresh] = _objective_interior(Pu, st.f[fresh], st.m[fresh])
+        st.phi[fresh] = _merit(Pu, st.f[fresh], st.m[fresh], None if mu is None else mu[fresh])
+    if run.barrier:
+        # A full step means the iterate is in the quadratic region of the barrier function
+        # for this mu: move on along the central path.
+        lower = accepted & (alpha >= _FRACTION_TO_BOUNDARY) & (dec <= _MU_CENTRED)
+        if lower.any():
+            st.mu = np.where(lower, _MU_SHRINK * st.mu, st.mu)
+            Pl = Pa if lower.all() else Pa.rows(lower)
+            st.phi[lower] = _merit(Pl, st.f[lower], st.m[lower], st.mu[lower])
     st.iterations += accepted
     st.kkt_here &= ~accepted
     if run.jam_exit:  # jam: tiny accepted steps where the model promises a decrease
@@ -641,9 +711,11 @@ def _iterate(P: CollisionProblem, st: NewtonState, opts: NewtonOptions, run: _At
             Pa, st = _retire(Pa, st, out)
             if st.rows.size == 0:
                 break
-            check = st.near | (it == opts.max_iter)
+            check = st.near | (it == opts.max_iter) | run.barrier
             checking = bool(check.any())
             g, bands, parts = _fused(Pa, st.f, st.m, want_parts=check if checking else False)
+            if run.barrier:
+                g, bands = _with_barrier(Pa, st.f, st.mu, g, bands)
             p, pd, valid = _direction(Pa, bands, g)
             if checking:
                 _residual_test(Pa, st, parts, pd, check, opts)
@@ -703,7 +775,15 @@ def _attempt(P: CollisionProblem, m0: NDArray | None, opts: NewtonOptions, run: 
     """One pass of the iteration over the batch ``P``, from the start point to certification."""
     t0 = time.perf_counter()
     st, warm = _start(P, m0, opts)
+    if run.barrier:
+        # The first weight: the barrier's part of J of relative size _MU_START.
+        st.mu = _MU_START * np.abs(st.phi) / P.grid.length
+        st.phi = _merit(P, st.f, st.m, st.mu)
     out = _iterate(P, st, opts, run)
+    if run.barrier:
+        # The factorised Hessian was the barrier function's (more positive definite than
+        # J's): the certificate runs the second-order test on J itself.
+        out["second"] = np.full(out["second"].shape, None, dtype=object)
     return _finalise(P, out, warm, opts, t0)
 
 
@@ -730,6 +810,11 @@ def _cascade(P: CollisionProblem, m0: NDArray | None, opts: NewtonOptions) -> Co
     3. Slices that had jammed and still are not ``CONVERGED``: a third time undamped
        without the jam test (a slice may only look jammed: gamma = 3, lambda = 10); the
        attempt with the smaller residual is kept.
+    4. Slices still without a solution (``_RETRY`` or ``NOT_CERTIFIED``): a barrier attempt
+       (:func:`_with_barrier`), for minimisers on the vacuum boundary (large steps empty
+       cells: explicit CFL numbers of 20 and more); kept where its residual is smaller.
+       Slices certified by an earlier attempt are never solved again, so their results do
+       not depend on this stage.
     """
     res = _attempt(P, m0, opts, _Attempt(damping=False, jam_exit=True))
     jammed = res.info["jammed"]
@@ -746,7 +831,15 @@ def _cascade(P: CollisionProblem, m0: NDArray | None, opts: NewtonOptions) -> Co
             better = plain.kkt_residual < res.kkt_residual[fallback]
             _merge(res, fallback, plain, better)
             damped[np.flatnonzero(fallback)[better]] = False
-    res.info.update(jammed=jammed, interior_damping=damped)
+    barrier = np.zeros_like(jammed)
+    todo = np.array([s in _RETRY or s == Status.NOT_CERTIFIED for s in res.status]) & np.all(P.f_star > 0, axis=-1)
+    if todo.any():
+        again = _attempt(P.rows(todo), _m0_rows(m0, todo), opts, _Attempt(False, False, barrier=True))
+        better = (again.status == Status.CONVERGED) | (again.kkt_residual < res.kkt_residual[todo])
+        _merge(res, todo, again, better)
+        barrier[np.flatnonzero(todo)[better]] = True
+        damped[np.flatnonzero(todo)[better]] = False
+    res.info.update(jammed=jammed, interior_damping=damped, barrier=barrier)
     return res
 
 
@@ -818,8 +911,10 @@ def solve_newton(
     -------
     CollisionResult
         One status per slice for a batched problem.  ``info`` holds ``warm_started``,
-        ``jammed`` (the first, undamped attempt ended on a jam) and ``interior_damping``
-        (the returned point comes from the interior-damped attempt); per slice when batched.
+        ``jammed`` (the first, undamped attempt ended on a jam), ``interior_damping``
+        (the returned point comes from the interior-damped attempt) and ``barrier`` (it
+        comes from the barrier attempt); per slice when batched.  ``iterations`` counts
+        every attempt.
         A single problem is solved as a batch of one.
     """
     opts = _check_newton_args(problem, tol, kkt_tol, max_iter, m0, start, check_convexity)

@@ -42,6 +42,28 @@ written, without the cut: an iterate with some :math:`f_j \\le 0` has left the d
 there as ``NUMERICAL_ERROR`` (``info["left_domain"]``: the iteration).  The three are compared
 on the adaptive g1 runs of ``gk1_records`` (the paper-variants study).
 
+Where it stalls.  The QP's Hessian is the diagonal of the Wasserstein and Fisher terms
+alone, so the first step from :math:`(f^*, 0)` is the explicit-Euler step and every later
+step is of the same kind: a step that moves the mass of a cell by the local velocity times
+:math:`\\Delta t`, with no energy curvature to shorten it.  With an explicit CFL number
+(:meth:`~jko_cvx.collision.problem.CollisionProblem.cfl`) above about one that step asks a
+tail cell for more mass than it holds; the only curvature that could stop it is the Fisher
+term's, :math:`(\\Delta t/\\beta)^2 / f` on the tails, which is negligible for large
+:math:`\\beta`.  The positivity safeguard then cuts every step, the cut steps shrink
+geometrically (the iterates jam at the vacuum boundary, as an undamped Newton iteration
+does), and ``"floor"`` keeps :math:`\\zeta` from passing on a cut step, so the solve ends at
+:math:`I_{max}` with a large KKT residual.  Measured (f* = exp(-2 v^2) on [-2, 2], N = 121,
+perspective form, ``max_iter=20000``; every one of the 20000 steps cut): at
+:math:`\\beta = 1000` CFL 0.5 and 0.9 converge in 16-34 iterations, CFL 1.5, 3 and 10
+end ``MAX_ITERATIONS`` at KKT 2.5e-2 to 8.1e-2 for gamma = 1 and 3 (Newton: CONVERGED in
+5-246 iterations); at :math:`\\beta = 10` the same steps converge (at most 305
+iterations, at most 3 cut).  The gamma = 3, N = 61, :math:`\\beta = 1000` step at
+dt = 0.01 (CFL 0.77) stalls the same way (KKT 7.5e-2 after 20000 cut steps, 1.1 s), as do
+11 of the 64 cells of a smooth-Gaussian sweep at :math:`\\beta = 1000` (gamma 1-3,
+N 61-481): the paper's SQP is an explicit-CFL-limited method unless the Fisher weight
+is strong, and large steps need Newton (:mod:`~jko_cvx.collision.newton`) or the conic
+reference.
+
 The exit flag is Algorithm 1's: :math:`e_f = 1` iff :math:`l = I_{max}`, i.e. iff
 :math:`I_{max}` iterations ran, also when the :math:`\\zeta` test passes on exactly the
 :math:`I_{max}`-th (the loop ends on its counter before the test is read again).
@@ -264,8 +286,7 @@ def explicit_step(problem: CollisionProblem) -> tuple[NDArray[np.float64], NDArr
     """
     f, m = problem.initial_point()
     with np.errstate(all="ignore"):
-        gf, gm = problem.gradient(f, m)
-        return sqp_step(problem, f, m, gf, gm)
+        return gradient_and_sqp_step(problem, f, m)[2:]  # bitwise sqp_step at problem.gradient
 
 
 # ---- the QP of one iteration by OSQP, the options, the iteration

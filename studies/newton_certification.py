@@ -1,0 +1,143 @@
+"""Certification rate of Newton against the nonlinear reference (IPOPT) on held-out random families.
+
+Three families of one collision step each, drawn from seeds used nowhere else:
+
+* ``broad``: gamma ~ U(0.5, 5), dt log-uniform in [1e-4, 1], beta log-uniform in [1, 1e4] or
+  inf (one in three), both Fisher forms, grids with spacing ratios max h / min h up to 50,
+  N in [41, 161];
+* ``large_dt``: no Fisher term, gamma ~ U(3.5, 3.7), dt chosen for an explicit CFL number
+  log-uniform in [20, 300];
+* ``two_bumps``: non-uniform grids, two Gaussian bumps, gamma ~ U(3, 4.5), dt ~ U(0.1, 0.5),
+  beta = inf.
+
+Each problem is solved by :func:`~jko_cvx.collision.newton.solve_newton` and
+:func:`~jko_cvx.collision.nlp.solve_nlp` at their defaults (Newton certifies at KKT 1e-10,
+IPOPT at 1e-6; the certificate is :func:`~jko_cvx.collision.certify.certify` for both).
+Rows are appended to ``studies/results/newton_certification.csv`` with the date, the code
+commit, the label and the BLAS thread setting; run it once per code version to compare::
+
+    OPENBLAS_NUM_THREADS=1 PYTHONPATH=. python studies/newton_certification.py LABEL [PER_FAMILY]
+"""
+
+from __future__ import annotations
+
+import csv
+import datetime
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+import jko_cvx
+from jko_cvx import CollisionProblem, Grid, PowerKernel, Status
+from jko_cvx.collision import solve_newton
+from jko_cvx.collision.nlp import solve_nlp
+from jko_cvx.testing import random_density
+
+OUT = Path(__file__).parent / "results" / "newton_certification.csv"
+SEEDS = {"broad": 9101, "large_dt": 9202, "two_bumps": 9303}
+
+
+def _grid(rng: np.random.Generator, n: int, ratio: float, half_width: float = 2.0) -> Grid:
+    """Grid on [-half_width, half_width] whose spacings span the ratio max/min = ``ratio``."""
+    steps = ratio ** rng.uniform(0.0, 1.0, n - 1)
+    steps[rng.integers(n - 1)], steps[rng.integers(n - 1)] = 1.0, ratio  # both ends of the range
+    pts = np.concatenate([[0.0], np.cumsum(steps)])
+    return Grid(-half_width + 2 * half_width * pts / pts[-1])
+
+
+def _two_bumps(rng: np.random.Generator, grid: Grid) -> np.ndarray:
+    v = grid.points
+    a, b = rng.uniform(-1.2, -0.2), rng.uniform(0.2, 1.2)
+    return rng.uniform(0.3, 1.0) * np.exp(-rng.uniform(2, 15) * (v - a) ** 2) + rng.uniform(0.3, 1.0) * np.exp(
+        -rng.uniform(2, 15) * (v - b) ** 2
+    )
+
+
+def problems(family: str, count: int) -> list[tuple[CollisionProblem, dict]]:
+    """The first ``count`` problems of ``family`` with their parameters."""
+    rng = np.random.default_rng(SEEDS[family])
+    out = []
+    for _ in range(count):
+        n = int(rng.integers(41, 162))
+        if family == "broad":
+            gamma = float(rng.uniform(0.5, 5.0))
+            grid = _grid(rng, n, float(rng.uniform(1.0, 50.0)))
+            dt = float(10 ** rng.uniform(-4, 0))
+            beta = np.inf if rng.uniform() < 1 / 3 else float(10 ** rng.uniform(0, 4))
+            fisher = str(rng.choice(["perspective", "log"]))
+            f = random_density(rng, grid)
+        elif family == "large_dt":
+            gamma = float(rng.uniform(3.5, 3.7))
+            grid = _grid(rng, n, float(rng.uniform(1.0, 3.0)))
+            f = random_density(rng, grid)
+            probe = CollisionProblem(grid, PowerKernel(gamma), f, 1.0)
+            cfl = float(10 ** rng.uniform(np.log10(20), np.log10(300)))
+            dt = cfl / probe.cfl()
+            beta, fisher = np.inf, None
+        else:
+            gamma = float(rng.uniform(3.0, 4.5))
+            grid = _grid(rng, n, float(rng.uniform(1.0, 10.0)))
+            f = _two_bumps(rng, grid)
+            dt = float(rng.uniform(0.1, 0.5))
+            beta, fisher = np.inf, None
+        P = CollisionProblem(grid, PowerKernel(gamma), f, dt, beta=beta, fisher=fisher)
+        out.append((P, {"n": n, "gamma": gamma, "dt": dt, "beta": beta, "cfl": P.cfl()}))
+    return out
+
+
+def main() -> None:
+    label = sys.argv[1] if len(sys.argv) > 1 else "current"
+    count = int(sys.argv[2]) if len(sys.argv) > 2 else 20
+    commit = subprocess.run(
+        ["git", "-C", str(Path(__file__).parent), "describe", "--always", "--dirty"], capture_output=True, text=True
+    ).stdout.strip()
+    date = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M")
+    threads = os.environ.get("OPENBLAS_NUM_THREADS", "unset")
+    rows = []
+    for family in SEEDS:
+        for i, (P, par) in enumerate(problems(family, count)):
+            t = time.perf_counter()
+            rn = solve_newton(P)
+            tn = time.perf_counter() - t
+            t = time.perf_counter()
+            rc = solve_nlp(P)
+            tc = time.perf_counter() - t
+            gap = float(P.objective(rn.f, rn.m) - P.objective(rc.f, rc.m))
+            rows.append(
+                {
+                    "date": date, "commit": commit, "label": label, "threads": threads, "family": family, "index": i,
+                    **{k: f"{v:.4g}" for k, v in par.items()},
+                    "newton": rn.status.name, "newton_kkt": f"{rn.kkt_residual:.2e}", "newton_iter": rn.iterations,
+                    "newton_s": f"{tn:.3f}", "nlp": rc.status.name, "nlp_kkt": f"{rc.kkt_residual:.2e}",
+                    "nlp_s": f"{tc:.3f}", "objective_gap": f"{gap:.2e}",
+                }
+            )  # fmt: skip
+    new = not OUT.exists()
+    with OUT.open("a", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        if new:
+            writer.writeheader()
+        writer.writerows(rows)
+    conv = Status.CONVERGED.name
+    print(f"{label} ({commit}, {Path(jko_cvx.__file__).parent}, OPENBLAS_NUM_THREADS={threads})")
+    print("| family | problems | nlp certifies | Newton certifies | Newton certifies where nlp does | both NONCONVEX |")
+    print("|---|---|---|---|---|---|")
+    for family in SEEDS:
+        fam = [r for r in rows if r["family"] == family]
+        ref = [r for r in fam if r["nlp"] == conv]
+        both = sum(r["newton"] == conv for r in ref)
+        nonconvex = sum(r["nlp"] == r["newton"] == Status.NONCONVEX.name for r in fam)
+        newton = sum(r["newton"] == conv for r in fam)
+        print(f"| {family} | {len(fam)} | {len(ref)} | {newton} | {both} / {len(ref)} | {nonconvex} |")
+    for r in rows:
+        if r["nlp"] == conv and r["newton"] != conv:
+            keys = ("family", "index", "gamma", "dt", "cfl", "beta", "newton", "newton_kkt")
+            print("  missed:", {k: r[k] for k in keys})
+
+
+if __name__ == "__main__":
+    main()
