@@ -121,13 +121,13 @@ def _fit_power(t: np.ndarray, y: np.ndarray, T_max: float) -> tuple[np.ndarray, 
     t_last = t[-1]
     # profile: for fixed T the law is linear in (log C, a); a geometric grid of T - t_last
     gaps = np.geomspace(1e-6 * (T_max - t[0]), T_max - t_last, 400)
-    best = None
-    for g in gaps:
-        A = np.column_stack([np.ones_like(t), -np.log(t_last + g - t)])
-        coef, *_ = np.linalg.lstsq(A, y, rcond=None)
-        rss = float(np.sum((A @ coef - y) ** 2))
-        if best is None or rss < best[0]:
-            best = (rss, coef, t_last + g)
+    x = -np.log(t_last + gaps[:, None] - t[None, :])  # one row per trial T
+    xm = x.mean(axis=1, keepdims=True)
+    a_all = ((x - xm) @ (y - y.mean())) / np.sum((x - xm) ** 2, axis=1)
+    c_all = y.mean() - a_all * xm[:, 0]
+    rss_all = np.sum((c_all[:, None] + a_all[:, None] * x - y) ** 2, axis=1)
+    j = int(np.argmin(rss_all))
+    best = (float(rss_all[j]), np.array([c_all[j], a_all[j]]), float(t_last + gaps[j]))
     _, coef, T0 = best
     lo = [-np.inf, -np.inf, t_last + 1e-9 * (T_max - t[0])]
     hi = [np.inf, np.inf, T_max]
