@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from jko_cvx.engine._state import atomic_write
-from jko_cvx.engine.verdict import StopReason
+from jko_cvx.engine.verdict import StopReason, fit_rows
 
 if TYPE_CHECKING:
     from jko_cvx.engine.run import Run
@@ -115,6 +115,7 @@ def plot_records(run: Run, ax=None):
         a.axvline(T, color="k", ls="--", lw=0.8, label=f"exact T = {T:.4g}")
     if run.blowup:
         a.axvline(run.verdict.T_b, color="r", lw=0.8, label=f"T_b = {run.verdict.T_b:.4g}")
+    _draw_fit(run, a)
     v = run.verdict
     if not v.certified:  # drawn from uncertified states: say so, claim no verdict
         title = f"NOT CERTIFIED: {v.uncertified_steps} uncertified step(s) from t = {v.first_uncertified_t:.4g}"
@@ -127,6 +128,22 @@ def plot_records(run: Run, ax=None):
     a.set_title(f"{sc.name}: {title}")
     fig.tight_layout()
     return fig
+
+
+def _draw_fit(run: Run, a) -> None:
+    """The power law fitted to max f on its window, and T_b_fit with its error bar (finite_time runs)."""
+    v = run.verdict
+    if v.blowup_kind != "finite_time":
+        return
+    fit = fit_rows(run.diagnostics.to_dict("records"), v)  # the fit the verdict holds, with its window
+    t = run.diagnostics["t"].to_numpy()
+    start, stop = fit.window
+    tw = np.linspace(t[start], t[stop - 1] + 0.9 * (fit.T_b_fit - t[stop - 1]), 200)
+    a.semilogy(tw, fit.curve(tw), color="tab:green", ls="-.", lw=1,
+               label=f"fit C (T - t)^-a, a = {fit.blowup_rate:.3g}")  # fmt: skip
+    y = float(np.nanmax(run.diagnostics["max_f"]))
+    a.errorbar([fit.T_b_fit], [y], xerr=[fit.T_b_fit_err], fmt="o", ms=3, color="tab:green", capsize=3,
+               label=f"T_b_fit = {fit.T_b_fit:.4g} +- {fit.T_b_fit_err:.2g}")  # fmt: skip
 
 
 def save_figures(run: Run, out: str | Path, dpi: int = 110) -> list[Path]:

@@ -87,7 +87,9 @@ class Run:
         where = ", ".join(k for k in ("B_x", "B_v") if v[k]) or "none"
         return (
             f"{self.scene.name}: t = {self.t:.6g}, steps = {self.steps}, "
-            f"{v.describe()} (direction: {where}; {v.reason})" + (f", T_b = {v.T_b:.6g}" if v.blowup else "")
+            f"{v.describe()} (direction: {where}; {v.reason})"
+            + (f", T_b = {v.T_b:.6g}" if v.blowup else "")
+            + (f"; {fit}" if (fit := v.describe_fit()) else "")
         )
 
     def records_line(self) -> str:

@@ -4,7 +4,13 @@ The paper's blow-up indicators (sec. ``sec:numerical``): ``B_v`` when the veloci
 concentrates below ``eps_v`` (or, with ``stop.spread_v``, the velocity spread of a populated
 slice falls below it), ``B_x`` when the space mesh concentrates below ``eps_x``, and ``e_f``
 when the collision solver fails in a way the step policy cannot cure (counted as ``B_v``).
-A :class:`Verdict` is immutable; the stopping rules return a new one.  It also reads as the
+Beside the paper's threshold time ``T_b`` the verdict carries the estimate of
+:mod:`jko_cvx.blowup` drawn from the run's certified records when the run ends: ``T_b_fit``
+with its error bar ``T_b_fit_err``, the rate ``blowup_rate`` (the exponent a of
+max f ~ (T - t)^-a), ``blowup_kind`` (``finite_time``, ``no_finite_time`` or
+``undetermined``) and ``blowup_reason``; and ``unflagged_growth``, the factor by which max f
+grew in a run that no blow-up rule stopped, when that factor is large (the mesh rule missed a
+concentration).  A :class:`Verdict` is immutable; the stopping rules return a new one.  It also reads as the
 mapping ``run.verdict["T_b"]`` of earlier versions (keys ``blowup``, ``T_b``, ``B_x``, ``B_v``,
 ``e_f``, ``reason``, ``stop``).
 """
@@ -17,10 +23,14 @@ from dataclasses import dataclass
 from enum import Enum
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
+from jko_cvx.blowup import KINDS, BlowupFit, fit_blowup
+
 if TYPE_CHECKING:
     from jko_cvx.engine._state import RunState
 
-__all__ = ["SolverFailureRule", "StopReason", "Verdict"]
+__all__ = ["UNFLAGGED_GROWTH", "SolverFailureRule", "StopReason", "Verdict", "fit_rows"]
 
 
 class StopReason(Enum):
@@ -40,7 +50,12 @@ class StopReason(Enum):
         return self not in (StopReason.T_END, StopReason.NO_STEP)
 
 
-_KEYS = ("blowup", "T_b", "B_x", "B_v", "e_f", "reason", "stop", "uncertified_steps", "first_uncertified_t")
+_FIT_KEYS = ("T_b_fit", "T_b_fit_err", "blowup_rate", "blowup_kind", "blowup_reason", "unflagged_growth")
+_KEYS = ("blowup", "T_b", "B_x", "B_v", "e_f", "reason", "stop", "uncertified_steps", "first_uncertified_t", *_FIT_KEYS)
+#: max f growing by this factor in a run that no blow-up rule stopped is reported (``unflagged_growth``)
+UNFLAGGED_GROWTH = 20.0
+# the stops after which the records are cut short: a fit cannot exclude a later collapse
+_EARLY = ("SOLVER_FAILURE", "EPS_T", "NO_STEP")
 
 
 @dataclass(frozen=True)
@@ -65,6 +80,17 @@ class Verdict(Mapping):
     first_uncertified_t : float or None
         The time of the first such state.
 
+    T_b_fit, T_b_fit_err, blowup_rate : float or None
+        The fitted blow-up time, its error bar and exponent (:func:`jko_cvx.blowup.fit_blowup`
+        on the certified records; None before the run ended or where no power law was fitted).
+    blowup_kind : str or None
+        ``"finite_time"``, ``"no_finite_time"`` or ``"undetermined"`` (None: not fitted yet).
+    blowup_reason : str
+        Why that kind, with the fit's numbers.
+    unflagged_growth : float or None
+        max f (last) / max f (initial) when it is at least :data:`UNFLAGGED_GROWTH` and no
+        blow-up rule fired: a concentration the mesh criterion did not see.
+
     A run that never accepted a step (its first solve failed and stopped it) stops with
     :attr:`StopReason.NO_STEP`: not a blow-up, ``T_b`` None.
     """
@@ -77,6 +103,12 @@ class Verdict(Mapping):
     reason: str = StopReason.T_END.value
     uncertified_steps: int = 0
     first_uncertified_t: float | None = None
+    T_b_fit: float | None = None
+    T_b_fit_err: float | None = None
+    blowup_rate: float | None = None
+    blowup_kind: str | None = None
+    blowup_reason: str = ""
+    unflagged_growth: float | None = None
 
     @property
     def blowup(self) -> bool:
@@ -89,6 +121,23 @@ class Verdict(Mapping):
 
     def describe(self) -> str:
         """The verdict in words, saying so where it is drawn from uncertified states."""
+        text = self._describe_threshold()
+        if self.unflagged_growth is not None:
+            text += (
+                f" (WARNING: max f grew by a factor {self.unflagged_growth:.3g} and no blow-up rule fired: "
+                "a concentration the mesh criterion did not see)"
+            )
+        return text
+
+    def describe_fit(self) -> str:
+        """The fitted blow-up time in words (empty before the run ended)."""
+        if self.blowup_kind is None:
+            return ""
+        if self.T_b_fit is None or self.blowup_kind != "finite_time":
+            return f"blow-up kind {self.blowup_kind} ({self.blowup_reason.split(':')[0]})"
+        return f"T_b_fit = {self.T_b_fit:.6g} +- {self.T_b_fit_err:.2g} (rate a = {self.blowup_rate:.4g}, finite_time)"
+
+    def _describe_threshold(self) -> str:
         if self.certified:
             return f"blow-up = {self.blowup}"
         claim = "undetermined" if not self.blowup else "True, from uncertified states"
@@ -118,6 +167,28 @@ class Verdict(Mapping):
         first = float(t) if self.first_uncertified_t is None else self.first_uncertified_t
         return dataclasses.replace(
             self, e_f=True, uncertified_steps=self.uncertified_steps + 1, first_uncertified_t=first
+        )
+
+    def with_fit(self, rows: list[dict[str, Any]]) -> Verdict:
+        """The verdict with the blow-up fit of the diagnostics ``rows`` (``t``, ``max_f``, ``failed``).
+
+        Only certified records feed the fit (those before the first step with a failed slice);
+        a run stopped by a solver failure, a collapsed step or no step is cut short, so a fit
+        that does not show a finite-time law is ``undetermined`` there.
+        """
+        fit = fit_rows(rows, self)
+        growth = None
+        if rows and self.stop is StopReason.T_END:
+            ratio = float(rows[-1]["max_f"]) / float(rows[0]["max_f"])
+            growth = ratio if ratio >= UNFLAGGED_GROWTH else None
+        return dataclasses.replace(
+            self,
+            T_b_fit=fit.T_b_fit,
+            T_b_fit_err=fit.T_b_fit_err,
+            blowup_rate=fit.blowup_rate,
+            blowup_kind=fit.blowup_kind,
+            blowup_reason=fit.reason,
+            unflagged_growth=growth,
         )
 
     # the Mapping interface of the earlier dict verdict
@@ -155,12 +226,31 @@ class Verdict(Mapping):
                 reason=str(d["reason"]),
                 uncertified_steps=int(d["uncertified_steps"]),
                 first_uncertified_t=None if d["first_uncertified_t"] is None else float(d["first_uncertified_t"]),
+                # a record written before the run ended has no fit yet
+                **{k: _optional_float(d.get(k)) for k in ("T_b_fit", "T_b_fit_err", "blowup_rate", "unflagged_growth")},
+                blowup_kind=None if d.get("blowup_kind") is None else str(d["blowup_kind"]),
+                blowup_reason=str(d.get("blowup_reason", "")),
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"not a verdict record ({type(exc).__name__}: {exc}): {dict(d)!r}") from None
         if "blowup" in d and bool(d["blowup"]) != v.blowup:
             raise ValueError(f"verdict record says blowup = {d['blowup']} but stop = {stop.name}")
+        if v.blowup_kind is not None and v.blowup_kind not in KINDS:
+            raise ValueError(f"verdict record says blowup_kind = {v.blowup_kind!r}, not one of {KINDS}")
         return v
+
+
+def _optional_float(x: Any) -> float | None:
+    return None if x is None else float(x)
+
+
+def fit_rows(rows: list[dict[str, Any]], verdict: Verdict) -> BlowupFit:
+    """:func:`~jko_cvx.blowup.fit_blowup` of the diagnostics rows of a run with ``verdict``."""
+    t = np.array([float(r["t"]) for r in rows])
+    max_f = np.array([float(r["max_f"]) for r in rows])
+    certified = np.array([int(r["failed"]) == 0 for r in rows], dtype=bool)
+    early = verdict.reason if verdict.stop.name in _EARLY else None
+    return fit_blowup(t, max_f, certified=certified, stopped_early=early)
 
 
 class SolverFailureRule:

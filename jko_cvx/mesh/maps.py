@@ -50,7 +50,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from jko_cvx.grid import Grid, PeriodicGrid
 
-__all__ = ["OneBumpMap", "TwoBumpMap", "concentration_set", "periodic_map_grid", "quadrant_set"]
+__all__ = ["FollowingMap", "OneBumpMap", "TwoBumpMap", "concentration_set", "periodic_map_grid", "quadrant_set"]
 
 _OUTER_RULES = ("paper", "slopes")
 
@@ -292,6 +292,72 @@ class TwoBumpMap(_OddMap):
         r2 = min(r2, 0.5 * (L * s2 + L))  # keep room for the outer piece
         r1 = min(max(r1, r2 * s1 / (4 * delta + s1)), r2 * (1 - 1e-6))
         return cls(L=float(grid.points[-1]), r1=r1, r2=r2, delta=delta)
+
+
+@dataclass(frozen=True)
+class FollowingMap:
+    """``mu1`` centred on the concentration at ``c`` instead of 0: the map that follows the peak.
+
+    On :math:`[-L, L]`, :math:`\\mu(s) = c + \\mu_+(s)` for :math:`s \\ge 0` and
+    :math:`c - \\mu_-(-s)` for :math:`s < 0`, with :math:`\\mu_\\pm` the one-bump maps of half-width
+    :math:`L \\mp c` and the same set half-width r and delta: both linear pieces have slope
+    :math:`r/\\delta`, so the map is C^1 at c and packs :math:`\\delta N` points into
+    :math:`[c - r, c + r]`; :math:`\\mu(\\pm 1) = \\pm L`.  ``c = 0`` is :class:`OneBumpMap`
+    (the same points).
+
+    Parameters
+    ----------
+    L : float
+        Half-width of the domain.
+    c : float
+        Centre of the concentration, ``|c| < L``.
+    r : float
+        Half-width of the set about c, ``0 < r < L - |c|``.
+    delta : float
+        Fraction of s in the linear part.
+    """
+
+    L: float
+    c: float
+    r: float
+    delta: float
+
+    def __post_init__(self) -> None:
+        if not abs(self.c) < self.L:
+            raise ValueError(f"the centre c must lie in (-L, L) = (-{self.L}, {self.L}), got {self.c!r}")
+        if not 0 < self.r < self.L - abs(self.c):
+            raise ValueError(f"r must lie in (0, L - |c|) = (0, {self.L - abs(self.c):.6g}), got {self.r!r}")
+        object.__setattr__(self, "_right", OneBumpMap(L=self.L - self.c, r=self.r, delta=self.delta))
+        object.__setattr__(self, "_left", OneBumpMap(L=self.L + self.c, r=self.r, delta=self.delta))
+
+    def __call__(self, s: ArrayLike) -> NDArray[np.float64]:
+        s = np.asarray(s, dtype=float)
+        return np.where(s >= 0, self.c + self._right(np.abs(s)), self.c - self._left(np.abs(s)))  # type: ignore[attr-defined]
+
+    def grid(self, n: int) -> Grid:
+        """The refined grid ``mu(s_j)``, s_j uniform on [-1, 1], n points (the ends exactly +-L)."""
+        v = self(np.linspace(-1.0, 1.0, int(n)))
+        v[0], v[-1] = -self.L, self.L
+        return Grid(v)
+
+    @classmethod
+    def from_density(cls, grid: Grid, f: ArrayLike, delta0: float, delta: float) -> FollowingMap:
+        """The map for density ``f`` on ``grid``: c the grid point of max f, r the largest distance from c
+        of a point where :math:`f > \\delta_0 \\max f` (at least the larger spacing next to c), capped
+        at the uniform share :math:`(L - |c|)\\,\\delta` (a wider set gains nothing from refinement)."""
+        _check_fraction("delta0", delta0)
+        _check_fraction("delta", delta)
+        f = np.asarray(f, dtype=float)
+        v = grid.points
+        L = float(v[-1])
+        k = int(np.argmax(f))
+        c = float(v[k])
+        # keep c off the ends: a set at the wall is refined as if centred one cell inside it
+        c = float(np.clip(c, v[1], v[-2]))
+        sel = f > delta0 * f[k]
+        gaps = np.diff(v)
+        r = max(float(np.abs(v[sel] - c).max()), float(gaps[max(k - 1, 0)]), float(gaps[min(k, gaps.size - 1)]))
+        return cls(L=L, c=c, r=min(r, (L - abs(c)) * delta), delta=delta)
 
 
 def concentration_set(grid: Grid, f: ArrayLike, delta0: float, both_ends: bool = False):

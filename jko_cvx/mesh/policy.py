@@ -13,6 +13,10 @@ set comes from one of two rules (``concentration_set``):
   the density entering the collision step, each map from S's extent on its axis; an empty S
   gives the axis the uniform grid (extent :data:`UNIFORM_EXTENT`).
 
+The map is centred at 0 (``centre = "origin"``, the paper's maps) or on the concentration
+(``centre = "follow"``, one bump only: :class:`~jko_cvx.mesh.maps.FollowingMap` centred at the
+grid point of max f, so a delta that forms away from 0 is refined where it forms).
+
 An axis is remeshed only when its set's extent moved by more than ``tol`` times its width
 (always with ``tol = 0``, the paper's every-step remesh).  The extents the grids were built
 for are carried by the caller between steps (and through checkpoints).
@@ -25,14 +29,17 @@ from dataclasses import dataclass
 import numpy as np
 
 from jko_cvx.grid import Grid, PeriodicGrid
-from jko_cvx.mesh.maps import OneBumpMap, TwoBumpMap, periodic_map_grid, quadrant_set
+from jko_cvx.mesh.maps import FollowingMap, OneBumpMap, TwoBumpMap, periodic_map_grid, quadrant_set
 from jko_cvx.mesh.remapping import remap, remap_periodic
 
-__all__ = ["CONCENTRATION_SETS", "UNIFORM_EXTENT", "RefineSpec", "RemeshPolicy"]
+__all__ = ["CENTRES", "CONCENTRATION_SETS", "UNIFORM_EXTENT", "RefineSpec", "RemeshPolicy"]
 
 CONCENTRATION_SETS = ("projections", "quadrant")
 """Where the maps' sets come from (:attr:`RemeshPolicy.concentration_set`; a scene's
 ``refine.concentration_set``)."""
+
+CENTRES = ("origin", "follow")
+"""Where a one-bump map is centred (:attr:`RefineSpec.centre`): at v = 0, or on the concentration."""
 
 UNIFORM_EXTENT = np.zeros(1)
 """The extent recorded for an empty quadrant set (the uniform grid): r = 0, which no map has (r > 0),
@@ -43,6 +50,8 @@ and non-empty, so a checkpoint (where an empty array means None) reads it back a
 class RefineSpec:
     """Mesh refinement on one axis: map type, delta0, delta, and the remeshing tolerance.
 
+    ``centre``: ``"origin"`` (the paper's maps, centred at 0) or ``"follow"`` (one bump centred on
+    the concentration: the grid point of max f; its extent is recorded as (c - r, c + r)).
     ``tol = 0`` remeshes every step (the paper's Algorithm ``alg:one_step_MR_JKO``); ``tol > 0``
     remeshes only when the concentration set's extent has moved by more than ``tol`` times
     its width.  Measured (``ibu_gamma3``): remeshing every step moves the bumps inward by as
@@ -55,6 +64,13 @@ class RefineSpec:
     delta: float = 0.5
     tol: float = 0.0
     conserve_energy: bool = False
+    centre: str = "origin"
+
+    def __post_init__(self) -> None:
+        if self.centre not in CENTRES:
+            raise ValueError(f"centre must be one of {list(CENTRES)}, got {self.centre!r}")
+        if self.centre == "follow" and self.bumps != 1:
+            raise ValueError(f"centre = 'follow' centres a one-bump map (bumps = 1), got bumps = {self.bumps}")
 
 
 def _map_params(mu) -> np.ndarray:
@@ -120,6 +136,12 @@ class RemeshPolicy:
     conserve_x_moment: bool = True
 
     def __post_init__(self) -> None:
+        if self.concentration_set == "quadrant" and any(
+            sp is not None and sp.centre == "follow" for sp in (self.v, self.x)
+        ):
+            raise ValueError("centre = 'follow' builds its map from the projections, not the quadrant set")
+        if self.x is not None and self.x.centre == "follow":
+            raise ValueError("centre = 'follow' is available for the v-axis only (the x-maps are periodic)")
         if self.concentration_set not in CONCENTRATION_SETS:
             raise ValueError(
                 f"concentration_set must be one of {list(CONCENTRATION_SETS)}, got {self.concentration_set!r}"
@@ -176,9 +198,13 @@ class RemeshPolicy:
     def _refine_v(self, vgrid: Grid, f: np.ndarray, params: Extent):
         spec = self.v
         fv = f if f.ndim == 1 else f.max(axis=0)
-        cls = OneBumpMap if spec.bumps == 1 else TwoBumpMap
-        mu = cls.from_density(vgrid, fv, spec.delta0, spec.delta)
-        new = _map_params(mu)
+        if spec.centre == "follow":
+            mu = FollowingMap.from_density(vgrid, fv, spec.delta0, spec.delta)
+            new = np.array([mu.c - mu.r, mu.c + mu.r])
+        else:
+            cls = OneBumpMap if spec.bumps == 1 else TwoBumpMap
+            mu = cls.from_density(vgrid, fv, spec.delta0, spec.delta)
+            new = _map_params(mu)
         if not _moved(spec, params, new):
             return f, vgrid, params
         grid = mu.grid(vgrid.n)

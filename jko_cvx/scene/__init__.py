@@ -48,6 +48,9 @@ A scene file (the shipped ones are package data, ``jko_cvx/scene/shipped/*.toml`
     delta = 0.5
     tol = 0.0                # 0: remesh every step (paper); > 0: when the set moved by tol x width
     conserve_energy = false  # refine.v only: the v-remap also restores each slice's second moment
+    centre = "auto"          # refine.v, bumps = 1: "origin" (the paper's map, centred at v = 0) | "follow"
+                             # (centred on the concentration: the grid point of max f) | "auto" (origin
+                             # where max_x f0 is even in v, follow elsewhere; two bumps: origin)
 
     [collision]
     method = "newton"

@@ -186,7 +186,7 @@ def scene_from_dict(d: Mapping[str, Any], limits: Limits | None = None) -> Scene
     x = None if top.x is None else parse_table(XTable, top.x, "x")
     initial = _parse_initial(top.initial, x is not None)
     t = parse_table(TimeTable, top.time, "time")
-    refine = _parse_refine(top.refine, x is not None)
+    refine, centre_auto = _parse_refine(top.refine, x is not None)
     c = parse_table(CollisionTable, {} if top.collision is None else top.collision, "collision")
     s = parse_table(StopTable, {} if top.stop is None else top.stop, "stop")
     o = parse_table(OutputTable, {} if top.output is None else top.output, "output")
@@ -217,7 +217,7 @@ def scene_from_dict(d: Mapping[str, Any], limits: Limits | None = None) -> Scene
     check_limits(scene, limits)  # before anything of the run's size is allocated
     f0 = scene.initial_density(scene.xgrid(), scene.vgrid())
     _check_initial_density(scene, f0)
-    return scene
+    return _resolve_centre(scene, f0) if centre_auto else scene
 
 
 def _check_initial_density(scene: Scene, f0: np.ndarray) -> None:
@@ -251,21 +251,31 @@ def _parse_initial(data: Any, has_x: bool) -> Initial:
     return initial
 
 
-def _parse_refine(data: Any, has_x: bool) -> RefineTable:
-    """The ``[refine]`` table: a :class:`RefineSpec` per axis the scene refines, and the concentration set."""
+def _parse_refine(data: Any, has_x: bool) -> tuple[RefineTable, bool]:
+    """The ``[refine]`` table (a :class:`RefineSpec` per axis the scene refines, and the concentration set) and
+    whether ``refine.v.centre`` is ``"auto"``."""
     if data is None:
-        return RefineTable()
+        return RefineTable(), False
     data = require_table(data, "refine")
     check_known(data, ("v", "x", "concentration_set"), "refine")
     if "x" in data and not has_x:
         raise SceneError("refine.x needs an [x] grid")
-    specs: dict[str, Any] = {
-        axis: RefineSpec(**asdict(parse_table(RefineAxisTable, data[axis], f"refine.{axis}")))
-        for axis in ("v", "x")
-        if axis in data
-    }
+    specs: dict[str, Any] = {}
+    for axis in ("v", "x"):
+        if axis in data:
+            table = asdict(parse_table(RefineAxisTable, data[axis], f"refine.{axis}"))
+            if table["centre"] == "follow" and (axis == "x" or table["bumps"] != 1):
+                raise SceneError(
+                    f"refine.{axis}.centre = 'follow' centres a one-bump velocity map: it needs refine.v with "
+                    "bumps = 1 (use 'origin' or 'auto')"
+                )
+            # "auto" is resolved against f0 once the scene is built (_resolve_centre); a RefineSpec holds
+            # only what the run does
+            specs[axis] = RefineSpec(**{**table, "centre": "origin" if table["centre"] == "auto" else table["centre"]})
+            specs[f"_{axis}_auto"] = table["centre"] == "auto"
     if "x" in specs and specs["x"].conserve_energy:
         raise SceneError("refine.x.conserve_energy must be false: the kinetic energy is a moment in v (refine.v only)")
+    auto = {axis: specs.pop(f"_{axis}_auto") for axis in ("v", "x") if f"_{axis}_auto" in specs}
     if "concentration_set" in data:
         rule = Rule("str", choices=CONCENTRATION_SETS)
         specs["concentration_set"] = rule.parse(data["concentration_set"], "refine.concentration_set")
@@ -276,7 +286,23 @@ def _parse_refine(data: Any, has_x: bool) -> RefineTable:
             )
         if specs["concentration_set"] == "quadrant" and not ("v" in specs or "x" in specs):
             raise SceneError('refine.concentration_set = "quadrant" needs [refine.v] or [refine.x] (a map to build)')
-    return RefineTable(**specs)
+    return RefineTable(**specs), auto.get("v", False)
+
+
+def _symmetric_in_v(f0: np.ndarray) -> bool:
+    """The v-projection max_x f0 (homogeneous: f0) is even on the scene's grid (symmetric about v = 0)."""
+    fv = f0 if f0.ndim == 1 else f0.max(axis=0)
+    return bool(np.allclose(fv, fv[::-1], rtol=1e-12, atol=1e-14 * fv.max()))
+
+
+def _resolve_centre(scene: Scene, f0: np.ndarray) -> Scene:
+    """``refine.v.centre = "auto"``: the paper's centred map where f0 is symmetric in v (or the map has two bumps,
+    or the sets are the quadrant's), the map that follows the concentration elsewhere."""
+    spec = scene.refine.v
+    if spec.bumps != 1 or scene.refine.concentration_set != "projections" or _symmetric_in_v(f0):
+        return scene
+    refine = dataclasses.replace(scene.refine, v=dataclasses.replace(spec, centre="follow"))
+    return dataclasses.replace(scene, refine=refine)
 
 
 def _check_combinations(top, v, x, t, c, s, o) -> None:

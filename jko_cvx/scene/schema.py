@@ -18,7 +18,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
-from jko_cvx.mesh.policy import CONCENTRATION_SETS, RefineSpec
+from jko_cvx.mesh.policy import CENTRES, CONCENTRATION_SETS, RefineSpec
 from jko_cvx.stepping import HALVE_ON, POLICIES
 
 __all__ = [
@@ -240,8 +240,6 @@ class XTable(Table):
     conserve_moment: bool = key(_BOOL, True)
 
 
-
-
 @dataclass(frozen=True)
 class TimeTable(Table):
     """``[time]``: the step policy, its (first / largest) step, the halving floor and what halves the step."""
@@ -262,6 +260,7 @@ class RefineAxisTable(Table):
     delta: float = key(_FRAC, 0.5)
     tol: float = key(Rule(_FLOAT, lo=0.0, hi=1.0, hi_open=True), 0.0)
     conserve_energy: bool = key(_BOOL, False)
+    centre: str = key(Rule("str", choices=("auto", *CENTRES)), "auto")
 
 
 @dataclass(frozen=True)

@@ -50,6 +50,13 @@ def test_verdict_default_is_no_blowup_and_reads_as_the_old_mapping():
         "stop": "T_END",
         "uncertified_steps": 0,
         "first_uncertified_t": None,
+        # not fitted: the blow-up fit is drawn when the run ends
+        "T_b_fit": None,
+        "T_b_fit_err": None,
+        "blowup_rate": None,
+        "blowup_kind": None,
+        "blowup_reason": "",
+        "unflagged_growth": None,
     }
     assert v["T_b"] is None and v["reason"] == "reached t_end"
     with pytest.raises(KeyError):

@@ -36,7 +36,7 @@ import pandas as pd
 
 from jko_cvx.engine.loop import simulate
 from jko_cvx.engine.trackers import EpsV
-from jko_cvx.engine.verdict import Verdict
+from jko_cvx.engine.verdict import StopReason, Verdict, fit_rows
 from jko_cvx.exact import GaussianMixture, blowup_time_gamma1, exact_gamma1
 from jko_cvx.grid import Grid
 from jko_cvx.mesh.maps import OneBumpMap, TwoBumpMap
@@ -96,8 +96,23 @@ def blowup_time(data: str, eps_v: float, dt: float, beta: float = TAB_BU_BETA) -
         "T_b": float(run.verdict["T_b"]) if run.blowup else float("nan"),
         "steps": len(run.diagnostics) - 1,
         "failed_steps": int((run.diagnostics.failed > 0).sum()),
+        **_fit_columns(run.verdict),
         "seconds": time.perf_counter() - t0,
     }
+
+
+FIT_COLUMNS = ("T_b_fit", "T_b_fit_err", "blowup_kind")
+"""The estimate of :mod:`jko_cvx.blowup` beside the paper's T_b (NaN where no power law was fitted)."""
+
+
+def _fit_columns(v) -> dict[str, Any]:
+    """T_b_fit, its error bar and the kind of a verdict or a :class:`~jko_cvx.blowup.BlowupFit`."""
+
+    def num(x):
+        return float("nan") if x is None else float(x)
+
+    kind = v.blowup_kind
+    return {"T_b_fit": num(v.T_b_fit), "T_b_fit_err": num(v.T_b_fit_err), "blowup_kind": kind}
 
 
 def blowup_times(data: str, eps_v: Sequence[float], dt: float, beta: float = TAB_BU_BETA) -> dict[str, Any]:
@@ -124,7 +139,7 @@ def blowup_times(data: str, eps_v: Sequence[float], dt: float, beta: float = TAB
     entries = [replayed_entry(run.diagnostics, run.verdict, e) for e in eps]
     return {
         "eps_v": eps,
-        **{key: [entry[key] for entry in entries] for key in ("T_b", "steps", "failed_steps")},
+        **{key: [entry[key] for entry in entries] for key in ("T_b", "steps", "failed_steps", *FIT_COLUMNS)},
         "seconds": time.perf_counter() - t0,
     }
 
@@ -143,16 +158,27 @@ def replayed_entry(diagnostics: pd.DataFrame, verdict: Verdict, eps_v: float) ->
     rows = diagnostics.to_dict("records")
     for k in range(1, len(rows)):
         if rule.fires(rows[k]) is not None:
+            stopped = Verdict().stopped(StopReason.EPS_V, float(rows[k]["t"]), "replayed")
+            fit = fit_rows(rows[: k + 1], stopped) if "max_f" in diagnostics else None
             return {
                 "T_b": float(rows[k]["t"]),
                 "steps": k,
                 "failed_steps": int((diagnostics["failed"].iloc[: k + 1] > 0).sum()),
+                **(_fit_columns(_FitView(fit)) if fit is not None else {}),
             }
     return {
         "T_b": float(verdict["T_b"]) if verdict.blowup else float("nan"),
         "steps": len(rows) - 1,
         "failed_steps": int((diagnostics["failed"] > 0).sum()),
+        **(_fit_columns(verdict) if "max_f" in diagnostics else {}),
     }
+
+
+class _FitView:
+    """A :class:`~jko_cvx.blowup.BlowupFit` read as a verdict's fit fields."""
+
+    def __init__(self, fit) -> None:
+        self.T_b_fit, self.T_b_fit_err, self.blowup_kind = fit.T_b_fit, fit.T_b_fit_err, fit.blowup_kind
 
 
 def mesh_rule_time(data: str, eps_v: float) -> float:
@@ -215,6 +241,7 @@ def table_entries(runs: pd.DataFrame) -> pd.DataFrame:
             "T_b": r.T_b[i],
             "steps": r.steps[i],
             "failed_steps": r.failed_steps[i],
+            **{k: getattr(r, k)[i] for k in FIT_COLUMNS if hasattr(r, k)},
             "seconds": r.seconds,
             **({"cached": r.cached} if "cached" in runs else {}),
         }
@@ -248,6 +275,8 @@ def _sweep(points, out: Path, name: str, **sweep_opts) -> pd.DataFrame:
     df["exact + mesh rule"] = [mesh_rule_time(d, e) for d, e in zip(df.data, df.eps_v, strict=True)]
     df["ours_minus_paper"] = df.T_b - df.paper
     df["ours_minus_exact"] = df.T_b - df.exact
+    if "T_b_fit" in df:
+        df["fit_minus_exact"] = df.T_b_fit - df.exact
     df.attrs["wall_seconds"] = wall
     return df
 
@@ -284,6 +313,15 @@ def _write(df: pd.DataFrame, out: Path, name: str) -> None:
         f"|ours - paper| = {diff.max():.4g}.  Sweep wall time {df.attrs.get('wall_seconds', float('nan')):.1f} s, "
         f"one run per column ({df.attrs.get('cached_runs', 0)} of {df.attrs.get('runs', 0)} runs from the cache)."
     )
+    if "T_b_fit" in df:
+        fit_err = df.fit_minus_exact.abs()
+        lines += ["", (
+            f"T_b_fit (jko_cvx.blowup, the power-law fit of max f): {int((df.blowup_kind == 'finite_time').sum())} "
+            f"of {len(df)} entries finite_time; |T_b_fit - exact| median {fit_err.median():.2g}, max "
+            f"{fit_err.max():.2g}; the error bar covers the exact time in "
+            f"{int((fit_err <= df.T_b_fit_err).sum())} of {len(df)} (|T_b - exact| median "
+            f"{df.ours_minus_exact.abs().median():.2g})."
+        )]  # fmt: skip
     (out / f"{name}.md").write_text("\n".join(lines) + "\n")
     _figure(df, out / f"{name}.png")
 

@@ -51,6 +51,9 @@ def test_each_entry_of_a_column_is_the_separate_runs(data, dt, beta, eps):
         alone = blowup_time(data, e, dt, beta)
         assert _same(column["T_b"][i], alone["T_b"]), (e, column["T_b"][i], alone["T_b"])
         assert (column["steps"][i], column["failed_steps"][i]) == (alone["steps"], alone["failed_steps"])
+        # the fit of the records up to the replayed stop is the separate run's fit
+        assert column["blowup_kind"][i] == alone["blowup_kind"]
+        assert _same(column["T_b_fit"][i], alone["T_b_fit"]) and _same(column["T_b_fit_err"][i], alone["T_b_fit_err"])
     # the column holds different stops, or the test would not tell a prefix from the whole run
     assert len(set(column["steps"])) > 1
 

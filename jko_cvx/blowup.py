@@ -1,0 +1,304 @@
+"""Blow-up time with an error bar from a run's own records: fit of max f on the final approach.
+
+Near a finite-time singularity at :math:`T` the largest value of the density grows like a
+power of the time left,
+
+.. math:: \\max f(t) \\simeq C\\,(T - t)^{-a}, \\qquad a > 0,
+
+(homogeneous :math:`\\gamma = 1`: :math:`\\max f = \\tfrac12 (T - t)^{-1}` exactly, with
+:math:`T = 1/(2\\max f_0)`, ``sec: concentration``), while a concentration without
+finite-time collapse grows at most exponentially (:math:`\\gamma = 2`: :math:`\\max f =
+e^{Mt}\\max f_0`, the linear contraction).  :func:`fit_blowup` fits both laws to
+:math:`\\log\\max f` of the accepted, certified steps and classifies the run.
+
+Window (the final approach), applied in this order:
+
+1. the records are cut at the first uncertified step: a state carried on from a failed
+   solve, and everything after it, never enters the fit;
+2. the window starts at the first record from which :math:`\\max f \\ge \\rho \\max f(t_0)`
+   holds to the end (``growth`` :math:`\\rho = 1.5`): the approach, not the initial layer;
+3. the window ends before the first decline of the growth rate
+   :math:`r_k = \\log(\\max f_k/\\max f_{k-1})/(t_k - t_{k-1})` below ``1 - rate_drop`` (0.9)
+   times its largest value so far that persists for ``RATE_SPAN`` (2) steps: the blow-up law's
+   rate :math:`a/(T - t)` only increases, and a record whose growth slows has stopped following
+   it (the grid or the regularisation caps max f; past the exact time the record is a
+   resolved delta, not the singularity);
+4. trailing records whose step grows :math:`\\log\\max f` by more than ``max_step_growth``
+   (0.25) are dropped: there the time step no longer resolves the growth, and the implicit
+   (JKO) step lags the exact solution by :math:`O(\\Delta t\\, d\\log\\max f/dt)`;
+5. at least ``min_points`` (6) records must remain.
+
+Fits: the power law by nonlinear least squares in :math:`\\log\\max f` (profiled over
+:math:`T` on a grid, then :func:`scipy.optimize.curve_fit` with :math:`T` bounded to the
+horizon :math:`(t_{\\rm last}, t_{\\rm last} + H]`, :math:`H = t_{\\rm last} - t_0` the
+record's duration unless given); the exponential law :math:`\\log\\max f = c_0 + c_1 t` by linear least squares.
+The two are compared by the Akaike information criterion
+:math:`n \\log(\\mathrm{RSS}/n) + 2k` (k = 3 and 2 parameters).
+
+Error bar: :math:`\\sigma_T = (\\sigma_{\\rm fit}^2 + \\delta_{\\rm win}^2)^{1/2}`, with
+:math:`\\sigma_{\\rm fit}` from the covariance of the fit (residual variance scaled) and
+:math:`\\delta_{\\rm win}` the largest change of :math:`T` when the window loses its last
+record, ends where max f reached half its last value, or starts at
+:math:`\\rho^2 \\max f(t_0)` instead (the residuals are systematic,
+not independent noise, and the covariance alone does not cover the error).
+
+Kinds: ``"finite_time"`` when the power law's :math:`T` lies inside the horizon (below 95 %
+of it), :math:`a > 2\\sigma_a`, :math:`\\sigma_T < H/4` and the power law beats the
+exponential by more than 2 in AIC; otherwise ``"no_finite_time"`` -- unless the records are
+too few, too noisy (rms residual of the better law above ``noise``), show no concentration,
+or the run stopped early (``stopped_early``: a solver failure, no step, uncertified steps),
+in which case ``"undetermined"``; a truncated record cannot exclude a later collapse.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+from scipy.optimize import curve_fit
+
+__all__ = ["KINDS", "BlowupFit", "fit_blowup"]
+
+KINDS = ("finite_time", "no_finite_time", "undetermined")
+RATE_SPAN = 2
+
+
+@dataclass(frozen=True)
+class BlowupFit:
+    """The fit of :func:`fit_blowup`.
+
+    Attributes
+    ----------
+    T_b_fit, T_b_fit_err : float or None
+        The power law's :math:`T` and its error bar (None unless a power law was fitted).
+    blowup_rate, blowup_rate_err : float or None
+        The exponent :math:`a` and its standard error from the covariance.
+    log_C : float or None
+        :math:`\\log C` of the power law (to draw the fit).
+    blowup_kind : str
+        One of :data:`KINDS`.
+    reason : str
+        Why that kind, in words (with the numbers).
+    window : tuple of int or None
+        ``(start, stop)``: the records ``start <= i < stop`` of the arrays given that were fitted.
+    """
+
+    T_b_fit: float | None
+    T_b_fit_err: float | None
+    blowup_rate: float | None
+    blowup_rate_err: float | None
+    log_C: float | None
+    blowup_kind: str
+    reason: str
+    window: tuple[int, int] | None
+
+    def curve(self, t: ArrayLike) -> np.ndarray:
+        """The fitted :math:`C (T - t)^{-a}` at ``t < T`` (NaN elsewhere)."""
+        if self.T_b_fit is None:
+            raise ValueError("no power law was fitted")
+        t = np.asarray(t, dtype=float)
+        left = self.T_b_fit - t
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(left > 0, np.exp(self.log_C - self.blowup_rate * np.log(np.where(left > 0, left, 1.0))),
+                            np.nan)  # fmt: skip
+
+
+def _undetermined(reason: str, window: tuple[int, int] | None = None) -> BlowupFit:
+    return BlowupFit(None, None, None, None, None, "undetermined", reason, window)
+
+
+def _power(t: np.ndarray, log_c: float, a: float, T: float) -> np.ndarray:
+    return log_c - a * np.log(np.maximum(T - t, 1e-300))
+
+
+def _aic(rss: float, n: int, k: int) -> float:
+    return n * np.log(max(rss / n, 1e-30)) + 2 * k
+
+
+def _fit_power(t: np.ndarray, y: np.ndarray, T_max: float) -> tuple[np.ndarray, np.ndarray, float] | None:
+    """(log C, a, T), covariance and RSS of the power law with T in (t[-1], T_max]; None if it fails."""
+    t_last = t[-1]
+    # profile: for fixed T the law is linear in (log C, a); a geometric grid of T - t_last
+    gaps = np.geomspace(1e-6 * (T_max - t[0]), T_max - t_last, 400)
+    x = -np.log(t_last + gaps[:, None] - t[None, :])  # one row per trial T
+    xm = x.mean(axis=1, keepdims=True)
+    a_all = ((x - xm) @ (y - y.mean())) / np.sum((x - xm) ** 2, axis=1)
+    c_all = y.mean() - a_all * xm[:, 0]
+    rss_all = np.sum((c_all[:, None] + a_all[:, None] * x - y) ** 2, axis=1)
+    j = int(np.argmin(rss_all))
+    best = (float(rss_all[j]), np.array([c_all[j], a_all[j]]), float(t_last + gaps[j]))
+    _, coef, T0 = best
+    lo = [-np.inf, -np.inf, t_last + 1e-9 * (T_max - t[0])]
+    hi = [np.inf, np.inf, T_max]
+    p0 = [coef[0], coef[1], min(max(T0, lo[2] * (1 + 1e-15) + 1e-15), T_max)]
+    try:
+        p, cov = curve_fit(_power, t, y, p0=p0, bounds=(lo, hi), method="trf", x_scale="jac", max_nfev=2000)
+    except (RuntimeError, ValueError):
+        return None
+    rss = float(np.sum((_power(t, *p) - y) ** 2))
+    if rss > best[0] * (1 + 1e-9):  # the local refinement lost to the profile: keep the profile's point
+        p = np.array([coef[0], coef[1], T0])
+        rss = best[0]
+    return p, cov, rss
+
+
+def _window(
+    t: np.ndarray, m: np.ndarray, growth: float, max_step_growth: float, rate_drop: float
+) -> tuple[int, int] | str:
+    """``(start, stop)`` of the final approach in ``m`` (see the module docstring), or why there is none."""
+    above = m >= growth * m[0]
+    if not above[-1]:
+        return f"no concentration to fit: max f grew by a factor {m[-1] / m[0]:.3g} < {growth:g}"
+    below = np.flatnonzero(~above)
+    start = 0 if below.size == 0 else int(below[-1]) + 1
+    stop = m.size
+    # the blow-up law's growth rate only increases: the window ends before its first decline
+    # (a decline that persists for RATE_SPAN steps: a remap's one-step kink is not one)
+    rate = np.diff(np.log(m)) / np.diff(t)  # rate[k - 1]: the step ending at record k
+    peak = -np.inf
+    for k in range(start + 1, m.size):
+        if np.all(rate[k - 1 : k - 1 + RATE_SPAN] < (1 - rate_drop) * peak):
+            stop = k - 1
+            break
+        peak = max(peak, rate[k - 1])
+    while stop - start > 1 and np.log(m[stop - 1] / m[stop - 2]) > max_step_growth:
+        stop -= 1
+    return start, stop
+
+
+def fit_blowup(
+    t: ArrayLike,
+    max_f: ArrayLike,
+    *,
+    certified: ArrayLike | None = None,
+    stopped_early: str | None = None,
+    growth: float = 1.5,
+    max_step_growth: float = 0.25,
+    min_points: int = 6,
+    horizon: float | None = None,
+    noise: float = 0.05,
+    rate_drop: float = 0.1,
+) -> BlowupFit:
+    """Fit :math:`\\max f \\simeq C (T - t)^{-a}` to a run's records and classify it (module docstring).
+
+    Parameters
+    ----------
+    t, max_f : array_like
+        Times (strictly increasing) and max f of the records, from the initial state on.
+    certified : array_like of bool, optional
+        Whether each record's state came from certified solves; the records are cut at the first
+        False.  Default: all certified.
+    stopped_early : str, optional
+        Why the run ended before its horizon (solver failure, no step, ...): a fit that does not
+        show finite-time blow-up is then ``"undetermined"``, not ``"no_finite_time"``.
+    growth : float
+        :math:`\\rho > 1`: the window starts where max f stays above :math:`\\rho \\max f(t_0)`.
+    max_step_growth : float
+        Trailing records with :math:`\\log(\\max f_k / \\max f_{k-1})` above this are dropped.
+    min_points : int
+        The fewest records a fit takes (at least 4: three parameters and one residual).
+    horizon : float, optional
+        :math:`H`: the power law's T is bounded to :math:`(t_{\\rm last}, t_{\\rm last} + H]`;
+        default the record's duration :math:`t_{\\rm last} - t_0`.
+    noise : float
+        Largest rms residual in :math:`\\log\\max f` of the better law for a classification.
+    rate_drop : float
+        The window ends where the growth rate falls below ``1 - rate_drop`` times its peak.
+
+    Returns
+    -------
+    BlowupFit
+    """
+    t = np.asarray(t, dtype=float)
+    m = np.asarray(max_f, dtype=float)
+    if t.ndim != 1 or m.shape != t.shape:
+        raise ValueError(f"t and max_f must be 1-d arrays of one length, got shapes {t.shape} and {m.shape}")
+    if not (growth > 1 and np.isfinite(growth)):
+        raise ValueError(f"growth must be a finite number > 1, got {growth!r}")
+    if not max_step_growth > 0:
+        raise ValueError(f"max_step_growth must be > 0, got {max_step_growth!r}")
+    if isinstance(min_points, bool) or not isinstance(min_points, int) or min_points < 4:
+        raise ValueError(f"min_points must be an int >= 4, got {min_points!r}")
+    if horizon is not None and not (horizon > 0 and np.isfinite(horizon)):
+        raise ValueError(f"horizon must be a finite number > 0 or None, got {horizon!r}")
+    if not noise > 0:
+        raise ValueError(f"noise must be > 0, got {noise!r}")
+    early = f"; the run stopped early ({stopped_early})" if stopped_early else ""
+    cut = ""
+    if certified is not None:
+        ok = np.asarray(certified, dtype=bool)
+        if ok.shape != t.shape:
+            raise ValueError(f"certified must have the shape of t {t.shape}, got {ok.shape}")
+        bad = np.flatnonzero(~ok)
+        if bad.size:
+            cut = f"; records cut at the first uncertified step (t = {t[bad[0]]:.6g})"
+            t, m = t[: bad[0]], m[: bad[0]]
+            early = early or "; uncertified steps follow the fitted records"
+    if t.size < min_points:
+        return _undetermined(f"too few records ({t.size} < {min_points}){cut}{early}")
+    if not (np.all(np.isfinite(t)) and np.all(np.diff(t) > 0)):
+        raise ValueError("t must be finite and strictly increasing")
+    if not (np.all(np.isfinite(m)) and np.all(m > 0)):
+        raise ValueError("max_f must be finite and > 0")
+    win = _window(t, m, growth, max_step_growth, rate_drop)
+    if isinstance(win, str):
+        return _undetermined(win + cut + early)
+    start, stop = win
+    n = stop - start
+    if n < min_points:
+        return _undetermined(f"too few records on the final approach ({n} < {min_points}){cut}{early}", win)
+    tw, y = t[start:stop], np.log(m[start:stop])
+    H = float(tw[-1] - t[0]) if horizon is None else float(horizon)
+    T_max = tw[-1] + H
+    fit = _fit_power(tw, y, T_max)
+    A = np.column_stack([np.ones_like(tw), tw])
+    c_exp, *_ = np.linalg.lstsq(A, y, rcond=None)
+    rss_exp = float(np.sum((A @ c_exp - y) ** 2))
+    aic_exp = _aic(rss_exp, n, 2)
+    if fit is None:
+        return _undetermined(f"the power-law fit did not converge{cut}{early}", win)
+    p, cov, rss_pow = fit
+    aic_pow = _aic(rss_pow, n, 3)
+    rms = np.sqrt(min(rss_pow, rss_exp) / n)
+    log_c, a, T = (float(x) for x in p)
+    err = np.sqrt(np.clip(np.diag(cov), 0, np.inf)) if np.all(np.isfinite(cov)) else np.full(3, np.inf)
+    sig_a, sig_T = float(err[1]), float(err[2])
+    # window sensitivity: drop the last record; start at growth**2
+    shifts = []
+    if n - 1 >= min_points:
+        alt = _fit_power(tw[:-1], y[:-1], T_max)
+        if alt is not None:
+            shifts.append(abs(float(alt[0][2]) - T))
+    half = int(np.searchsorted(m[start:stop], m[stop - 1] / 2, side="right"))  # m sorted enough on the approach
+    if min_points <= half < n - 1:
+        alt = _fit_power(tw[:half], y[:half], T_max)
+        if alt is not None:
+            shifts.append(abs(float(alt[0][2]) - T))
+    later = _window(t, m, growth**2, max_step_growth, rate_drop)
+    if not isinstance(later, str) and later[0] > start and stop - later[0] >= min_points:
+        alt = _fit_power(t[later[0] : stop], np.log(m[later[0] : stop]), T_max)
+        if alt is not None:
+            shifts.append(abs(float(alt[0][2]) - T))
+    T_err = float(np.hypot(sig_T, max(shifts, default=0.0)))
+    numbers = (
+        f"T = {T:.6g} +- {T_err:.2g}, a = {a:.4g} +- {sig_a:.2g}, AIC power {aic_pow:.1f} / exponential "
+        f"{aic_exp:.1f}, {n} records t = {tw[0]:.4g}..{tw[-1]:.4g}, horizon {T_max:.4g}"
+    )
+    out = {"T_b_fit": T, "T_b_fit_err": T_err, "blowup_rate": a, "blowup_rate_err": sig_a, "log_C": log_c}
+    if rms > noise:
+        why = f"records too noisy (rms residual {rms:.2g} > {noise:g} in log max f)"
+        return BlowupFit(**out, blowup_kind="undetermined", reason=f"{why}: {numbers}{cut}{early}", window=win)
+    fails = []
+    if not T < tw[-1] + 0.95 * H:
+        fails.append("T at the horizon")
+    if not a > 2 * sig_a:
+        fails.append("a not significantly > 0")
+    if not T_err < H / 4:
+        fails.append("error bar wider than a quarter of the horizon")
+    if not aic_pow < aic_exp - 2:
+        fails.append("the exponential law fits as well")
+    if not fails:
+        return BlowupFit(**out, blowup_kind="finite_time", reason=f"power law: {numbers}{cut}{early}", window=win)
+    kind = "undetermined" if early else "no_finite_time"
+    return BlowupFit(**out, blowup_kind=kind, reason=f"{'; '.join(fails)}: {numbers}{cut}{early}", window=win)

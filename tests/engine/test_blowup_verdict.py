@@ -1,0 +1,77 @@
+"""The blow-up fit in the verdict: drawn from the certified records when the run ends, written to
+verdict.json and the checkpoint, read back by load_run, printed and drawn."""
+
+import json
+
+import numpy as np
+import pytest
+
+from jko_cvx.engine.loop import simulate
+from jko_cvx.engine.plot import save_figures
+from jko_cvx.engine.run import load_run
+from jko_cvx.engine.verdict import StopReason, Verdict
+from jko_cvx.scene import shipped_scene
+
+
+def _rows(t, m, failed=None):
+    failed = np.zeros(len(t), int) if failed is None else failed
+    return [{"t": float(a), "max_f": float(b), "failed": int(c)} for a, b, c in zip(t, m, failed, strict=True)]
+
+
+def test_a_gamma1_run_carries_its_fit_through_load_run(tmp_path):
+    run = simulate(shipped_scene("tab_bu_g1", {"time.dt": 0.005}), out=tmp_path / "r")
+    v = run.verdict
+    assert v.blowup_kind == "finite_time", v.blowup_reason
+    assert abs(v.T_b_fit - 0.5) < 3e-3 and 0 < v.T_b_fit_err < 0.01 and v.blowup_rate == pytest.approx(1, abs=0.05)
+    back = load_run(tmp_path / "r").verdict
+    assert back == v and (back.T_b_fit, back.T_b_fit_err, back.blowup_kind) == (v.T_b_fit, v.T_b_fit_err, "finite_time")
+    record = json.loads((tmp_path / "r" / "verdict.json").read_text())
+    assert record["T_b_fit"] == v.T_b_fit and record["blowup_kind"] == "finite_time"
+    assert record["T_b"] == v.T_b  # the paper's threshold time stays beside it
+    assert f"T_b_fit = {v.T_b_fit:.6g}" in run.summary()
+    assert all(p.stat().st_size > 0 for p in save_figures(run, tmp_path))
+
+
+def test_gamma2_is_no_finite_time_through_load_run(tmp_path):
+    run = simulate(shipped_scene("tab_bu_g1", {"gamma": 2.0, "time.dt": 0.02, "t_end": 1.5}), out=tmp_path / "r")
+    back = load_run(tmp_path / "r").verdict
+    assert back.blowup_kind == "no_finite_time", back.blowup_reason
+    assert "no_finite_time" in run.summary()
+
+
+def test_uncertified_records_never_feed_the_verdict_fit():
+    t = np.linspace(0, 0.48, 49)
+    m = 0.5 / (0.5 - t)
+    failed = (t > 0.4).astype(int)
+    spoiled = np.where(failed, 1e3, m)
+    v = Verdict().solver_failed(0.41).with_fit(_rows(t, spoiled, failed))
+    clean = Verdict().with_fit(_rows(t[failed == 0], m[failed == 0]))
+    assert v.T_b_fit == clean.T_b_fit and v.T_b_fit == pytest.approx(0.5, abs=1e-6)
+    assert "first uncertified step" in v.blowup_reason
+
+
+def test_a_run_stopped_by_a_solver_failure_is_undetermined_unless_it_shows_the_law():
+    t = np.linspace(0, 2, 60)
+    stopped = Verdict().stopped(StopReason.SOLVER_FAILURE, 2.0, "collision solver failed (max_iterations)")
+    v = stopped.with_fit(_rows(t, np.exp(t)))
+    assert v.blowup_kind == "undetermined" and "collision solver failed" in v.blowup_reason
+    assert Verdict().with_fit(_rows(t, np.exp(t))).blowup_kind == "no_finite_time"
+    few = stopped.with_fit(_rows(t[:3], np.exp(t[:3])))
+    assert few.blowup_kind == "undetermined" and "too few records" in few.blowup_reason
+
+
+def test_growth_that_no_rule_flagged_is_reported():
+    t = np.linspace(0, 0.49, 50)
+    v = Verdict().with_fit(_rows(t, 0.5 / (0.5 - t)))  # max f x 50, reached t_end
+    assert v.unflagged_growth == pytest.approx(50, rel=1e-9)
+    assert "WARNING: max f grew by a factor 50" in v.describe()
+    assert Verdict().with_fit(_rows(t[:30], 0.5 / (0.5 - t[:30]))).unflagged_growth is None  # x 2.4
+    fired = Verdict().stopped(StopReason.EPS_V, 0.49, "min dv < eps_v").with_fit(_rows(t, 0.5 / (0.5 - t)))
+    assert fired.unflagged_growth is None
+
+
+def test_a_verdict_record_with_an_unknown_kind_is_refused():
+    d = Verdict().with_fit(_rows(np.linspace(0, 1, 10), np.ones(10))).to_dict()
+    assert Verdict.from_dict(d) == Verdict.from_dict(json.loads(json.dumps(d)))
+    with pytest.raises(ValueError, match="blowup_kind"):
+        Verdict.from_dict({**d, "blowup_kind": "soon"})

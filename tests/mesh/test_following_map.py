@@ -1,0 +1,93 @@
+"""The map that follows the concentration: its grid, its choice by the scene (auto: the paper's centred
+map for data symmetric in v, the following map elsewhere), and blow-up away from v = 0 detected."""
+
+import numpy as np
+import pytest
+
+from jko_cvx.engine.loop import simulate
+from jko_cvx.exact import GaussianMixture, blowup_time_gamma1
+from jko_cvx.grid import Grid
+from jko_cvx.mesh.maps import FollowingMap, OneBumpMap
+from jko_cvx.mesh.policy import RefineSpec, RemeshPolicy
+from jko_cvx.scene import SceneError, shipped_scene
+from jko_cvx.scene.model import shipped_scene_names
+
+
+def test_centred_at_zero_it_is_the_paper_map():
+    s = np.linspace(-1, 1, 121)
+    assert np.array_equal(FollowingMap(2.0, 0.0, 0.3, 0.5)(s), OneBumpMap(2.0, 0.3, 0.5)(s))
+
+
+@pytest.mark.parametrize("c", [0.3, -0.7, 1.2])
+def test_off_centre_the_grid_packs_delta_n_points_about_c(c):
+    mu = FollowingMap(2.0, c, 0.2, 0.5)
+    v = mu.grid(121).points
+    assert v[0] == -2.0 and v[-1] == 2.0 and np.all(np.diff(v) > 0)
+    inside = np.abs(v - c) <= 0.2 + 1e-12
+    assert inside.sum() == 61  # delta N + 1: s in [-delta, delta] on 121 uniform s
+    assert np.allclose(np.diff(v[inside]), 0.2 / 0.5 * 2 / 120)  # slope r / delta on both sides of c
+
+
+def test_from_density_centres_on_the_maximum():
+    g = Grid.uniform(-2.0, 2.0, 121)
+    f = np.exp(-8 * (g.points - 0.5) ** 2)
+    mu = FollowingMap.from_density(g, f, 0.5, 0.5)
+    assert mu.c == pytest.approx(0.5, abs=1e-12)
+    assert mu.r == pytest.approx(np.sqrt(np.log(2) / 8), abs=2 * 4 / 120)  # the half-maximum half-width
+
+
+@pytest.mark.parametrize(("kw", "match"), [({"c": 2.0}, "centre c"), ({"r": 1.9}, "r must lie")])
+def test_bad_maps_are_refused(kw, match):
+    with pytest.raises(ValueError, match=match):
+        FollowingMap(**{"L": 2.0, "c": 0.3, "r": 0.2, "delta": 0.5, **kw})
+
+
+def test_follow_needs_one_bump_and_the_v_axis():
+    with pytest.raises(ValueError, match="bumps = 1"):
+        RefineSpec(bumps=2, centre="follow")
+    with pytest.raises(ValueError, match="centre must be one of"):
+        RefineSpec(centre="middle")
+    with pytest.raises(ValueError, match="v-axis only"):
+        RemeshPolicy(None, RefineSpec(centre="follow"), 2.0, 4.0)
+    with pytest.raises(SceneError, match=r"refine\.v\.centre"):
+        shipped_scene("tab_bu_g4", {"refine.v.centre": "follow"})  # two bumps
+    with pytest.raises(SceneError, match=r"refine\.v\.centre"):
+        shipped_scene("tab_bu_g1", {"refine.v.centre": "middle"})
+
+
+def test_auto_keeps_the_paper_map_for_every_shipped_scene_and_follows_off_centre_data():
+    assert all(shipped_scene(n).refine.v.centre == "origin" for n in shipped_scene_names())
+    assert shipped_scene("tab_bu_g1", {"initial.centres": [0.3]}).refine.v.centre == "follow"
+    assert (
+        shipped_scene("tab_bu_g1", {"initial.centres": [0.3], "refine.v.centre": "origin"}).refine.v.centre == "origin"
+    )
+    two = {"initial.amplitudes": [1.0, 0.6], "initial.rates": [4.0, 4.0], "initial.centres": [0.3, -0.5]}
+    assert shipped_scene("tab_bu_g1", two).refine.v.centre == "follow"  # asymmetric; a one-bump map
+    sym = {"initial.amplitudes": [1.0, 1.0], "initial.rates": [4.0, 4.0], "initial.centres": [0.4, -0.4]}
+    assert shipped_scene("tab_bu_g1", sym).refine.v.centre == "origin"
+
+
+def _T(scene):
+    ic = scene.initial
+    return blowup_time_gamma1(GaussianMixture(ic.amplitudes, ic.rates, ic.centres, -scene.v.L, scene.v.L))
+
+
+def test_an_off_centre_blowup_is_detected_where_the_centred_map_missed_it():
+    off = {"initial.centres": [0.3], "t_end": 0.8}  # exact T = 0.5, the delta at v = 0.3 (momentum conserved)
+    run = simulate(shipped_scene("tab_bu_g1", off))
+    assert run.blowup and abs(run.verdict.T_b - 0.5) <= 0.03  # measured 0.48
+    assert run.verdict.unflagged_growth is None
+    assert run.verdict.blowup_kind == "finite_time" and abs(run.verdict.T_b_fit - 0.5) < 6e-3  # measured 0.4972
+    centred = simulate(shipped_scene("tab_bu_g1", {**off, "refine.v.centre": "origin"}))
+    assert not centred.blowup  # min dv stays near 0.01: the criterion does not see the delta at 0.3
+    assert centred.verdict.unflagged_growth > 20 and "WARNING" in centred.summary()
+
+
+def test_an_asymmetric_datum_is_detected():
+    two = {"initial.amplitudes": [1.0, 0.6], "initial.rates": [4.0, 4.0], "initial.centres": [0.3, -0.5],
+           "t_end": 0.8, "time.dt": 0.005}  # fmt: skip
+    sc = shipped_scene("tab_bu_g1", two)
+    run = simulate(sc)
+    T = _T(sc)  # 0.4747
+    assert run.blowup and abs(run.verdict.T_b - T) <= 0.03  # measured 0.485
+    assert run.verdict.blowup_kind == "finite_time" and abs(run.verdict.T_b_fit - T) < 0.04  # measured 0.506

@@ -1,0 +1,21 @@
+"""The estimator's validation study runs and writes its tables (slow: a dozen runs)."""
+
+import importlib.util
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+SCRIPT = Path(__file__).resolve().parents[2] / "studies" / "blowup_fit_validation.py"
+
+
+@pytest.mark.slow
+def test_the_quick_study_writes_its_tables(tmp_path):
+    spec = importlib.util.spec_from_file_location("blowup_fit_validation", SCRIPT)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    mod.main(["--quick", "--out", str(tmp_path)])
+    g1 = pd.read_csv(tmp_path / "blowup_fit_validation_quick.csv")
+    assert (g1.kind == "finite_time").all()
+    assert (g1.error.abs() < 6e-3).all()
+    assert "commit" in (tmp_path / "blowup_fit_validation_quick.md").read_text()
