@@ -293,7 +293,9 @@ class Verification:
 
     @property
     def verdict(self) -> str:
-        return verify_verdict(self.table)[1]
+        """:func:`verify_verdict`'s text; where nothing was compared, with the reason the run ended."""
+        text = verify_verdict(self.table)[1]
+        return text if len(self.table) else f"{text}; the run: {self.run.verdict.reason}"
 
 
 def _frame(rows: Sequence[dict[str, Any]]) -> pd.DataFrame:
@@ -406,8 +408,10 @@ def _read_settings(path: Path, ledger: Ledger) -> dict[str, Any]:
 def _read_table(path: Path, ledger: Ledger) -> pd.DataFrame:
     file = path / "verify.csv"
     ledger.verify(file)
-    try:  # round_trip: the floats read back are those written, bit for bit
-        table = pd.read_csv(file, float_precision="round_trip", keep_default_na=False, na_values=["", "nan", "NaN"])
+    # floats read back as written, bit for bit: pandas >= 3 by default, 2.x with "round_trip" (deprecated in 3)
+    exact = {} if int(pd.__version__.split(".")[0]) >= 3 else {"float_precision": "round_trip"}
+    try:
+        table = pd.read_csv(file, **exact, keep_default_na=False, na_values=["", "nan", "NaN"])
     except (OSError, ValueError) as exc:
         raise RunDirError(f"{file} does not read ({type(exc).__name__}: {exc})") from None
     if list(table.columns) != list(COLUMNS):
