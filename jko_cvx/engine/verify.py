@@ -228,6 +228,12 @@ class VerifyTracker(Tracker):
         if (rd.path / "verify.csv").exists():
             table = _read_table(rd.path, rd.ledger)
             self.rows = [r for r in table.to_dict("records") if r["step"] <= state.step]
+        missing = _missing_steps(self.rows, self.settings.every, state.step)
+        if missing:
+            raise RunDirError(
+                f"cannot resume the verification in {rd.path}: verify.csv lacks the compared steps {missing[:5]} "
+                "up to its checkpoint (the run was continued without verification); start again with --overwrite"
+            )
 
     def _save(self) -> None:
         rd = self.rundir
@@ -269,10 +275,11 @@ class VerifyTracker(Tracker):
             })  # fmt: skip
 
     def handle(self, state: RunState, step: StepInfo) -> None:
-        self.rows += self.pending
-        self.pending = []
-        # the same steps as the checkpoint tracker, which runs after this one: never behind it
-        if state.step % self.scene.output.checkpoint_every == 0 or state.done(self.scene.t_end):
+        # saved at once (this tracker runs before the checkpoint tracker): never behind a checkpoint,
+        # also not behind the one SIGINT / SIGTERM writes of the last accepted step
+        if self.pending:
+            self.rows += self.pending
+            self.pending = []
             self._save()
 
     def finish(self, state: RunState) -> None:
@@ -394,6 +401,11 @@ def verify(
 
 
 # ---------------------------------------------------------------- files
+def _missing_steps(rows: Sequence[dict[str, Any]], every: int, last: int) -> list[int]:
+    """The steps up to ``last`` a verification compares (multiples of ``every``) that have no row."""
+    return sorted(set(range(every, last + 1, every)) - {int(r["step"]) for r in rows})
+
+
 def _read_settings(path: Path, ledger: Ledger) -> dict[str, Any]:
     file = path / "verify.json"
     if not file.exists():
@@ -451,8 +463,7 @@ def load_verification(path: str | Path) -> pd.DataFrame:
     ledger.verify(path / "verdict.json")
     steps = int(json.loads((path / "verdict.json").read_text())["steps"])
     table = _read_table(path, ledger) if (path / "verify.csv").exists() else _frame([])
-    expected = set(range(settings["every"], steps + 1, settings["every"]))
-    missing = sorted(expected - set(table["step"].astype(int)))
+    missing = _missing_steps(table.to_dict("records"), settings["every"], steps)
     if missing:
         raise RunDirError(
             f"{path / 'verify.csv'} lacks the steps {missing[:5]}{' ...' if len(missing) > 5 else ''} of a run of "
