@@ -28,6 +28,13 @@ J is within ``tol`` of the minimum lies within about :math:`\\sqrt{tol}` of the 
 ``SAFETY * a`` (:data:`SAFETY` = 10: the measured errors sit at 0.2-0.7 a, and a tested
 method is allowed an error of the reference's size).
 
+A posteriori, each answer also gets an estimate of its own distance to the minimiser
+(:func:`f_error_estimate`: one Newton step on the constraint's null space, the reduced
+gradient over the reduced Hessian): columns ``err`` (tested) and ``err_ref`` (reference).  It
+is far smaller than the a priori bound where the step is well conditioned (conic at tol 1e-10:
+1e-9 to 1e-7 against :math:`\\sqrt{tol}` = 1e-5) and says when a step is too ill-conditioned for
+the reference to pin f to the tolerance: ``err_ref`` above it is outcome ``ill-conditioned``.
+
 Outcome of a slice (``outcome`` column)
 ---------------------------------------
 * ``agree``: the reference is certified (status CONVERGED at its ``kkt_tol``, the engine's
@@ -35,6 +42,8 @@ Outcome of a slice (``outcome`` column)
   accepts (:meth:`~jko_cvx.engine.loop.Stepper.accepted`, per slice) and both discrepancies
   are within the tolerance;
 * ``differ``: both certified, a discrepancy above the tolerance;
+* ``ill-conditioned``: the reference is certified but its own error estimate exceeds the
+  tolerance -- unverified, whatever the discrepancy;
 * ``method failed``: the reference certified, the tested slice not (the run went on with it
   only under ``stop.on_solver_failure = false``);
 * ``reference failed``: the reference is not certified -- the slice is *unverified*, never
@@ -87,6 +96,7 @@ __all__ = [
     "Verification",
     "VerifySettings",
     "default_reference",
+    "f_error_estimate",
     "load_verification",
     "reference_accuracy",
     "verify",
@@ -97,12 +107,13 @@ REFERENCES = ("conic", "nlp")
 """The reference solvers: independent formulations (CVXPY + Clarabel, CVXPY + IPOPT)."""
 SAFETY = 10.0
 """Agreement tolerance over the reference's accuracy (module docstring)."""
-COLUMNS = ("step", "t", "dt", "slice", "x", "status", "status_ref", "kkt", "kkt_ref", "df", "dJ", "tolerance",
-           "seconds", "seconds_ref", "outcome")  # fmt: skip
+COLUMNS = ("step", "t", "dt", "slice", "x", "status", "status_ref", "kkt", "kkt_ref", "df", "dJ", "err", "err_ref",
+           "tolerance", "seconds", "seconds_ref", "outcome")  # fmt: skip
 """The columns of ``verify.csv``, in order."""
 TIMES = ("seconds", "seconds_ref")
 """The columns a resumed verification does not reproduce bit for bit (wall times)."""
 AGREE, DIFFER, METHOD_FAILED, REFERENCE_FAILED = "agree", "differ", "method failed", "reference failed"
+ILL_CONDITIONED = "ill-conditioned"
 
 
 def default_reference(scene: Scene) -> str:
@@ -188,12 +199,71 @@ def _tested_accepted(status: Status, kkt: float) -> bool:
     return status.success or (status is Status.NOT_CERTIFIED and kkt <= ACCEPT_KKT)
 
 
-def _outcome(status: Status, kkt: float, ref: CollisionResult, df: float, dJ: float, tol: float) -> str:
+def _outcome(status: Status, kkt: float, ref: CollisionResult, df: float, dJ: float, err_ref: float, tol: float) -> str:
     if not ref.status.success:
         return REFERENCE_FAILED
+    if not err_ref <= tol:  # NaN too
+        return ILL_CONDITIONED
     if not _tested_accepted(status, kkt):
         return METHOD_FAILED
     return AGREE if (df <= tol and dJ <= tol) else DIFFER
+
+
+def f_error_estimate(problem: CollisionProblem, f: np.ndarray, m: np.ndarray) -> float:
+    """Distance in f from the feasible point ``(f, m)`` to the step's minimiser, estimated by one Newton step.
+
+    On the constraint's null space (``f = f^* - D p / h``, ``m = p``; with ``conserve_momentum``
+    also :math:`\\Delta v^\\top p = 0`) the Newton correction is :math:`p = H_r^{-1} g_r` with the
+    reduced gradient :math:`g_r = Z^\\top \\nabla J` and the reduced Hessian :math:`H_r = Z^\\top
+    \\nabla^2 J Z` (:meth:`~jko_cvx.collision.CollisionProblem.reduced_hessian`); the estimate is
+    :math:`\\max_j w_j |(D p / h)_j| / \\max_j f_j` with the certificate's weights
+    :math:`w_j = f_j / \\max f` (populated cells count in full), exact to second order, and
+    bounded by :math:`\\|g_r\\| / \\lambda_{\\min}(H_r)`, so it grows as the step becomes
+    ill-conditioned.  Fluxes through vacuum edges (infinite curvature) are frozen, and the
+    correction of each cell is cut at :math:`\\pm f_j` (near vacuum J is not quadratic, and no
+    solver pins those cells at these tolerances).  ``inf``
+    where :math:`H_r` is not positive definite or not finite.  Against a tight Newton solve (N = 61,
+    gamma = 1 and 1.5, both Fisher forms and none, with and without the momentum constraint, Newton
+    stopped at 1e-2 and 1e-4): within 30 % of the same weighted distance (``tests/engine/test_verify.py``).
+    """
+    import scipy.linalg as sla
+
+    f, m = np.asarray(f, dtype=float), np.asarray(m, dtype=float)
+    with np.errstate(all="ignore"):
+        gf, gm = problem.gradient(f, m)
+        Z = problem.null_space_basis()
+        g = Z.T @ np.concatenate([gf, gm])
+        H = problem.reduced_hessian(f, m)
+    d = np.diag(H)
+    keep = np.isfinite(d) & (d > 0)
+    Hk, gk = H[np.ix_(keep, keep)], g[keep]
+    if not (np.all(np.isfinite(Hk)) and np.all(np.isfinite(gk))) or f.max() <= 0:
+        return np.inf
+    s = 1 / np.sqrt(np.diag(Hk))  # Jacobi scaling: near-vacuum cells put 1e90 on the diagonal
+    try:
+        chol = sla.cho_factor(Hk * s[:, None] * s[None, :])
+    except np.linalg.LinAlgError:
+        return np.inf
+
+    def solve(r: np.ndarray) -> np.ndarray:
+        return s * sla.cho_solve(chol, s * r)
+
+    p = solve(gk)
+    if problem.conserve_momentum and keep.sum() > 1:
+        a = problem.grid.dv[keep]
+        q = solve(a)
+        p = p - q * (a @ p) / (a @ q)
+    full = np.zeros(problem.n - 1)
+    full[keep] = p
+    # Near vacuum J is far from quadratic (the Fisher and kinetic terms curve like 1/s_k) and the
+    # Newton step means nothing there: on tab_bu_g1 (61 points, beta = 30, step 5) it asked for
+    # +3.7e-5 max f at the end cell, where f = 7e-10, and 1.8e-5 at its neighbours, at every point
+    # tried (conic at tol 1e-12 and 1e-13, Newton at 1e-14: all within 3e-8 of one another).  So the
+    # correction is cut at +-f_j and weighted by f_j / max f, the certificate's weights.
+    fpos = np.maximum(f, 0.0)
+    delta = np.clip(Z[: problem.n] @ full, -fpos, fpos) * (fpos / f.max())
+    est = float(np.abs(delta).max() / f.max())
+    return est if np.isfinite(est) else np.inf
 
 
 def _at(value: Any, i: int, batched: bool) -> Any:
@@ -256,6 +326,8 @@ class VerifyTracker(Tracker):
             ref = solve_collision(sub, method=self.settings.reference, **self.settings.options)
             ref_seconds = time.perf_counter() - t0
             f = np.atleast_2d(result.f)[i] if batched else result.f
+            m = np.atleast_2d(result.m)[i] if batched else result.m
+            err, err_ref = f_error_estimate(sub, f, m), f_error_estimate(sub, ref.f, ref.m)
             status = _at(result.status, i, batched)
             kkt = float(_at(result.kkt_residual, i, batched))
             J = float(_at(result.objective, i, batched))
@@ -269,9 +341,9 @@ class VerifyTracker(Tracker):
                 "step": step, "t": state.t + dt, "dt": dt, "slice": int(i),
                 "x": float("nan") if state.xgrid is None else float(state.xgrid.points[i]),
                 "status": status.name, "status_ref": ref.status.name, "kkt": kkt, "kkt_ref": float(ref.kkt_residual),
-                "df": df, "dJ": dJ, "tolerance": self.settings.tolerance,
+                "df": df, "dJ": dJ, "err": err, "err_ref": err_ref, "tolerance": self.settings.tolerance,
                 "seconds": float(share), "seconds_ref": ref_seconds,
-                "outcome": _outcome(status, kkt, ref, df, dJ, self.settings.tolerance),
+                "outcome": _outcome(status, kkt, ref, df, dJ, err_ref, self.settings.tolerance),
             })  # fmt: skip
 
     def handle(self, state: RunState, step: StepInfo) -> None:
@@ -312,6 +384,11 @@ def _frame(rows: Sequence[dict[str, Any]]) -> pd.DataFrame:
 def _why(row: pd.Series) -> str:
     if row["outcome"] == REFERENCE_FAILED:
         return f"the reference is not certified ({row['status_ref']}, KKT {row['kkt_ref']:.2e}): unverified"
+    if row["outcome"] == ILL_CONDITIONED:
+        return (
+            f"the step is too ill-conditioned for the reference to pin f to {row['tolerance']:.1e} (its answer's "
+            f"error estimate is {row['err_ref']:.2e}): unverified"
+        )
     if row["outcome"] == METHOD_FAILED:
         return f"the tested method is not certified ({row['status']}, KKT {row['kkt']:.2e}) where the reference is"
     return (

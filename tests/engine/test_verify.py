@@ -76,6 +76,31 @@ def test_a_loose_method_is_flagged_at_the_first_step_it_parts():
         tight = solve_collision(problem, method="newton", tol=1e-12, max_iter=500)
         gap = np.abs(tight.f - loose.f).max() / tight.f.max()
         assert (gap > 3e-5) if step == 3 else (gap < 5e-6), (step, gap)
+        # the tested method's own error estimate sees it too: within 30 % of the distance to the tight answer
+        assert t["err"].iloc[step - 1] == pytest.approx(_weighted_gap(loose.f, tight.f), rel=0.3)
+        assert t["err_ref"].iloc[step - 1] < 1e-6  # the reference pinned f far below the tolerance
+
+
+def test_the_error_estimate_is_the_distance_to_the_minimiser():
+    from jko_cvx import CollisionProblem, Grid, PowerKernel
+    from jko_cvx.engine.verify import f_error_estimate
+
+    g = Grid.uniform(-2.0, 2.0, 61)
+    f0 = np.exp(-2 * (g.points - 0.5) ** 2) + 0.5 * np.exp(-8 * (g.points + 0.7) ** 2)
+    for gamma, beta, fisher, momentum in ((1.0, 30.0, "perspective", False), (1.5, np.inf, None, True),
+                                          (1.0, 1000.0, "log", True)):  # fmt: skip
+        prob = CollisionProblem(g, PowerKernel(gamma), f0, 0.01, 1.0, beta, fisher, momentum)
+        exact = solve_collision(prob, method="newton", tol=1e-13, max_iter=500)
+        assert f_error_estimate(prob, exact.f, exact.m) < 1e-12
+        for tol in (1e-2, 1e-4):
+            loose = solve_collision(prob, method="newton", tol=tol, kkt_tol=0.5, max_iter=500)
+            gap = _weighted_gap(loose.f, exact.f)
+            assert gap > 1e-9 and f_error_estimate(prob, loose.f, loose.m) == pytest.approx(gap, rel=0.3)
+
+
+def _weighted_gap(f, exact):
+    """max_j w_j |f_j - exact_j| / max f with the certificate's weights w_j = f_j / max f."""
+    return float(np.max(f / f.max() * np.abs(f - exact)) / f.max())
 
 
 def test_a_failing_reference_leaves_the_run_unverified():
