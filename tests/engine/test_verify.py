@@ -238,3 +238,20 @@ def test_cli_verify_exit_status_says_the_verdict(tmp_path, capsys):
     rc = main(["verify", str(loose), "--reference", "conic", "--out", str(tmp_path / "o"), "--quiet"])
     out = capsys.readouterr().out
     assert rc == 1 and "not verified: first at step 4 " in out, out
+
+
+def test_the_reference_solves_a_near_vacuum_slice_in_units_of_its_largest_density():
+    # a slice of inhom_gamma3_lambda4's first step with max f* ~ 1e-10 (the floor): posed as it is, the
+    # conic reference stopped at KKT 0.5 (MAX_ITERATIONS after 50 passes); the same problem in units of
+    # max f* is solved, certified against the original problem and equal to Newton's answer
+    from jko_cvx import CollisionProblem, Grid, PowerKernel
+    from jko_cvx.engine.verify import solve_reference
+
+    g = Grid.uniform(-4.0, 4.0, 41)
+    f_star = 1e-10 * (0.84 + 0.16 * np.exp(-(g.points**2)))
+    prob = CollisionProblem(g, PowerKernel(3.0), f_star, 0.05, 2.0, 30.0, "perspective", True)
+    ref = solve_reference(prob, "conic", {})
+    newton = solve_collision(prob, method="newton", tol=1e-12, max_iter=500)
+    assert ref.success and ref.kkt_residual <= 1e-6 and ref.info["scaled_by"] == f_star.max()
+    assert np.abs(ref.f - newton.f).max() <= 1e-6 * newton.f.max()
+    assert abs(prob.mass_error(ref.f)) < 1e-12
