@@ -10,7 +10,7 @@ re-solved by the reference); the ratio of the two wall times is the overhead.  S
 * ``inhom_gamma3_lambda4`` at 41 x 41 as shipped (log Fisher, beta = 1000), 2 steps, Newton
   against nlp on every slice;
 * ``inhom_gamma3_lambda4`` at 41 x 41 with the perspective form at beta = 30 (the form conic
-  poses), Newton against conic: the issue's target pairing.
+  poses), Newton against conic (the issue's target pairing), then against nlp.
 
 Part 2 (the conic solve against N at gamma = 3): f* = exp(-2 v^2) on [-2, 2], dt = 0.01,
 perspective Fisher beta = 10, median over ``--repeats`` solves of a warm model cache (the DPP
@@ -54,6 +54,7 @@ def scenes() -> list[tuple[str, object, str]]:
         ("tab_bu_g1 N=121 log beta=6000", g1, "nlp"),
         ("inhom_gamma3_lambda4 41x41 log beta=1000", g3, "nlp"),
         ("inhom_gamma3_lambda4 41x41 perspective beta=30", g3.replace(persp), "conic"),
+        ("inhom_gamma3_lambda4 41x41 perspective beta=30", g3.replace(persp), "nlp"),
     ]
 
 

@@ -408,7 +408,7 @@ class Verification:
     @property
     def verdict(self) -> str:
         """:func:`verify_verdict`'s text; where nothing was compared, with the reason the run ended."""
-        text = verify_verdict(self.table)[1]
+        text = verify_verdict(self.table, self.settings.reference)[1]
         return text if len(self.table) else f"{text}; the run: {self.run.verdict.reason}"
 
 
@@ -432,8 +432,21 @@ def _why(row: pd.Series) -> str:
     )
 
 
-def verify_verdict(table: pd.DataFrame) -> tuple[bool, str]:
-    """``(verified, text)`` of a verification table (module docstring: verified when every compared slice agrees)."""
+_OTHER_REFERENCE = {
+    "conic": (
+        "the conic reference fails on some steps that nlp certifies (inhom_gamma3_lambda4, perspective, beta 30, "
+        "41 x 41: conic 19 of 82 slices, nlp none): verify with reference='nlp' (--reference nlp), which poses "
+        "the perspective form too"
+    ),
+    "nlp": "try reference='conic' (--reference conic) where the scene's Fisher form is not the log form",
+}
+
+
+def verify_verdict(table: pd.DataFrame, reference: str | None = None) -> tuple[bool, str]:
+    """``(verified, text)`` of a verification table (module docstring: verified when every compared slice agrees).
+
+    With ``reference``, a verdict with slices the reference failed on says which reference to use instead.
+    """
     if len(table) == 0:
         return False, "unverified: no step was compared (the run took fewer steps than every)"
     bad = table[table["outcome"] != AGREE]
@@ -448,10 +461,13 @@ def verify_verdict(table: pd.DataFrame) -> tuple[bool, str]:
     if np.isfinite(row["x"]):
         where += f" (x = {row['x']:.4g})"
     counts = ", ".join(f"{n} {k}" for k, n in bad["outcome"].value_counts().sort_index().items())
-    return False, (
+    text = (
         f"not verified: first at {where}: {_why(row)}; method status {row['status']}, reference status "
         f"{row['status_ref']} ({counts} of {len(table)} compared slices)"
     )
+    if reference in _OTHER_REFERENCE and (bad["outcome"] == REFERENCE_FAILED).any():
+        text += f"; {_OTHER_REFERENCE[reference]}"
+    return False, text
 
 
 def verify(
@@ -582,7 +598,7 @@ def load_verification(path: str | Path) -> pd.DataFrame:
             f"{steps} steps compared every {settings['every']}: it was continued without verification"
         )
     table.attrs["settings"] = settings
-    table.attrs["verified"], table.attrs["verdict"] = verify_verdict(table)
+    table.attrs["verified"], table.attrs["verdict"] = verify_verdict(table, settings.get("reference"))
     return table
 
 

@@ -108,6 +108,7 @@ def test_a_failing_reference_leaves_the_run_unverified():
     t = ver.table
     assert (t["outcome"] == "reference failed").all() and (t["status_ref"] != "CONVERGED").all()
     assert not ver.verified and "reference is not certified" in ver.verdict and "step 1 " in ver.verdict
+    assert "reference='nlp'" in ver.verdict  # which reference to use instead
 
 
 def test_log_form_against_nlp_and_selected_slices_of_an_inhomogeneous_scene():
