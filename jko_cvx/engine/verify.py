@@ -5,7 +5,8 @@
 collision problem -- the very :class:`~jko_cvx.collision.CollisionProblem` the loop posed
 (``alg:SPMCSL-JKO``'s f* after transport, the grid, dt, strength, Fisher form and weight, the
 momentum constraint) -- is solved again by the reference, started cold from its own initial
-point (never from the tested method's answer), and the two answers are compared.  The run
+point (never from the tested method's answer; posed in units of the slice's largest density and
+certified against the problem itself, :func:`solve_reference`), and the two answers are compared.  The run
 itself goes on with the tested method's answer: the reference only watches
 (:meth:`~jko_cvx.engine.trackers.Tracker.solved`, before the step is committed).
 
