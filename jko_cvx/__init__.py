@@ -11,7 +11,9 @@ equation".  What a researcher imports is here; the subpackages hold the rest
   results :class:`CollisionResult`, :class:`Status`, :class:`KKTResidual`, :class:`Certificate`;
 * the homogeneous equation on a fixed grid: :func:`evolve_fixed_grid`;
 * scenes and runs: :class:`Scene`, :func:`load_scene`, :func:`shipped_scene`,
-  :func:`default_scene`, :func:`simulate`, :class:`Run`, :func:`load_run`.
+  :func:`default_scene`, :func:`simulate`, :class:`Run`, :func:`load_run`;
+* a solver verified along a run against an independent reference: :func:`verify`,
+  :func:`load_verification` (:mod:`jko_cvx.engine.verify`).
 
 ::
 
@@ -56,6 +58,8 @@ _LAZY = {
     "simulate": "jko_cvx.engine.loop",
     "Run": "jko_cvx.engine.run",
     "load_run": "jko_cvx.engine.run",
+    "verify": "jko_cvx.engine.verify",
+    "load_verification": "jko_cvx.engine.verify",
 }
 
 
@@ -89,7 +93,9 @@ __all__ = [
     "explicit_step",
     "load_run",
     "load_scene",
+    "load_verification",
     "shipped_scene",
     "simulate",
     "solve_collision",
+    "verify",
 ]

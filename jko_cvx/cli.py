@@ -6,6 +6,8 @@ run until the blow-up criterion min dv < eps_v fires; exact T = 0.5), writes the
 directory (refusing one that holds a run, unless ``--overwrite``) and prints the verdict;
 Ctrl-C (SIGINT) or SIGTERM writes a checkpoint, prints the command that resumes it and exits
 with status 130.  ``jko-cvx export RUN_DIR --netcdf FILE`` writes a run as netCDF.
+``jko-cvx verify SCENE [--reference conic|nlp] [--every K] [--slices all|N]`` runs a scene and
+re-solves every K-th step's collision problems with a reference (:mod:`jko_cvx.engine.verify`).
 ``jko-cvx solve`` solves one collision step with every method; ``jko-cvx solvers`` lists the installed
 conic solvers; ``jko-cvx reproduce NAME [--quick]`` regenerates one of the paper's tables or figures
 (:mod:`jko_cvx.studies.reproduce`).
@@ -258,6 +260,60 @@ def _studies() -> dict:
     return STUDIES
 
 
+# ---- jko-cvx verify: a solver against a reference along a whole run (jko_cvx.engine.verify) ----
+def _slices(text: str) -> str | int:
+    """An argparse type for --slices: ``all`` or an integer >= 1."""
+    if text == "all":
+        return text
+    try:
+        return _at_least(1)(text)
+    except argparse.ArgumentTypeError:
+        raise argparse.ArgumentTypeError(f"must be 'all' or an integer >= 1, got {text!r}") from None
+
+
+def _verify_parser(sub) -> None:
+    p = sub.add_parser("verify", help="run a scene and re-solve every K-th step's collision problems with a reference")
+    p.add_argument("scene", type=Path, help="scene TOML file, or the name of a shipped scene")
+    p.add_argument("--reference", choices=("conic", "nlp"), default=None,
+                   help="the reference solver (default: conic; nlp for collision.fisher = 'log')")  # fmt: skip
+    p.add_argument("--every", type=_at_least(1), default=1, help="compare every K-th step (default 1)")
+    p.add_argument("--slices", type=_slices, default="all", help="x-slices compared: all, or N evenly spread")
+    p.add_argument("--out", type=_directory, default=None, help="directory (default runs/<scene name>_verify)")
+    again = p.add_mutually_exclusive_group()
+    again.add_argument("--resume", action="store_true", help="continue an interrupted verification")
+    again.add_argument("--overwrite", action="store_true", help="replace what the directory holds")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def _verify(args) -> int:
+    """Exit status 0 when verified, 1 when not (the verdict says where and why), 130 when interrupted."""
+    from jko_cvx.engine._interrupts import RunInterrupted
+    from jko_cvx.engine.verify import verify
+    from jko_cvx.scene.model import load_scene
+
+    scene = load_scene(args.scene)
+    out = args.out if args.out is not None else Path("runs") / f"{scene.name}_verify"
+    t0 = time.perf_counter()
+    try:
+        ver = verify(scene, args.reference, every=args.every, slices=args.slices, out=out, resume=args.resume,
+                     overwrite=args.overwrite, progress=not args.quiet)  # fmt: skip
+    except RunInterrupted as exc:
+        cmd = ["jko-cvx", "verify", str(args.scene), "--out", str(out), "--resume", "--every", str(args.every),
+               "--slices", str(args.slices)]  # fmt: skip
+        cmd += [] if args.reference is None else ["--reference", args.reference]
+        print(f"\njko-cvx: interrupted ({signal.Signals(exc.signum).name}) at step {exc.step}, t = {exc.t:.6g}; "
+              f"checkpoint written.\nResume with:\n  {shlex.join(cmd)}", file=sys.stderr)  # fmt: skip
+        return 130
+    wall = time.perf_counter() - t0
+    print(f"jko-cvx {__version__} verify: {scene.name}, {scene.collision.method} against {ver.settings.reference}")
+    print(f"  {ver.run.summary()}")
+    print(f"  {ver.verdict}")
+    print(f"  wall {wall:.2f} s (the run's collision solves {ver.run.seconds['collision']:.2f} s, reference "
+          f"{ver.table['seconds_ref'].sum():.2f} s)")  # fmt: skip
+    print(f"  wrote {out}/ (verify.csv, verify.md, verify.png beside the run's files)")
+    return 0 if ver.verified else 1
+
+
 def main(argv: list[str] | None = None) -> int:
     """The ``jko-cvx`` command: 0 on success, 2 on bad input, 130 when interrupted (SIGINT)."""
     try:
@@ -330,8 +386,11 @@ def _main(argv: list[str] | None) -> int:
     p_cmp.add_argument("--beta", type=_weight, default=10.0)
     p_cmp.add_argument("--repeats", type=_at_least(1), default=5)
     p_cmp.add_argument("--out", type=_directory, default=Path("results/compare"), help="output directory")
+    _verify_parser(sub)
     args = parser.parse_args(argv)
     try:
+        if args.command == "verify":
+            return _verify(args)
         if args.command == "run":
             return _run_scene(args.scene, args.out, args.resume, args.overwrite, args.quiet)
         if args.command == "export":

@@ -49,6 +49,8 @@ __all__ = ["RunDir", "canonical_scene", "flat_scene_record", "read_snapshots", "
 
 RUN_FILES = ("scene.json", "metadata.json", "checkpoint.npz", "diagnostics.csv", "verdict.json")
 FIGURES = ("solution.png", "records.png")
+VERIFY_FILES = ("verify.json", "verify.csv", "verify.md", "verify.png")
+"""A verification's files beside the run's (:mod:`jko_cvx.engine.verify`): moved aside by an overwrite too."""
 _SNAPSHOT = re.compile(r"step_(\d+)\.npz")
 _ASIDE = ".replaced"  # an overwritten run, kept until the new run has started
 
@@ -141,7 +143,7 @@ def read_snapshots(path: Path, last_step: int, ledger: Ledger | None = None) -> 
 
 def _entries(path: Path) -> list[Path]:
     """The entries of a run directory that a run writes or deletes (the lock, run files, figures, snapshots)."""
-    names = [path / n for n in (".lock", "snapshots", *RUN_FILES, *FIGURES)]
+    names = [path / n for n in (".lock", "snapshots", *RUN_FILES, *FIGURES, *VERIFY_FILES)]
     snaps = path / "snapshots"
     if snaps.is_dir() and not snaps.is_symlink():
         names += [p for p in snaps.iterdir() if _SNAPSHOT.fullmatch(p.name)]
@@ -160,7 +162,7 @@ def refuse_links(path: Path) -> None:
 
 def _remove_temp_files(path: Path) -> None:
     """Remove temporary files that a killed atomic write left (regular files of our naming only)."""
-    for folder, names in ((path, RUN_FILES), (path / "snapshots", None)):
+    for folder, names in ((path, RUN_FILES + VERIFY_FILES), (path / "snapshots", None)):
         if not folder.is_dir() or folder.is_symlink():
             continue
         for p in folder.iterdir():
@@ -254,7 +256,7 @@ class RunDir:
             self._lock_fd = None
 
     def _existing(self) -> list[str]:
-        names = [n for n in RUN_FILES + FIGURES if (self.path / n).exists()]
+        names = [n for n in RUN_FILES + FIGURES + VERIFY_FILES if (self.path / n).exists()]
         return names + (["snapshots/"] if (self.path / "snapshots").is_dir() else [])
 
     def _run_files(self) -> list[Path]:

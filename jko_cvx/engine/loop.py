@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import signal
 import time
+from collections.abc import Callable
 from contextlib import nullcontext
 from dataclasses import dataclass
 from pathlib import Path
@@ -92,6 +93,7 @@ class _Outcome:
     f: np.ndarray | None = None  # the density after the whole step (Strang: after the second half transport)
     f_star: np.ndarray | None = None  # the density entering the collision step (alg:SPMCSL-JKO's f*)
     stop: str | None = None  # a failure that ends the run whatever stop.on_solver_failure says (halve_on)
+    problem: CollisionProblem | None = None  # the collision problem posed (time.order = 1; None for order 2)
 
 
 def _not_halving(statuses: list[str]) -> str:
@@ -121,6 +123,7 @@ class Stepper:
         self.scene = scene
         self.attempts = attempts
         self._f_star: np.ndarray | None = None
+        self._problem: CollisionProblem | None = None
         self.kernel = PowerKernel(scene.gamma)
         self.policy = scene.step_policy()
         self.remesh = remesh_policy(scene)
@@ -161,7 +164,7 @@ class Stepper:
         while True:
             f_new, res = self.step(state, dt)
             if self.accepted(res):
-                return _Outcome(dt, res, True, retries, f_new, self._f_star)
+                return _Outcome(dt, res, True, retries, f_new, self._f_star, problem=self._problem)
             statuses = _failed_statuses(res)
             stop = _not_halving(statuses) if self.policy.refuses(statuses) else None
             retry = None if stop is not None else self.policy.retry(dt)
@@ -169,7 +172,7 @@ class Stepper:
                 then = "stopped" if stop is not None else "given up" if retry is None else "halved"
                 self.attempts.append({"t": state.t, "dt": dt, "statuses": statuses, "then": then})
             if retry is None:
-                return _Outcome(dt, res, False, retries, f_new, self._f_star, stop)
+                return _Outcome(dt, res, False, retries, f_new, self._f_star, stop, self._problem)
             dt, retries = retry, retries + 1
 
     def step(self, state: RunState, dt: float) -> tuple[np.ndarray, Any]:
@@ -204,9 +207,11 @@ class Stepper:
             self._f_star = g  # alg:SPMCSL-JKO's f*, for refine.concentration_set = "quadrant"
             t0 = time.perf_counter()
             if sc.time.order == 2:
+                self._problem = None  # three substeps, no one problem
                 res = collision_step_order2(problem, g, h, method=sc.collision.method, **self.opts)
             else:
-                res = solve_collision(problem(g, h), method=sc.collision.method, **self.opts)
+                self._problem = problem(g, h)
+                res = solve_collision(self._problem, method=sc.collision.method, **self.opts)
             secs["collision"] += time.perf_counter() - t0
             return res
 
@@ -249,6 +254,8 @@ def _loop(scene: Scene, stepper: Stepper, state: RunState, trackers: list[Tracke
                     f"{StopReason.NO_STEP.value}: the first collision solve failed ({state.verdict.reason})"
                 )
             break
+        for tr in trackers:  # before the commit, interruptible: a signal here discards the step
+            tr.solved(state, out.problem, out.res)
         with guard.deferred():
             info = stepper.commit(state, out)
             for tr in trackers:
@@ -262,6 +269,7 @@ def simulate(
     progress: bool = False,
     overwrite: bool = False,
     attempts: list[dict[str, Any]] | None = None,
+    observers: Callable[[RunDir | None], list[Tracker]] | None = None,
 ) -> Run:
     """Run a scene; see the module docstring.
 
@@ -279,6 +287,12 @@ def simulate(
     attempts : list, optional
         Receives one record per collision attempt that was not accepted (time, dt, failure
         statuses and what followed: see :class:`Stepper`); in memory only.
+    observers : callable, optional
+        ``observers(rundir)`` (the open :class:`~jko_cvx.engine._rundir.RunDir`, or None without
+        ``out``) returns further trackers, run after the stopping rules and before the outputs
+        (snapshots, checkpoints), so what they write is never behind the checkpoint; their
+        :meth:`~jko_cvx.engine.trackers.Tracker.solved` sees each committed step's collision
+        problem and result (:mod:`jko_cvx.engine.verify` re-solves it with a reference).
 
     Raises
     ------
@@ -304,10 +318,15 @@ def simulate(
     check_limits(scene)
     if attempts is not None and not isinstance(attempts, list):
         raise TypeError(f"attempts must be a list (it receives the failed attempts), got {type(attempts).__name__}")
+    if observers is not None and not callable(observers):
+        raise TypeError(f"observers must be a callable (rundir -> list of trackers), got {type(observers).__name__}")
     stepper = Stepper(scene, attempts)
     with RunDir.open(out, scene, resume=resume, overwrite=overwrite) if out is not None else nullcontext() as rd:
         state = rd.state if rd is not None and rd.state is not None else initial_state(scene)
         trackers, snaps = default_trackers(scene, rd, [] if rd is None else rd.snapshots, progress)
+        if observers is not None:
+            at = trackers.index(snaps)
+            trackers[at:at] = observers(rd)
         with InterruptGuard() if rd is not None else nullcontext(InterruptGuard()) as guard:
             try:
                 with guard.deferred():

@@ -24,6 +24,7 @@ from jko_cvx.engine._state import RunState, save_npz, write_snapshot
 from jko_cvx.engine.verdict import StopReason
 
 if TYPE_CHECKING:
+    from jko_cvx.collision import CollisionProblem, CollisionResult
     from jko_cvx.engine._rundir import RunDir
     from jko_cvx.scene.model import Scene
     from jko_cvx.stepping import StepPolicy
@@ -62,6 +63,14 @@ class Tracker:
 
     def start(self, state: RunState) -> None:
         """Before the first step (of this call: also on resume)."""
+
+    def solved(self, state: RunState, problem: CollisionProblem | None, result: CollisionResult) -> None:
+        """After the collision solve of a step the loop is about to commit (``state`` not yet advanced).
+
+        ``problem`` is the collision problem the step posed (all x-slices, batched; None for
+        ``time.order = 2``, whose step is three solves) and ``result`` its solution.  Not
+        deferred: SIGINT / SIGTERM here discards the step, as during the solve.
+        """
 
     def handle(self, state: RunState, step: StepInfo) -> None:
         """After each accepted step (``state`` already advanced)."""

@@ -1,0 +1,682 @@
+"""Verify a solver along a whole run: every K-th step's collision problems re-solved by a reference.
+
+``verify(scene, reference="conic", every=K, slices="all")`` runs the scene with its own
+``collision.method``.  At every step whose number is a multiple of K, each compared x-slice's
+collision problem -- the very :class:`~jko_cvx.collision.CollisionProblem` the loop posed
+(``alg:SPMCSL-JKO``'s f* after transport, the grid, dt, strength, Fisher form and weight, the
+momentum constraint) -- is solved again by the reference, started cold from its own initial
+point (never from the tested method's answer; posed in units of the slice's largest density and
+certified against the problem itself, :func:`solve_reference`), and the two answers are compared.  The run
+itself goes on with the tested method's answer: the reference only watches
+(:meth:`~jko_cvx.engine.trackers.Tracker.solved`, before the step is committed).
+
+Per step and slice (one row of ``verify.csv``): both statuses, both KKT residuals
+(:meth:`~jko_cvx.collision.CollisionProblem.kkt_residual`), the discrepancy in f,
+:math:`\\max_j |f_j - f^{\\rm ref}_j| / \\max_j f^{\\rm ref}_j`, the relative difference in J,
+:math:`|J - J^{\\rm ref}| / |J^{\\rm ref}|`, both solve times (the tested method's is its batch
+time shared equally among the slices when it solves all slices at once), and the outcome.
+
+Tolerance: the reference's accuracy in f
+----------------------------------------
+Both references stop on a tolerance ``tol`` on the objective (Clarabel's duality gap inside the
+convex-concave loop of :mod:`jko_cvx.collision.conic`; IPOPT's scaled NLP error for
+:mod:`jko_cvx.collision.nlp`).  Near its minimiser J is flat to first order, so a point whose
+J is within ``tol`` of the minimum lies within about :math:`\\sqrt{tol}` of the minimiser
+(relative, in f): measured with Clarabel against the converged SQP at N = 121, tol 1e-8 gave
+7e-5, 1e-10 gave 3e-6 and 1e-12 gave 2e-7.  The reference's accuracy is therefore
+:math:`a = \\sqrt{tol}` (:func:`reference_accuracy`; 1e-5 for the conic default tol = 1e-10,
+3.2e-5 for nlp's 1e-9) and a slice *agrees* when both discrepancies are at most
+``SAFETY * a`` (:data:`SAFETY` = 10: the measured errors sit at 0.2-0.7 a, and a tested
+method is allowed an error of the reference's size).
+
+A posteriori, each answer also gets an estimate of its own distance to the minimiser
+(:func:`f_error_estimate`: one Newton step on the constraint's null space, the reduced
+gradient over the reduced Hessian): columns ``err`` (tested) and ``err_ref`` (reference).  It
+is far smaller than the a priori bound where the step is well conditioned (conic at tol 1e-10:
+1e-9 to 1e-7 against :math:`\\sqrt{tol}` = 1e-5) and says when a step is too ill-conditioned for
+the reference to pin f to the tolerance: ``err_ref`` above it is outcome ``ill-conditioned``.
+
+Outcome of a slice (``outcome`` column)
+---------------------------------------
+* ``agree``: the reference is certified (status CONVERGED at its ``kkt_tol``, the engine's
+  :data:`~jko_cvx.engine.loop.ACCEPT_KKT` unless set), the tested slice is one the engine
+  accepts (:meth:`~jko_cvx.engine.loop.Stepper.accepted`, per slice) and both discrepancies
+  are within the tolerance;
+* ``differ``: both certified, a discrepancy above the tolerance;
+* ``ill-conditioned``: the reference is certified but its own error estimate exceeds the
+  tolerance -- unverified, whatever the discrepancy;
+* ``method failed``: the reference certified, the tested slice not (the run went on with it
+  only under ``stop.on_solver_failure = false``);
+* ``reference failed``: the reference is not certified -- the slice is *unverified*, never
+  counted as agreement.
+
+The verdict is ``verified`` when at least one slice was compared and every compared slice
+agrees; otherwise it names the first step and slice (in step order, then slice order) that
+does not, with both statuses and why.
+
+Run directory
+-------------
+With ``out`` the verification lives in a run directory of the scene
+(:mod:`jko_cvx.engine._rundir`: provenance, lock, ``overwrite``, ``resume``), with, beside the
+run's own files, ``verify.json`` (the settings), ``verify.csv`` (written through the run's
+ledger before each checkpoint, so it never lags it), and at the end ``verify.md`` (summary,
+verdict, worst rows) and ``verify.png``.  ``resume`` continues a killed verification: rows
+past the checkpoint are dropped and recomputed, and since the loop and every reference solve
+are deterministic (cold starts), the resumed ``verify.csv`` equals the uninterrupted one in
+every column but the two solve times.  :func:`load_verification` reads ``verify.csv`` back,
+checked against the ledger and the settings.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from jko_cvx.collision import CollisionProblem, CollisionResult, Status, solve_collision
+from jko_cvx.collision._checks import check_bool, check_int
+from jko_cvx.collision.solve import OPTIONS
+from jko_cvx.engine._rundir import RunDir
+from jko_cvx.engine._state import Ledger, RunState
+from jko_cvx.engine.errors import RunDirError
+from jko_cvx.engine.loop import ACCEPT_KKT, simulate
+from jko_cvx.engine.run import Run
+from jko_cvx.engine.trackers import StepInfo, Tracker
+from jko_cvx.scene.model import Scene
+
+__all__ = [
+    "REFERENCES",
+    "SAFETY",
+    "Verification",
+    "VerifySettings",
+    "default_reference",
+    "f_error_estimate",
+    "load_verification",
+    "reference_accuracy",
+    "solve_reference",
+    "verify",
+    "verify_verdict",
+]
+
+REFERENCES = ("conic", "nlp")
+"""The reference solvers: independent formulations (CVXPY + Clarabel, CVXPY + IPOPT)."""
+SAFETY = 10.0
+"""Agreement tolerance over the reference's accuracy (module docstring)."""
+COLUMNS = ("step", "t", "dt", "slice", "x", "status", "status_ref", "kkt", "kkt_ref", "df", "dJ", "err", "err_ref",
+           "tolerance", "seconds", "seconds_ref", "outcome")  # fmt: skip
+"""The columns of ``verify.csv``, in order."""
+TIMES = ("seconds", "seconds_ref")
+"""The columns a resumed verification does not reproduce bit for bit (wall times)."""
+AGREE, DIFFER, METHOD_FAILED, REFERENCE_FAILED = "agree", "differ", "method failed", "reference failed"
+ILL_CONDITIONED = "ill-conditioned"
+
+
+def default_reference(scene: Scene) -> str:
+    """``"nlp"`` for the log Fisher form (conic cannot pose it), else ``"conic"``."""
+    return "nlp" if scene.collision.fisher == "log" else "conic"
+
+
+def reference_accuracy(reference: str, options: dict[str, Any]) -> float:
+    """The reference's accuracy in f, :math:`\\sqrt{tol}` with its ``tol`` (module docstring)."""
+    return math.sqrt(OPTIONS[reference](**options).tol)
+
+
+@dataclass(frozen=True)
+class VerifySettings:
+    """What a verification compares: the reference, its options, every K-th step, which slices."""
+
+    reference: str
+    options: dict[str, Any]
+    every: int
+    slices: str | int
+    tolerance: float
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"reference": self.reference, "options": self.options, "every": self.every, "slices": self.slices,
+                "tolerance": self.tolerance}  # fmt: skip
+
+    def slice_indices(self, n_x: int) -> np.ndarray:
+        """The compared x-slices: all, or ``slices`` evenly spread indices (both ends included)."""
+        if self.slices == "all" or int(self.slices) >= n_x:
+            return np.arange(n_x)
+        return np.unique(np.round(np.linspace(0, n_x - 1, int(self.slices))).astype(int))
+
+
+def _check_settings(
+    scene: Scene, reference: str | None, options: dict[str, Any] | None, every: int, slices: str | int
+) -> VerifySettings:
+    """The settings, checked against the scene before any work (each refusal names the argument)."""
+    if not isinstance(scene, Scene):
+        raise TypeError(
+            f"scene must be a jko_cvx.scene.Scene (from jko_cvx.scene.load_scene(path)), got {type(scene).__name__}"
+        )
+    reference = default_reference(scene) if reference is None else reference
+    if not isinstance(reference, str) or reference not in REFERENCES:
+        raise ValueError(f"reference must be one of {list(REFERENCES)}, got {reference!r}")
+    if reference == "conic" and scene.collision.fisher == "log":
+        raise ValueError(
+            'reference="conic" cannot pose collision.fisher = "log" (not conic-representable): use reference="nlp" '
+            'for the log form, or verify the scene with collision.fisher = "perspective"'
+        )
+    if reference == scene.collision.method:
+        raise ValueError(
+            f"reference={reference!r} is the scene's own collision.method: a solver checked against itself proves "
+            f"nothing; choose the other of {list(REFERENCES)}"
+        )
+    if scene.time.order != 1:
+        raise ValueError(
+            "time.order = 2 is not supported by verify: its collision step is three solves (a Richardson "
+            "combination), not one problem per slice; verify the scene with time.order = 1"
+        )
+    if reference == "nlp":
+        from jko_cvx.collision.nlp import _INSTALL_HINT, nlp_available
+
+        if not nlp_available():
+            raise ImportError(f'reference="nlp" needs IPOPT: {_INSTALL_HINT}')
+    every = check_int("every", every, 1)
+    if isinstance(slices, str):
+        if slices != "all":
+            raise ValueError(f'slices must be "all" or an integer >= 1, got {slices!r}')
+    else:
+        slices = check_int("slices", slices, 1)
+    if options is not None and not isinstance(options, dict):
+        raise TypeError(f"reference_options must be a dict of {reference} options, got {type(options).__name__}")
+    opts = dict(options or {})
+    unknown = sorted(set(opts) - {f for f in OPTIONS[reference].__dataclass_fields__})
+    if unknown:
+        raise TypeError(f"unknown reference_options {unknown} for reference={reference!r}")
+    tolerance = SAFETY * reference_accuracy(reference, opts)  # checks every option's value too
+    return VerifySettings(reference, opts, every, slices, tolerance)
+
+
+_JUDGED = (Status.CONVERGED, Status.NOT_CERTIFIED, Status.NONCONVEX)  # the certificate's outcomes, judged again
+
+
+def solve_reference(problem: CollisionProblem, reference: str, options: dict[str, Any]) -> CollisionResult:
+    """The reference's answer to ``problem``, solved in units of its largest density.
+
+    Every term of J but the energy is 1-homogeneous in ``(f, m)`` (the kinetic term
+    :math:`2m^2/s`, both Fisher forms) and the energy is 2-homogeneous, so with
+    :math:`c = \\max f^*` the minimiser of the step for ``(f^*, strength)`` is ``c`` times the
+    minimiser for ``(f^* / c, c * strength)``: the same problem, with densities of order one.
+    The reference solves that one, cold; its answer, scaled back, is certified against
+    ``problem`` itself (:func:`~jko_cvx.collision.certify`, the reference's ``kkt_tol``; a
+    failure status it claimed is kept).  Why: Clarabel's tolerances are partly absolute, and
+    on the near-vacuum x-slices of ``inhom_gamma3_lambda4`` (perspective form, beta = 30,
+    41 x 41, first step; max f* from 1e-10 to 5e-3) the conic reference returned SOLVER_ERROR or
+    MAX_ITERATIONS with KKT residuals 0.08-0.8 on all 10 such slices sampled; in units of max f*
+    all 10 reach 1e-8 to 1e-10, within 2e-10 of Newton.
+    """
+    from jko_cvx.collision import certify
+
+    c = float(np.max(problem.f_star))
+    if not (np.isfinite(c) and c > 0) or c == 1.0:
+        return solve_collision(problem, method=reference, **options)
+    scaled = CollisionProblem(problem.grid, problem.kernel, problem.f_star / c, problem.dt, problem.strength * c,
+                              problem.beta, problem.fisher, problem.conserve_momentum)  # fmt: skip
+    res = solve_collision(scaled, method=reference, **options)
+    opts = OPTIONS[reference](**options)
+    f, m = res.f * c, res.m * c
+    cert = certify(problem, f, m, kkt_tol=opts.kkt_tol, check_convexity=opts.check_convexity,
+                   claimed=None if res.status in _JUDGED else res.status)  # fmt: skip
+    return CollisionResult.from_certificate(problem, f, m, cert, reference, res.iterations, res.seconds,
+                                            {**res.info, "scaled_by": c})  # fmt: skip
+
+
+def _tested_accepted(status: Status, kkt: float) -> bool:
+    """A slice the engine accepts (:meth:`~jko_cvx.engine.loop.Stepper.accepted`, one slice)."""
+    return status.success or (status is Status.NOT_CERTIFIED and kkt <= ACCEPT_KKT)
+
+
+def _outcome(status: Status, kkt: float, ref: CollisionResult, df: float, dJ: float, err_ref: float, tol: float) -> str:
+    if not ref.status.success:
+        return REFERENCE_FAILED
+    if not err_ref <= tol:  # NaN too
+        return ILL_CONDITIONED
+    if not _tested_accepted(status, kkt):
+        return METHOD_FAILED
+    return AGREE if (df <= tol and dJ <= tol) else DIFFER
+
+
+def f_error_estimate(problem: CollisionProblem, f: np.ndarray, m: np.ndarray) -> float:
+    """Distance in f from the feasible point ``(f, m)`` to the step's minimiser, estimated by one Newton step.
+
+    On the constraint's null space (``f = f^* - D p / h``, ``m = p``; with ``conserve_momentum``
+    also :math:`\\Delta v^\\top p = 0`) the Newton correction is :math:`p = H_r^{-1} g_r` with the
+    reduced gradient :math:`g_r = Z^\\top \\nabla J` and the reduced Hessian :math:`H_r = Z^\\top
+    \\nabla^2 J Z` (:meth:`~jko_cvx.collision.CollisionProblem.reduced_hessian`); the estimate is
+    :math:`\\max_j w_j |(D p / h)_j| / \\max_j f_j` with the certificate's weights
+    :math:`w_j = f_j / \\max f` (populated cells count in full), exact to second order, and
+    bounded by :math:`\\|g_r\\| / \\lambda_{\\min}(H_r)`, so it grows as the step becomes
+    ill-conditioned.  Fluxes through vacuum edges (infinite curvature) are frozen, and the
+    correction of each cell is cut at :math:`\\pm f_j` (near vacuum J is not quadratic, and no
+    solver pins those cells at these tolerances).  ``inf``
+    where :math:`H_r` is not positive definite or not finite.  Against a tight Newton solve (N = 61,
+    gamma = 1 and 1.5, both Fisher forms and none, with and without the momentum constraint, Newton
+    stopped at 1e-2 and 1e-4): within 30 % of the same weighted distance (``tests/engine/test_verify.py``).
+    """
+    import scipy.linalg as sla
+
+    f, m = np.asarray(f, dtype=float), np.asarray(m, dtype=float)
+    with np.errstate(all="ignore"):
+        gf, gm = problem.gradient(f, m)
+        Z = problem.null_space_basis()
+        g = Z.T @ np.concatenate([gf, gm])
+        H = problem.reduced_hessian(f, m)
+    d = np.diag(H)
+    keep = np.isfinite(d) & (d > 0)
+    Hk, gk = H[np.ix_(keep, keep)], g[keep]
+    if not (np.all(np.isfinite(Hk)) and np.all(np.isfinite(gk))) or f.max() <= 0:
+        return np.inf
+    s = 1 / np.sqrt(np.diag(Hk))  # Jacobi scaling: near-vacuum cells put 1e90 on the diagonal
+    try:
+        chol = sla.cho_factor(Hk * s[:, None] * s[None, :])
+    except np.linalg.LinAlgError:
+        return np.inf
+
+    def solve(r: np.ndarray) -> np.ndarray:
+        return s * sla.cho_solve(chol, s * r)
+
+    p = solve(gk)
+    if problem.conserve_momentum and keep.sum() > 1:
+        a = problem.grid.dv[keep]
+        q = solve(a)
+        p = p - q * (a @ p) / (a @ q)
+    full = np.zeros(problem.n - 1)
+    full[keep] = p
+    # Near vacuum J is far from quadratic (the Fisher and kinetic terms curve like 1/s_k) and the
+    # Newton step means nothing there: on tab_bu_g1 (61 points, beta = 30, step 5) it asked for
+    # +3.7e-5 max f at the end cell, where f = 7e-10, and 1.8e-5 at its neighbours, at every point
+    # tried (conic at tol 1e-12 and 1e-13, Newton at 1e-14: all within 3e-8 of one another).  So the
+    # correction is cut at +-f_j and weighted by f_j / max f, the certificate's weights.
+    fpos = np.maximum(f, 0.0)
+    delta = np.clip(Z[: problem.n] @ full, -fpos, fpos) * (fpos / f.max())
+    est = float(np.abs(delta).max() / f.max())
+    return est if np.isfinite(est) else np.inf
+
+
+def _at(value: Any, i: int, batched: bool) -> Any:
+    return np.atleast_1d(value)[i] if batched else value
+
+
+class VerifyTracker(Tracker):
+    """Re-solves the compared slices of every K-th step with the reference and keeps the rows."""
+
+    def __init__(self, scene: Scene, settings: VerifySettings, rundir: RunDir | None) -> None:
+        self.scene, self.settings, self.rundir = scene, settings, rundir
+        self.rows: list[dict[str, Any]] = []
+        self.pending: list[dict[str, Any]] = []
+
+    # files ---------------------------------------------------------------
+    def start(self, state: RunState) -> None:
+        rd = self.rundir
+        if rd is None:
+            return
+        path = rd.path / "verify.json"
+        if rd.state is None:  # a fresh run: record the settings
+            rd.ledger.save_text(path, json.dumps(self.settings.to_dict(), indent=2, sort_keys=True))
+            return
+        recorded = _read_settings(rd.path, rd.ledger)
+        new = json.loads(json.dumps(self.settings.to_dict()))
+        diff = [f"{k}: {recorded.get(k)!r} -> {new[k]!r}" for k in sorted(new) if recorded.get(k) != new[k]]
+        if diff:
+            raise RunDirError(
+                f"cannot resume the verification in {rd.path}: its settings differ ({'; '.join(diff)}); resume with "
+                "the same reference, options, every and slices, or start again with --overwrite"
+            )
+        if (rd.path / "verify.csv").exists():
+            table = _read_table(rd.path, rd.ledger)
+            self.rows = [r for r in table.to_dict("records") if r["step"] <= state.step]
+        missing = _missing_steps(self.rows, self.settings.every, state.step)
+        if missing:
+            raise RunDirError(
+                f"cannot resume the verification in {rd.path}: verify.csv lacks the compared steps {missing[:5]} "
+                "up to its checkpoint (the run was continued without verification); start again with --overwrite"
+            )
+
+    def _save(self) -> None:
+        rd = self.rundir
+        if rd is not None:
+            rd.ledger.save_text(rd.path / "verify.csv", _frame(self.rows).to_csv(index=False))
+
+    # the loop's hooks ----------------------------------------------------
+    def solved(self, state: RunState, problem: CollisionProblem | None, result: CollisionResult) -> None:
+        self.pending = []
+        step = state.step + 1
+        if problem is None or step % self.settings.every:
+            return
+        batched = problem.batched
+        indices = self.settings.slice_indices(problem.batch_size) if batched else np.array([0])
+        share = result.seconds / (problem.batch_size if batched else 1)
+        dt = float(problem.dt)
+        for i in indices:
+            sub = problem.slice(int(i)) if batched else problem
+            t0 = time.perf_counter()
+            ref = solve_reference(sub, self.settings.reference, self.settings.options)
+            ref_seconds = time.perf_counter() - t0
+            f = np.atleast_2d(result.f)[i] if batched else result.f
+            m = np.atleast_2d(result.m)[i] if batched else result.m
+            err, err_ref = f_error_estimate(sub, f, m), f_error_estimate(sub, ref.f, ref.m)
+            status = _at(result.status, i, batched)
+            kkt = float(_at(result.kkt_residual, i, batched))
+            J = float(_at(result.objective, i, batched))
+            scale = float(np.max(ref.f)) if np.max(ref.f) > 0 else 1.0
+            with np.errstate(all="ignore"):
+                df = float(np.max(np.abs(f - ref.f)) / scale)
+                dJ = float(abs(J - ref.objective) / max(abs(float(ref.objective)), np.finfo(float).tiny))
+            df = df if np.isfinite(df) else np.inf
+            dJ = dJ if np.isfinite(dJ) else np.inf
+            self.pending.append({
+                "step": step, "t": state.t + dt, "dt": dt, "slice": int(i),
+                "x": float("nan") if state.xgrid is None else float(state.xgrid.points[i]),
+                "status": status.name, "status_ref": ref.status.name, "kkt": kkt, "kkt_ref": float(ref.kkt_residual),
+                "df": df, "dJ": dJ, "err": err, "err_ref": err_ref, "tolerance": self.settings.tolerance,
+                "seconds": float(share), "seconds_ref": ref_seconds,
+                "outcome": _outcome(status, kkt, ref, df, dJ, err_ref, self.settings.tolerance),
+            })  # fmt: skip
+
+    def handle(self, state: RunState, step: StepInfo) -> None:
+        # saved at once (this tracker runs before the checkpoint tracker): never behind a checkpoint,
+        # also not behind the one SIGINT / SIGTERM writes of the last accepted step
+        if self.pending:
+            self.rows += self.pending
+            self.pending = []
+            self._save()
+
+    def finish(self, state: RunState) -> None:
+        self._save()
+
+
+@dataclass
+class Verification:
+    """What :func:`verify` returns: the tested run, one row per compared step and slice, the verdict."""
+
+    run: Run
+    table: pd.DataFrame
+    settings: VerifySettings
+
+    @property
+    def verified(self) -> bool:
+        return verify_verdict(self.table)[0]
+
+    @property
+    def verdict(self) -> str:
+        """:func:`verify_verdict`'s text; where nothing was compared, with the reason the run ended."""
+        text = verify_verdict(self.table, self.settings.reference)[1]
+        return text if len(self.table) else f"{text}; the run: {self.run.verdict.reason}"
+
+
+def _frame(rows: Sequence[dict[str, Any]]) -> pd.DataFrame:
+    return pd.DataFrame(list(rows), columns=list(COLUMNS))
+
+
+def _why(row: pd.Series) -> str:
+    if row["outcome"] == REFERENCE_FAILED:
+        return f"the reference is not certified ({row['status_ref']}, KKT {row['kkt_ref']:.2e}): unverified"
+    if row["outcome"] == ILL_CONDITIONED:
+        return (
+            f"the step is too ill-conditioned for the reference to pin f to {row['tolerance']:.1e} (its answer's "
+            f"error estimate is {row['err_ref']:.2e}): unverified"
+        )
+    if row["outcome"] == METHOD_FAILED:
+        return f"the tested method is not certified ({row['status']}, KKT {row['kkt']:.2e}) where the reference is"
+    return (
+        f"they differ by {row['df']:.2e} in f and {row['dJ']:.2e} in J (relative), above the tolerance "
+        f"{row['tolerance']:.1e}"
+    )
+
+
+_OTHER_REFERENCE = {
+    "conic": (
+        "the conic reference fails on some steps that nlp certifies (inhom_gamma3_lambda4, perspective, beta 30, "
+        "41 x 41: conic 19 of 82 slices, nlp none): verify with reference='nlp' (--reference nlp), which poses "
+        "the perspective form too"
+    ),
+    "nlp": "try reference='conic' (--reference conic) where the scene's Fisher form is not the log form",
+}
+
+
+def verify_verdict(table: pd.DataFrame, reference: str | None = None) -> tuple[bool, str]:
+    """``(verified, text)`` of a verification table (module docstring: verified when every compared slice agrees).
+
+    With ``reference``, a verdict with slices the reference failed on says which reference to use instead.
+    """
+    if len(table) == 0:
+        return False, "unverified: no step was compared (the run took fewer steps than every)"
+    bad = table[table["outcome"] != AGREE]
+    if len(bad) == 0:
+        steps = table["step"].nunique()
+        return True, (
+            f"verified: {len(table)} slice solves over {steps} steps agree within {table['tolerance'].iloc[0]:.1e} "
+            f"(max discrepancy in f {table['df'].max():.2e}, in J {table['dJ'].max():.2e})"
+        )
+    row = bad.sort_values(["step", "slice"], kind="stable").iloc[0]
+    where = f"step {int(row['step'])} (t = {row['t']:.6g}), slice {int(row['slice'])}"
+    if np.isfinite(row["x"]):
+        where += f" (x = {row['x']:.4g})"
+    counts = ", ".join(f"{n} {k}" for k, n in bad["outcome"].value_counts().sort_index().items())
+    text = (
+        f"not verified: first at {where}: {_why(row)}; method status {row['status']}, reference status "
+        f"{row['status_ref']} ({counts} of {len(table)} compared slices)"
+    )
+    if reference in _OTHER_REFERENCE and (bad["outcome"] == REFERENCE_FAILED).any():
+        text += f"; {_OTHER_REFERENCE[reference]}"
+    return False, text
+
+
+def verify(
+    scene: Scene,
+    reference: str | None = None,
+    *,
+    every: int = 1,
+    slices: str | int = "all",
+    reference_options: dict[str, Any] | None = None,
+    out: str | Path | None = None,
+    resume: bool = False,
+    overwrite: bool = False,
+    progress: bool = False,
+) -> Verification:
+    """Run ``scene`` and re-solve every ``every``-th step's collision problems with a reference.
+
+    Parameters
+    ----------
+    scene : Scene
+        Run with its own ``collision.method`` (``time.order = 1``).
+    reference : {"conic", "nlp"}, optional
+        Default :func:`default_reference`: conic for the perspective form and no Fisher term,
+        nlp for the log form.  Refused: conic for the log form, the scene's own method.
+    every : int, default 1
+        Compare the steps whose number is a multiple of ``every``.
+    slices : "all" or int, default "all"
+        The x-slices compared (an integer: that many, evenly spread; homogeneous scenes have one).
+    reference_options : dict, optional
+        Options of the reference solver (default: its own, with ``kkt_tol`` = the engine's
+        :data:`~jko_cvx.engine.loop.ACCEPT_KKT`); its ``tol`` sets the tolerance.
+    out, resume, overwrite, progress
+        As for :func:`~jko_cvx.engine.loop.simulate`.
+
+    Raises
+    ------
+    ValueError, TypeError, ImportError
+        A bad or impossible setting, naming it, before any work or file write.
+    RunDirError
+        ``out`` cannot be used as asked, or ``resume`` with other settings than the verification's.
+    """
+    settings = _check_settings(scene, reference, reference_options, every, slices)
+    for name, flag in (("resume", resume), ("overwrite", overwrite), ("progress", progress)):
+        check_bool(name, flag)
+    holder: list[VerifyTracker] = []
+
+    def observers(rd: RunDir | None) -> list[Tracker]:
+        if rd is not None and rd.state is not None and not (rd.path / "verify.json").exists():
+            raise RunDirError(f"cannot resume {rd.path} as a verification: it holds a run without verify.json")
+        holder.append(VerifyTracker(scene, settings, rd))
+        return holder
+
+    run = simulate(scene, out=out, resume=resume, overwrite=overwrite, progress=progress, observers=observers)
+    tracker = holder[0]
+    table = _frame(tracker.rows)
+    result = Verification(run, table, settings)
+    if tracker.rundir is not None:
+        _write_report(result, tracker.rundir.path, tracker.rundir.ledger)
+    return result
+
+
+# ---------------------------------------------------------------- files
+def _missing_steps(rows: Sequence[dict[str, Any]], every: int, last: int) -> list[int]:
+    """The steps up to ``last`` a verification compares (multiples of ``every``) that have no row."""
+    return sorted(set(range(every, last + 1, every)) - {int(r["step"]) for r in rows})
+
+
+def _read_settings(path: Path, ledger: Ledger) -> dict[str, Any]:
+    file = path / "verify.json"
+    if not file.exists():
+        raise RunDirError(f"{path} holds no verification (no verify.json): it is a run, not a jko-cvx verify directory")
+    ledger.verify(file)
+    try:
+        return json.loads(file.read_text())
+    except (OSError, ValueError) as exc:
+        raise RunDirError(f"{file} does not read ({type(exc).__name__}: {exc})") from None
+
+
+def _read_table(path: Path, ledger: Ledger) -> pd.DataFrame:
+    file = path / "verify.csv"
+    ledger.verify(file)
+    # floats read back as written, bit for bit: pandas >= 3 by default, 2.x with "round_trip" (deprecated in 3)
+    exact = {} if int(pd.__version__.split(".")[0]) >= 3 else {"float_precision": "round_trip"}
+    try:
+        table = pd.read_csv(file, **exact, keep_default_na=False, na_values=["", "nan", "NaN"])
+    except (OSError, ValueError) as exc:
+        raise RunDirError(f"{file} does not read ({type(exc).__name__}: {exc})") from None
+    if list(table.columns) != list(COLUMNS):
+        raise RunDirError(f"{file} is not a verification table: its columns are {list(table.columns)}")
+    for c in ("status", "status_ref", "outcome"):
+        table[c] = table[c].astype(str)
+    return table
+
+
+def load_verification(path: str | Path) -> pd.DataFrame:
+    """``verify.csv`` of a verification directory as a DataFrame, checked before it is returned.
+
+    Checked: the directory's lock-free files against the ledger (``metadata.json``), the
+    settings (``verify.json``), the run has ended (``verdict.json``), and the table holds one
+    row per compared slice of every K-th step the run took.  ``attrs`` holds ``settings``,
+    ``verified`` and ``verdict``.
+
+    Raises
+    ------
+    RunDirError
+        Not a verification directory, a file changed since it was written, the run has not ended,
+        or rows are missing.
+    """
+    path = Path(path)
+    if not path.is_dir():
+        raise RunDirError(f"verification directory {path} does not exist")
+    from jko_cvx.engine._rundir import refuse_links
+
+    refuse_links(path)
+    ledger = Ledger.read(path)
+    settings = _read_settings(path, ledger)
+    if not (path / "verdict.json").exists():
+        raise RunDirError(
+            f"the verification in {path} has not ended (no verdict.json): resume it with jko-cvx verify SCENE --out "
+            f"{path} --resume"
+        )
+    ledger.verify(path / "verdict.json")
+    steps = int(json.loads((path / "verdict.json").read_text())["steps"])
+    table = _read_table(path, ledger) if (path / "verify.csv").exists() else _frame([])
+    missing = _missing_steps(table.to_dict("records"), settings["every"], steps)
+    if missing:
+        raise RunDirError(
+            f"{path / 'verify.csv'} lacks the steps {missing[:5]}{' ...' if len(missing) > 5 else ''} of a run of "
+            f"{steps} steps compared every {settings['every']}: it was continued without verification"
+        )
+    table.attrs["settings"] = settings
+    table.attrs["verified"], table.attrs["verdict"] = verify_verdict(table, settings.get("reference"))
+    return table
+
+
+def _write_report(result: Verification, path: Path, ledger: Ledger) -> None:
+    """verify.md (summary, verdict, worst rows) and verify.png."""
+    t, s, run = result.table, result.settings, result.run
+    lines = [
+        f"# Verification of {run.scene.name}: {run.scene.collision.method} against {s.reference}",
+        "",
+        f"- scene: {run.scene.name} ({run.scene.description}); collision.fisher = {run.scene.collision.fisher}, "
+        f"beta = {run.scene.collision.beta:g}",
+        f"- reference: {s.reference} with {json.dumps(s.options, sort_keys=True)}; every {s.every} step(s); "
+        f"slices: {s.slices}",
+        f"- tolerance: {s.tolerance:.2e} = {SAFETY:g} x sqrt(reference tol) (relative, in f and in J)",
+        f"- run: {run.summary()}",
+        "",
+        f"**Verdict**: {result.verdict}",
+        "",
+    ]
+    if len(t):
+        counts = t["outcome"].value_counts()
+        lines += ["| outcome | slices |", "|---|---|"] + [f"| {k} | {n} |" for k, n in counts.items()] + [""]
+        lines += [
+            f"Discrepancy in f: median {t['df'].median():.2e}, max {t['df'].max():.2e}; in J: max {t['dJ'].max():.2e}. "
+            f"Reference time per slice: median {t['seconds_ref'].median():.3g} s, "
+            f"total {t['seconds_ref'].sum():.3g} s; "
+            f"the run's collision time {run.seconds.get('collision', float('nan')):.3g} s.",
+            "",
+            "## Worst rows (largest discrepancy in f)",
+            "",
+            t.sort_values("df", ascending=False, kind="stable").head(10).to_markdown(index=False, floatfmt=".3g"),
+            "",
+        ]
+    ledger.save_text(path / "verify.md", "\n".join(lines))
+    ledger.write(path / "verify.png", lambda tmp: _plot(result, tmp))
+
+
+def _plot(result: Verification, file: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    t, s = result.table, result.settings
+    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
+    if len(t):
+        worst = t.groupby("step").agg({"t": "first", "df": "max", "dJ": "max", "kkt": "max", "kkt_ref": "max"})
+        ax1.semilogy(worst["t"], np.maximum(worst["df"], 1e-17), "o-", ms=3, label="max |f - f_ref| / max f_ref")
+        ax1.semilogy(worst["t"], np.maximum(worst["dJ"], 1e-17), "s-", ms=3, label="|J - J_ref| / |J_ref|")
+        ax2.semilogy(worst["t"], np.maximum(worst["kkt"], 1e-17), "o-", ms=3, label="KKT residual, tested method")
+        ax2.semilogy(worst["t"], np.maximum(worst["kkt_ref"], 1e-17), "s-", ms=3, label=f"KKT residual, {s.reference}")
+        bad = t[t["outcome"] != AGREE]
+        if len(bad):
+            ax1.axvline(bad["t"].iloc[0], color="r", lw=0.8, label="first slice not agreeing")
+    acc = s.tolerance / SAFETY
+    ax1.axhspan(1e-17, acc, color="0.85", label=f"reference accuracy sqrt(tol) = {acc:.1e}")
+    ax1.axhline(s.tolerance, color="k", ls="--", lw=0.8, label=f"tolerance {s.tolerance:.1e}")
+    ax2.axhline(ACCEPT_KKT, color="k", ls="--", lw=0.8, label=f"engine's acceptance {ACCEPT_KKT:g}")
+    ref_kkt = OPTIONS[s.reference](**s.options).kkt_tol
+    ax2.axhline(ref_kkt, color="C1", ls=":", lw=0.8, label=f"{s.reference}'s kkt_tol {ref_kkt:g}")
+    from jko_cvx.engine.plot import refinement_switches
+
+    run, d = result.run, result.run.diagnostics
+    switches = np.concatenate([refinement_switches(run, a) for a in ("v", "x")])
+    for k, step in enumerate(np.unique(switches)):
+        ts = float(d.loc[d["step"] == step, "t"].iloc[0])
+        for ax in (ax1, ax2):
+            ax.axvline(ts, color="0.6", lw=0.6, ls=":", label="remeshing" if k == 0 and ax is ax1 else None)
+    if run.verdict.blowup and run.verdict.T_b is not None:
+        for ax in (ax1, ax2):
+            ax.axvline(run.verdict.T_b, color="m", lw=1.0, label=f"T_b = {run.verdict.T_b:.4g}" if ax is ax1 else None)
+    ax1.set_ylabel("discrepancy (max over slices)")
+    ax2.set_ylabel("KKT residual (max over slices)")
+    ax2.set_xlabel("t")
+    for ax in (ax1, ax2):
+        ax.legend(fontsize=7)
+    ax1.set_title(f"{result.run.scene.name}: {result.run.scene.collision.method} against {s.reference}")
+    fig.tight_layout()
+    fig.savefig(file, format="png", dpi=100)
+    plt.close(fig)
