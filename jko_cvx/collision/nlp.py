@@ -57,7 +57,7 @@ from jko_cvx.collision.problem import CollisionProblem, KKTResidual
 from jko_cvx.collision.result import CollisionResult, Status
 from jko_cvx.collision.sqp import explicit_step
 
-__all__ = ["IPOPT_STATUS", "NlpModel", "NlpOptions", "nlp_available", "solve_nlp"]
+__all__ = ["INSTALL_HINT", "IPOPT_STATUS", "NlpModel", "NlpOptions", "nlp_available", "solve_nlp"]
 
 #: IPOPT's return codes (``ApplicationReturnStatus``) onto :class:`Status`.  A
 #: ``CONVERGED`` entry is only a candidate: the point must still pass the KKT and
@@ -85,7 +85,8 @@ IPOPT_STATUS: dict[int, Status] = {
     -199: Status.SOLVER_ERROR,  # Internal_Error
 }
 
-_INSTALL_HINT = 'method="nlp" needs IPOPT through cyipopt: pip install "jko_cvx[nlp]" (or pip install cyipopt-wheels)'
+#: What to install when IPOPT is missing (also named by the verify reference).
+INSTALL_HINT = 'method="nlp" needs IPOPT through cyipopt: pip install "jko_cvx[nlp]" (or pip install cyipopt-wheels)'
 # Options this module sets itself (through tol and max_iter) or that would break it.
 _RESERVED = {"tol": "tol", "max_iter": "max_iter", "print_level": "verbose", "hessian_approximation": None}
 _FRACTION_TO_BOUNDARY = 0.5  # the explicit start keeps f >= f*/2, as Newton's does
@@ -478,7 +479,7 @@ def _check_nlp_args(
 ) -> NlpOptions:
     """Validate the arguments (before any work)."""
     if not nlp_available():
-        raise ImportError(_INSTALL_HINT)
+        raise ImportError(INSTALL_HINT)
     if not isinstance(problem, CollisionProblem):
         raise TypeError(f"problem must be a CollisionProblem, got {type(problem).__name__}")
     if problem.batched:

@@ -176,10 +176,10 @@ def _check_settings(
             "combination), not one problem per slice; verify the scene with time.order = 1"
         )
     if reference == "nlp":
-        from jko_cvx.collision.nlp import _INSTALL_HINT, nlp_available
+        from jko_cvx.collision.nlp import INSTALL_HINT, nlp_available
 
         if not nlp_available():
-            raise ImportError(f'reference="nlp" needs IPOPT: {_INSTALL_HINT}')
+            raise ImportError(f'reference="nlp" needs IPOPT: {INSTALL_HINT}')
     every = check_int("every", every, 1)
     if isinstance(slices, str):
         if slices != "all":
