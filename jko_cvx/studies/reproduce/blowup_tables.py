@@ -43,6 +43,7 @@ from jko_cvx.grid import Grid
 from jko_cvx.mesh.maps import OneBumpMap, TwoBumpMap
 from jko_cvx.scene.model import Scene, shipped_scene
 from jko_cvx.studies.reproduce import paper
+from jko_cvx.studies.reproduce.discrimination import scores, scores_markdown
 from jko_cvx.studies.sweep import run_sweep
 
 __all__ = [
@@ -324,6 +325,7 @@ def _write(df: pd.DataFrame, out: Path, name: str) -> None:
             f"{int((fit_err <= df.T_b_fit_err).sum())} of {len(df)} (|T_b - exact| median "
             f"{df.ours_minus_exact.abs().median():.2g})."
         )]  # fmt: skip
+    lines += ["", scores_markdown(scores(name, df))]  # beside the count: what a run-free answer scores
     write_markdown(out / f"{name}.md", "\n".join(lines) + "\n")
     _figure(df, out / f"{name}.png")
 

@@ -67,6 +67,7 @@ SECTION = (
     "gk1_final",
     "mesh_maps",
     "g2bu_loglog",
+    "discrimination",
 )
 """The entries of the paper's numerical section, in the order they start: by CPU time, longest first
 (measured one entry at a time on 2 cores: ``inhom_gamma1p5``
@@ -76,6 +77,7 @@ the one before it has, so these come last).  ``grid_convergence``
 
 NEEDS: dict[str, tuple[str, ...]] = {
     "g2bu_loglog": ("tab_g2bu",),  # reads tab_g2bu.csv
+    "discrimination": ("tab_bu", "tab_bu_tb2", "tab_g2bu", "tab_bu_beta_scan"),  # reads their CSVs
 }
 """The entries each entry reads files of (it starts after they have finished)."""
 
