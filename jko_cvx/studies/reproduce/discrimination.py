@@ -80,7 +80,7 @@ def scores(table: str, df: pd.DataFrame) -> pd.DataFrame:
     Parameters
     ----------
     table : {"tab_bu", "tab_bu_tb2", "tab_g2bu"}
-        Which table ``df`` is (the layout of its CSV in ``studies/results/reproduce``).
+        Which table ``df`` is (the columns of the CSV its reproduction writes).
     df : pandas.DataFrame
         The table's CSV as written by its reproduction.
 

@@ -61,7 +61,7 @@ def test_the_shipped_tables_scores_are_the_audits():
 
 def test_the_entry_reads_the_tables_and_writes_its_report(tmp_path):
     assert REPRODUCTIONS["discrimination"] is reproduce_discrimination
-    with pytest.raises(FileNotFoundError, match="tab_bu.csv"):
+    with pytest.raises(FileNotFoundError, match=r"tab_bu\.csv"):
         reproduce_discrimination(tmp_path)
     for name in TABLES:
         shutil.copy(SHIPPED / f"{name}.csv", tmp_path)
