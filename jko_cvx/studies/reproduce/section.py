@@ -39,6 +39,7 @@ from typing import Any
 
 import pandas as pd
 
+from jko_cvx.environment import record_csv, write_markdown
 from jko_cvx.studies.reproduce import REPRODUCTIONS
 from jko_cvx.studies.sweep import code_provenance, holding, shared_points
 from jko_cvx.threads import THREADS_ENV
@@ -247,6 +248,7 @@ def _print_row(row: dict[str, Any]) -> None:
 def _write(out: Path, df: pd.DataFrame, wall: float, cpu: float, started: str, workers, quick, fresh, how) -> None:
     prov = code_provenance(reproduce_section)
     df.to_csv(out / "section.csv", index=False)
+    record_csv(out / "section.csv")
     modified = " (jko_cvx modified)" if prov["jko_cvx_modified"] else ""
     lines = [
         f"# The numerical section in one run ({'quick' if quick else 'full'} forms)",
@@ -261,4 +263,4 @@ def _write(out: Path, df: pd.DataFrame, wall: float, cpu: float, started: str, w
         "pool's workers; a Dask cluster's CPU is not counted).",
         "",
     ]
-    (out / "section.md").write_text("\n".join(lines))
+    write_markdown(out / "section.md", "\n".join(lines))

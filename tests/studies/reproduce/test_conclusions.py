@@ -20,7 +20,7 @@ def _copy(tmp_path: Path) -> Path:
     return tmp_path
 
 
-def test_every_row_has_a_verdict_and_evidence_that_exists():
+def test_every_row_has_a_verdict_and_evidence_that_exists(tmp_path):
     df = conclusions(SHIPPED)
     assert len(df) == len(CONCLUSIONS) and list(df.columns) == ["claim", "paper", "ours", "evidence", "verdict", "why"]
     assert df.verdict.isin(VERDICTS).all() and (df.why.str.len() > 20).all()
@@ -31,15 +31,8 @@ def test_every_row_has_a_verdict_and_evidence_that_exists():
     open_rows = df[df.verdict == "not settled"].claim.str.cat(sep=" ")
     assert "tab:g2bu" in open_rows and "gamma = 3 inhomogeneous" in open_rows
     # the shipped page is this code's output on the shipped files (regenerate it when they change)
-    assert pd.read_csv(SHIPPED / "conclusions.csv").equals(pd.read_csv(_written(df)))
-
-
-def _written(df: pd.DataFrame) -> Path:
-    import tempfile
-
-    path = Path(tempfile.mkdtemp()) / "c.csv"
-    df.to_csv(path, index=False)
-    return path
+    df.to_csv(tmp_path / "c.csv", index=False)
+    assert pd.read_csv(SHIPPED / "conclusions.csv").equals(pd.read_csv(tmp_path / "c.csv"))
 
 
 def test_the_rows_are_read_from_the_files_and_can_fail(tmp_path):
