@@ -41,6 +41,7 @@ import pandas as pd
 
 from jko_cvx import CollisionProblem, Grid, PowerKernel, solve_collision
 from jko_cvx.collision import conic, nlp
+from jko_cvx.environment import record_csv, write_markdown
 from jko_cvx.studies.sweep import code_provenance
 from jko_cvx.threads import thread_environment
 
@@ -192,12 +193,16 @@ def main(argv: list[str] | None = None) -> None:
     df = pd.DataFrame(rows)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     df.to_csv(args.out, index=False)
+    record_csv(args.out)
     by_beta = by_n = batch = None
     if args.newton:
         by_beta, by_n, batch = bench_newton(args.repeats)
         by_beta.to_csv(args.out.with_name("bench_newton.csv"), index=False)
+        record_csv(args.out.with_name("bench_newton.csv"))
         by_n.to_csv(args.out.with_name("bench_newton_growth.csv"), index=False)
+        record_csv(args.out.with_name("bench_newton_growth.csv"))
         batch.to_csv(args.out.with_name("bench_newton_batch.csv"), index=False)
+        record_csv(args.out.with_name("bench_newton_batch.csv"))
     header = (
         "# One collision step, four methods (`studies/bench_collision.py`)\n\n"
         f"`{shlex.join(['bench_collision.py', *(argv if argv is not None else sys.argv[1:])])}`, finished "
@@ -208,7 +213,7 @@ def main(argv: list[str] | None = None) -> None:
         "methods side by side in one process."
     )
     text = report(df, by_beta, by_n, batch, header)
-    args.out.with_suffix(".md").write_text(text)
+    write_markdown(args.out.with_suffix(".md"), text)
     print(text)
     print(f"wrote {args.out} and {args.out.with_suffix('.md').name}")
 

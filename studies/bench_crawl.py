@@ -28,6 +28,7 @@ import pandas as pd
 from bench_threads import blas_setting
 
 import jko_cvx.engine.loop as engine
+from jko_cvx.environment import record_csv, write_markdown
 from jko_cvx.studies.reproduce.gamma1p5 import gamma1p5_scene
 from jko_cvx.studies.sweep import code_provenance
 
@@ -104,8 +105,9 @@ def main(argv: list[str] | None = None) -> None:
     steps, totals = run(args.case, args.n, args.t_end, args.straggler)
     RESULTS.mkdir(parents=True, exist_ok=True)
     steps.to_csv(RESULTS / "bench_crawl.csv", index=False)
+    record_csv(RESULTS / "bench_crawl.csv")
     text = report(steps, totals, args, prov)
-    (RESULTS / "bench_crawl.md").write_text(text)
+    write_markdown(RESULTS / "bench_crawl.md", text)
     print(text)
 
 

@@ -37,6 +37,7 @@ from bench_threads import SCENE, inhom_batch, time_solves
 
 from jko_cvx.collision._structured import LINALG_ENV
 from jko_cvx.engine.loop import simulate
+from jko_cvx.environment import record_csv, write_markdown
 from jko_cvx.scene.model import load_scene
 from jko_cvx.studies.sweep import code_identity
 from jko_cvx.threads import thread_environment
@@ -153,14 +154,16 @@ def main(argv: list[str] | None = None) -> None:
     newton = pd.DataFrame(newton_rows(args.sizes, args.dense_max, args.repeats, tuple(args.gammas)))
     RESULTS.mkdir(parents=True, exist_ok=True)
     newton.to_csv(RESULTS / f"bench_scale{args.tag}_newton.csv", index=False)
+    record_csv(RESULTS / f"bench_scale{args.tag}_newton.csv")
     print(newton.to_markdown(index=False, floatfmt=".3g"), flush=True)
     fits = exponents(newton)
     steps = pd.DataFrame()
     if args.time_steps:
         steps = pd.DataFrame(step_rows([(481, "auto"), (1025, "auto"), (481, "dense")], args.steps))
         steps.to_csv(RESULTS / f"bench_scale{args.tag}_step.csv", index=False)
+        record_csv(RESULTS / f"bench_scale{args.tag}_step.csv")
     text = report(newton, fits, steps, setting)
-    (RESULTS / f"bench_scale{args.tag}.md").write_text(text)
+    write_markdown(RESULTS / f"bench_scale{args.tag}.md", text)
     print(text)
 
 

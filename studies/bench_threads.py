@@ -40,6 +40,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from jko_cvx.environment import record_csv, write_markdown
+
 RESULTS = Path(__file__).parent / "results"
 SCENE = Path(__file__).parent / "scenes" / "inhom_gamma3_lambda4.toml"
 _JKO = ("JKO_CVX_BLAS_THREADS", "JKO_CVX_THREADS", "JKO_CVX_NEWTON_LINALG", "OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS")
@@ -154,8 +156,9 @@ def main(argv: list[str] | None = None) -> None:
     df = pd.DataFrame(rows)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     df.to_csv(args.out, index=False)
+    record_csv(args.out)
     text = report(df)
-    args.out.with_suffix(".md").write_text(text)
+    write_markdown(args.out.with_suffix(".md"), text)
     print(text)
 
 

@@ -24,6 +24,7 @@ import pandas as pd
 
 from jko_cvx.blowup import fit_blowup
 from jko_cvx.engine.loop import simulate
+from jko_cvx.environment import record_csv, write_markdown
 from jko_cvx.exact import GaussianMixture, blowup_time_gamma1
 from jko_cvx.scene import shipped_scene
 
@@ -94,7 +95,9 @@ def main(argv: list[str] | None = None) -> None:
     a.out.mkdir(parents=True, exist_ok=True)
     stem = "blowup_fit_validation" + ("_quick" if a.quick else "")
     g1.assign(provenance=head).to_csv(a.out / f"{stem}.csv", index=False)
+    record_csv(a.out / f"{stem}.csv")
     osg.assign(provenance=head).to_csv(a.out / f"{stem}_osgood.csv", index=False)
+    record_csv(a.out / f"{stem}_osgood.csv")
     fitted = g1.dropna(subset=["error"])
     abs_err = fitted.error.abs()
     lines = [
@@ -113,7 +116,7 @@ def main(argv: list[str] | None = None) -> None:
         f"Osgood: {int(osg.right.sum())} / {len(osg)} kinds right.", "",
         osg.drop(columns=["reason"]).to_markdown(index=False, floatfmt=".5g"), "",
     ]  # fmt: skip
-    (a.out / f"{stem}.md").write_text("\n".join(lines))
+    write_markdown(a.out / f"{stem}.md", "\n".join(lines))
     print("\n".join(lines[:6]) + "\n" + lines[-3])
 
 

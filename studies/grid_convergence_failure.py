@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 import jko_cvx.engine.loop as simulate_module
+from jko_cvx.environment import environment
 from jko_cvx.studies.reproduce.gamma1p5 import COLLAPSE_SPREAD
 from jko_cvx.studies.reproduce.grid_convergence import study_scene
 from jko_cvx.studies.sweep import code_provenance
@@ -103,6 +104,7 @@ def main(argv: list[str] | None = None) -> None:
                 "v.floor_every_step": scene.v.floor_every_step,
                 "failed solves": failures,
                 "code": code,
+                "environment": environment(),
             },
             indent=1,
         )

@@ -40,6 +40,7 @@ from typing import Any
 import numpy as np
 
 from jko_cvx.engine.loop import simulate
+from jko_cvx.environment import record_csv, write_markdown
 from jko_cvx.studies.reproduce.gamma1p5 import COLLAPSE_SPREAD, QUICK_T_END, gamma1p5_scene
 from jko_cvx.studies.reproduce.inhomogeneous import inhomogeneous_scene
 from jko_cvx.studies.reproduce.records import record_run
@@ -135,7 +136,8 @@ def main(argv: list[str] | None = None) -> None:
     gk1 = run_sweep(gk1_variant, points, out / "cache" / "paper_variants", desc="paper_variants", **opts)
     gk1 = gk1.drop(columns=["cached"])
     gk1.to_csv(out / "paper_variants.csv", index=False)
-    (out / "paper_variants.md").write_text(
+    record_csv(out / "paper_variants.csv")
+    write_markdown(out / "paper_variants.md",
         "# Halving rule and SQP safeguard: the adaptive g1 runs of gk1_records (issue 18)\n\n"
         "alg:MR_JKO_ver2 as written (dt0 = 0.01 carried, eps_t = 5e-6), the paper's SQP (beta = 1000, "
         "log Fisher, I_max = 20000, eps = 1e-10), g1 = exp(-2 v^2), exact T = 0.5.  Defaults: "
@@ -152,7 +154,8 @@ def main(argv: list[str] | None = None) -> None:
     conc = run_sweep(concentration_variant, cpoints, cache, desc="concentration", **opts)
     conc = conc.drop(columns=["cached"])
     conc.to_csv(out / "paper_variants_concentration.csv", index=False)
-    (out / "paper_variants_concentration.md").write_text(
+    record_csv(out / "paper_variants_concentration.csv")
+    write_markdown(out / "paper_variants_concentration.md",
         "# Concentration set: projections (default) against the paper's quadrant set (issue 18)\n\n"
         "inhom_gamma3 lambda = 4 at 61 x 61 to t = 2 (quick form) and 121 x 121 to t = 4 (shipped scene); "
         "inhom_gamma1p5 before (lambda = 10) and after (lambda = 5) at 41 x 41 and 61 x 61 to t = 0.6 with the "

@@ -15,6 +15,7 @@ import numpy as np
 import pandas as pd
 
 from jko_cvx.engine.loop import simulate
+from jko_cvx.environment import record_csv, write_markdown
 from jko_cvx.scene.model import shipped_scene
 
 OUT = Path(__file__).parent / "results"
@@ -40,7 +41,8 @@ def main() -> None:
     df["observed_order"] = np.log2(df.diff_to_next / df.diff_to_next.shift(-1)).where(df.order == df.order.shift(-1))
     OUT.mkdir(exist_ok=True)
     df.to_csv(OUT / "strang_self_convergence.csv", index=False)
-    (OUT / "strang_self_convergence.md").write_text(
+    record_csv(OUT / "strang_self_convergence.csv")
+    write_markdown(OUT / "strang_self_convergence.md",
         "# Self-convergence in dt, inhom_gamma3_lambda4 at 32 x 41, no refinement, beta = 100, t = 0.4\n\n"
         + df.to_markdown(index=False, floatfmt=".3g")
         + "\n"

@@ -1,7 +1,8 @@
 """Run directories: provenance, the lock, resume and overwrite rules.
 
-A run directory holds ``scene.json``, ``metadata.json`` (package and solver versions, the
-scene fingerprint), ``diagnostics.csv``, ``snapshots/step_*.npz``, ``checkpoint.npz`` and, once
+A run directory holds ``scene.json``, ``metadata.json`` (package and solver versions, git
+commit, BLAS library, kernel and threads: :func:`jko_cvx.environment.environment`; the scene
+fingerprint), ``diagnostics.csv``, ``snapshots/step_*.npz``, ``checkpoint.npz`` and, once
 the run has ended, ``verdict.json`` (the CLI adds ``solution.png`` and ``records.png``).
 
 Rules (each refusal is a :class:`~jko_cvx.engine.errors.RunDirError` naming the directory or file):
@@ -28,21 +29,18 @@ Rules (each refusal is a :class:`~jko_cvx.engine.errors.RunDirError` naming the 
 from __future__ import annotations
 
 import hashlib
-import importlib.metadata
 import json
 import os
-import platform
 import re
 import shutil
 import time
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from jko_cvx._version import __version__
 from jko_cvx.engine._state import TEMP_FILE, Ledger, RunState, read_snapshot
 from jko_cvx.engine.errors import RunDirError
+from jko_cvx.environment import environment
 from jko_cvx.scene.model import Scene
 
 __all__ = ["RunDir", "canonical_scene", "flat_scene_record", "read_snapshots", "scene_differences", "scene_fingerprint"]
@@ -98,23 +96,12 @@ class _Absent:
 _ABSENT = _Absent()
 
 
-def _installed_version(name: str) -> str:
-    """The installed distribution's version, without importing it (cvxpy's import takes 0.9 s)."""
-    try:
-        return importlib.metadata.version(name)
-    except importlib.metadata.PackageNotFoundError:
-        return "unknown"
-
-
 def _metadata(scene: Scene) -> dict[str, Any]:
+    """What ``metadata.json`` records: the scene, the start time and :func:`jko_cvx.environment.environment`
+    (package and library versions, git commit, the BLAS library, its kernel and threads)."""
     return {
-        "jko_cvx": __version__,
+        **environment(),
         "scene_sha256": scene_fingerprint(scene),
-        "numpy": np.__version__,
-        "scipy": _installed_version("scipy"),
-        "cvxpy": _installed_version("cvxpy"),
-        "clarabel": _installed_version("clarabel"),
-        "python": platform.python_version(),
         "started": time.strftime("%Y-%m-%dT%H:%M:%S"),
         "scene": scene.name,
     }

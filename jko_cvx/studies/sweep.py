@@ -135,20 +135,13 @@ def code_provenance(func: Callable[..., Any]) -> dict[str, Any]:
     For study scripts that record which code produced a result file; take it before the run,
     so that a file edited meanwhile cannot change the record.
     """
-    import subprocess
+    from jko_cvx.environment import git_state
 
-    def git(*args: str) -> str | None:
-        try:
-            done = subprocess.run(["git", *args], capture_output=True, text=True, cwd=PACKAGE_ROOT)
-        except OSError:
-            return None
-        return done.stdout.strip() if done.returncode == 0 else None
-
-    commit, status = git("rev-parse", "HEAD"), git("status", "--porcelain", ".")
+    commit, modified = git_state(PACKAGE_ROOT)
     return {
         **code_identity(func),
-        "git_commit": commit or None,
-        "jko_cvx_modified": None if status is None else bool(status),
+        "git_commit": commit,
+        "jko_cvx_modified": modified,
     }
 
 

@@ -89,6 +89,7 @@ def test_the_run_directory_records_the_fingerprint_and_version(tmp_path):
     simulate(scene, out=tmp_path / "r")
     meta = json.loads((tmp_path / "r" / "metadata.json").read_text())
     assert meta["scene_sha256"] == scene_fingerprint(scene) and meta["jko_cvx"] == rundir_module.__version__
+    assert meta["numpy"] == np.__version__ and meta["blas"] and {"git_commit", "cvxpy", "clarabel"} <= set(meta)
     ck = np.load(tmp_path / "r" / "checkpoint.npz")
     assert str(ck["scene_sha256"]) == scene_fingerprint(scene) and str(ck["jko_cvx"]) == rundir_module.__version__
 

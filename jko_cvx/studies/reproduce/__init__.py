@@ -9,6 +9,8 @@ from __future__ import annotations
 
 from jko_cvx.studies.reproduce.beta_scan import reproduce_tab_bu_beta_scan
 from jko_cvx.studies.reproduce.blowup_tables import reproduce_tab_bu, reproduce_tab_bu_tb2
+from jko_cvx.studies.reproduce.conclusions import reproduce_conclusions
+from jko_cvx.studies.reproduce.discrimination import reproduce_discrimination
 from jko_cvx.studies.reproduce.explicit import reproduce_explicit
 from jko_cvx.studies.reproduce.explicit_figures import reproduce_explicit_figures
 from jko_cvx.studies.reproduce.explicit_sketch import reproduce_explicit2_sketch
@@ -50,10 +52,14 @@ REPRODUCTIONS = {
     "gk2_bu": reproduce_gk2_bu,
     "explicit2_sketch": reproduce_explicit2_sketch,
     "grid_convergence": reproduce_grid_convergence,
+    "discrimination": reproduce_discrimination,
+    "conclusions": reproduce_conclusions,
 }
 
 __all__ = [
     "REPRODUCTIONS",
+    "reproduce_conclusions",
+    "reproduce_discrimination",
     "reproduce_explicit",
     "reproduce_explicit2_sketch",
     "reproduce_explicit_figures",

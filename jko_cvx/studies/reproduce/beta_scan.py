@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from jko_cvx.environment import record_csv, write_markdown
 from jko_cvx.studies.reproduce import paper
 from jko_cvx.studies.reproduce.blowup_tables import blowup_times, table_entries, table_points
 from jko_cvx.studies.sweep import run_sweep
@@ -55,6 +56,7 @@ def reproduce_tab_bu_beta_scan(out: Path, quick: bool = False, **sweep_opts: Any
     df["paper"] = df.apply(paper_value, axis=1)
     df = df.drop(columns=["cached"], errors="ignore")
     df.to_csv(out / "tab_bu_beta_scan.csv", index=False)
+    record_csv(out / "tab_bu_beta_scan.csv")
     rows = []
     for beta, block in df.groupby("beta", sort=False):
         target = block[(block.data == "g1") & np.isclose(block.eps_v, 1e-3 / 16) & np.isclose(block["dt"], 0.00125)]
@@ -71,6 +73,7 @@ def reproduce_tab_bu_beta_scan(out: Path, quick: bool = False, **sweep_opts: Any
         )
     summary = pd.DataFrame(rows)
     summary.to_csv(out / "tab_bu_beta_scan_summary.csv", index=False)
+    record_csv(out / "tab_bu_beta_scan_summary.csv")
     lines = [
         "# tab:bu against the Fisher weight beta",
         "",
@@ -80,5 +83,5 @@ def reproduce_tab_bu_beta_scan(out: Path, quick: bool = False, **sweep_opts: Any
         "",
         f"Sweep wall time {wall:.1f} s.",
     ]
-    (out / "tab_bu_beta_scan.md").write_text("\n".join(lines) + "\n")
+    write_markdown(out / "tab_bu_beta_scan.md", "\n".join(lines) + "\n")
     return summary

@@ -37,11 +37,13 @@ import pandas as pd
 from jko_cvx.engine.loop import simulate
 from jko_cvx.engine.trackers import EpsV
 from jko_cvx.engine.verdict import StopReason, Verdict, fit_rows
+from jko_cvx.environment import record_csv, write_markdown
 from jko_cvx.exact import GaussianMixture, blowup_time_gamma1, exact_gamma1
 from jko_cvx.grid import Grid
 from jko_cvx.mesh.maps import OneBumpMap, TwoBumpMap
 from jko_cvx.scene.model import Scene, shipped_scene
 from jko_cvx.studies.reproduce import paper
+from jko_cvx.studies.reproduce.discrimination import scores, scores_markdown
 from jko_cvx.studies.sweep import run_sweep
 
 __all__ = [
@@ -284,6 +286,7 @@ def _sweep(points, out: Path, name: str, **sweep_opts) -> pd.DataFrame:
 def _write(df: pd.DataFrame, out: Path, name: str) -> None:
     out.mkdir(parents=True, exist_ok=True)
     df.drop(columns=["cached"]).to_csv(out / f"{name}.csv", index=False)
+    record_csv(out / f"{name}.csv")
     lines = [
         f"# {name}: T_b ours / paper (exact T in the heading)",
         "",
@@ -322,7 +325,8 @@ def _write(df: pd.DataFrame, out: Path, name: str) -> None:
             f"{int((fit_err <= df.T_b_fit_err).sum())} of {len(df)} (|T_b - exact| median "
             f"{df.ours_minus_exact.abs().median():.2g})."
         )]  # fmt: skip
-    (out / f"{name}.md").write_text("\n".join(lines) + "\n")
+    lines += ["", scores_markdown(scores(name, df))]  # beside the count: what a run-free answer scores
+    write_markdown(out / f"{name}.md", "\n".join(lines) + "\n")
     _figure(df, out / f"{name}.png")
 
 

@@ -30,6 +30,8 @@ import numpy as np
 import pandas as pd
 from scipy.integrate import solve_ivp
 
+from jko_cvx.environment import record_csv, write_markdown
+
 __all__ = ["closed_form", "reproduce_explicit", "solve_ode1"]
 
 A0, B0 = 120.0, -10.0
@@ -97,6 +99,7 @@ def reproduce_explicit(out: Path, quick: bool = False, **_sweep_opts: Any) -> pd
             )
     df = pd.DataFrame(rows)
     df.to_csv(out / "explicit.csv", index=False)
+    record_csv(out / "explicit.csv")
     worst = df.groupby("(T-t)/T")[["rho rel. diff", "m rel. diff", "b rel. diff"]].max().reset_index()
     worst = worst.sort_values("(T-t)/T", ascending=False)
     trend = df[df["(T-t)/T"] == eps.min()][["lambda", "lambda rho0 T / 2", "width 1/sqrt(a)"]]
@@ -115,7 +118,7 @@ def reproduce_explicit(out: Path, quick: bool = False, **_sweep_opts: Any) -> pd
         + df.to_markdown(index=False, floatfmt=".4g")
         + "\n"
     )
-    (out / "explicit.md").write_text(text)
+    write_markdown(out / "explicit.md", text)
     _figure(df, out / "explicit.png")
     return df
 

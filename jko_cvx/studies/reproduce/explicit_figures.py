@@ -28,6 +28,7 @@ import numpy as np
 import pandas as pd
 from scipy.integrate import solve_ivp
 
+from jko_cvx.environment import record_csv, write_markdown
 from jko_cvx.studies.reproduce.explicit import M0, RHO0, T, closed_form
 from jko_cvx.studies.solvers.figures import pyplot
 
@@ -106,6 +107,7 @@ def reproduce_explicit_figures(out: Path, quick: bool = False, **_sweep_opts: An
     )
     df = pd.DataFrame(rows)
     df.to_csv(out / "explicit_figures.csv", index=False)
+    record_csv(out / "explicit_figures.csv")
     lines = [
         "# fig:explicit1-3: the infinite-mass solution (lambda = 400) and its characteristics",
         "",
@@ -114,7 +116,7 @@ def reproduce_explicit_figures(out: Path, quick: bool = False, **_sweep_opts: An
         df.to_markdown(index=False, floatfmt=".4g"),
         "",
     ]
-    (out / "explicit_figures.md").write_text("\n".join(lines) + "\n")
+    write_markdown(out / "explicit_figures.md", "\n".join(lines) + "\n")
     _figure(t, trajectories, out / "explicit_figures.png")
     return df
 

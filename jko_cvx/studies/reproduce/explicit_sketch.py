@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from jko_cvx.environment import record_csv, write_markdown
 from jko_cvx.studies.reproduce.explicit import M0, RHO0, T, closed_form
 from jko_cvx.studies.reproduce.explicit_figures import LAMBDA, characteristic_eq
 from jko_cvx.studies.reproduce.g2bu import level_set_components
@@ -123,9 +124,11 @@ def reproduce_explicit2_sketch(out: Path, quick: bool = False, **_sweep_opts: An
         ignore_index=True,
     )
     curves.to_csv(out / "explicit2_sketch_curves.csv", index=False)
+    record_csv(out / "explicit2_sketch_curves.csv")
     table = pd.DataFrame([nums])
     table.to_csv(out / "explicit2_sketch.csv", index=False)
-    (out / "explicit2_sketch.md").write_text(
+    record_csv(out / "explicit2_sketch.csv")
+    write_markdown(out / "explicit2_sketch.md",
         "# fig:explicit2 (right): a possible scenario in which condft breaks down\n\n"
         f"Infinite-mass solution, lambda = {LAMBDA:g}, profile supported on alpha^2 <= alpha_s^2; the characteristic "
         "from (x1, v1), v1 in xvcond, drawn at T_*.  On the line x = X1(T_*) the support holds the band "

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from jko_cvx.environment import record_csv, write_markdown
 from jko_cvx.evolve import evolve_fixed_grid
 from jko_cvx.exact import GaussianMixture, exact_gamma1
 from jko_cvx.grid import Grid
@@ -60,6 +61,7 @@ def reproduce_fisher_width(out: Path, quick: bool = False, **sweep_opts: Any) ->
         e / ref[(f, w)] for e, f, w in zip(df.error, df.fisher, df.width, strict=True)
     ]
     df.to_csv(out / "fisher_width.csv", index=False)
+    record_csv(out / "fisher_width.csv")
     table = df.pivot_table(index=["fisher", "beta"], columns="width", values="error / error(beta = inf)")
     need = []
     for (fisher, width), block in df[np.isfinite(df.beta)].groupby(["fisher", "width"]):
@@ -81,5 +83,5 @@ def reproduce_fisher_width(out: Path, quick: bool = False, **sweep_opts: Any) ->
         "error(beta = inf) per width: "
         + ", ".join(f"{w:g}: {ref[('log', w)]:.3g}" for w in sorted({w for _, w in ref.index}, reverse=True)),
     ]
-    (out / "fisher_width.md").write_text("\n".join(lines) + "\n")
+    write_markdown(out / "fisher_width.md", "\n".join(lines) + "\n")
     return df

@@ -35,6 +35,7 @@ import numpy as np
 import pandas as pd
 
 from jko_cvx.engine.loop import simulate, snapshot_record
+from jko_cvx.environment import record_csv, write_markdown
 from jko_cvx.grid import Grid
 from jko_cvx.scene.model import Scene, shipped_scene
 from jko_cvx.studies.reproduce.paper import TAB_G2BU
@@ -177,7 +178,8 @@ def reproduce_tab_g2bu(out: Path, quick: bool = False, **sweep_opts: Any) -> pd.
     cols += ["split slice-steps", "secondary peak"]
     cols += ["steps", "min_dx", "min_dv", "max_f", "mass_drift", "failed_slices", "seconds"]
     df[cols].to_csv(out / "tab_g2bu.csv", index=False)
-    (out / "tab_g2bu.md").write_text(
+    record_csv(out / "tab_g2bu.csv")
+    write_markdown(out / "tab_g2bu.md",
         "# tab:g2bu, fig:loglog and the level-set check (sec:sp_inhom_gamma_2, sec:sup_g2)\n\n"
         f"gamma = 2, eqn:ic_g2 (a = 120, b = 10, x1 = {X1}), N_x = {n_x}, CFL steps, eps = {EPS:g}.  "
         "log ratio = log(rho/rho0)/log(m/m0) with rho = max_x int f dv, m = sqrt(2 pi) max f; the "

@@ -30,6 +30,7 @@ import numpy as np
 import pandas as pd
 
 from jko_cvx.engine.loop import simulate, snapshot_record
+from jko_cvx.environment import record_csv, write_markdown
 from jko_cvx.grid import Grid, PeriodicGrid
 from jko_cvx.scene.model import Scene, shipped_scene
 from jko_cvx.studies.sweep import run_sweep
@@ -220,6 +221,7 @@ def reproduce_inhom_gamma1p5(out: Path, quick: bool = False, **sweep_opts: Any) 
     rows = [_summary(r) for _, r in runs.iterrows()] + [_summary(r, uniform=True) for _, r in refs.iterrows()]
     resolution = pd.DataFrame(rows)
     resolution.to_csv(out / "inhom_gamma1p5_resolution.csv", index=False)
+    record_csv(out / "inhom_gamma1p5_resolution.csv")
 
     main = runs[runs.n == max(resolutions)].reset_index(drop=True)
     main["lambda"] = [_CASES[c][0] for c in main.case]
@@ -251,7 +253,8 @@ def reproduce_inhom_gamma1p5(out: Path, quick: bool = False, **sweep_opts: Any) 
     cols += [collapse, f"{collapse} over grids", "density criterion", centre]
     cols += ["reason", "steps", "max f (end)", "sigma_v (end)", "mass drift", "seconds"]
     main[cols].to_csv(out / "inhom_gamma1p5.csv", index=False)
-    (out / "inhom_gamma1p5.md").write_text(
+    record_csv(out / "inhom_gamma1p5.csv")
+    write_markdown(out / "inhom_gamma1p5.md",
         "# sec:sp_inhom_gamma_1p5: gamma = 3/2 inhomogeneous\n\n"
         "T_b (the paper's criterion, min dv < eps_v) against the time c/d = 1 at which the bumps' "
         "centres meet at x = 0 (free transport), on the paper's 121 x 121 grids.  Beside it the "

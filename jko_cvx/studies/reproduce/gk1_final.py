@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 
 from jko_cvx.engine.loop import simulate
+from jko_cvx.environment import record_csv, write_markdown
 from jko_cvx.studies.reproduce.blowup_tables import blowup_scene
 from jko_cvx.studies.solvers.figures import pyplot
 
@@ -50,6 +51,7 @@ def reproduce_gk1_final(out: Path, quick: bool = False, **_sweep_opts: Any) -> p
         "seconds": seconds,
     }
     pd.DataFrame({"v": v, "f": f}).to_csv(out / "gk1_final.csv", index=False)
+    record_csv(out / "gk1_final.csv")
     lines = [
         "# fig:gk1_final: g1, delta = 0.2, delta0 = 0.5, dt = 0.01, N_v = 121, beta = 1000",
         "",
@@ -57,7 +59,7 @@ def reproduce_gk1_final(out: Path, quick: bool = False, **_sweep_opts: Any) -> p
         "",
         "f(t, v) at the final grid: `gk1_final.csv`.",
     ]
-    (out / "gk1_final.md").write_text("\n".join(lines) + "\n")
+    write_markdown(out / "gk1_final.md", "\n".join(lines) + "\n")
     _figure(v, f, run.t, out / "gk1_final.png")
     return pd.DataFrame([record])
 

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from jko_cvx.environment import record_csv, write_markdown
 from jko_cvx.studies.reproduce.g2bu import LEVEL, g2bu_run, g2bu_scene, level_set_components
 from jko_cvx.studies.reproduce.paper import TAB_G2BU
 from jko_cvx.studies.reproduce.phase_views import snapshot_numbers, surface_view, zoom_window
@@ -70,7 +71,8 @@ def reproduce_gk2_bu(out: Path, quick: bool = False, **sweep_opts: Any) -> pd.Da
         )
     table = pd.DataFrame(rows)
     table.to_csv(out / "gk2_bu.csv", index=False)
-    (out / "gk2_bu.md").write_text(
+    record_csv(out / "gk2_bu.csv")
+    write_markdown(out / "gk2_bu.md",
         f"# fig:gk2_bu: f at the numerical blow-up time, gamma = 2, eqn:ic_g2, N_x = {n_x}, N_v = {n_v}\n\n"
         "The tab_g2bu runs (g2bu_run); each row is the run's last snapshot (t = T_b).  Zoom window: the box of "
         "grid points holding {f >= 0.1 max f}, widened by 3 points.  mass rel. diff: against eqn:ic_g2 on the "

@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from jko_cvx.environment import record_csv, write_markdown
 from jko_cvx.studies.reproduce.inhomogeneous import PAPER_TIMES, inhomogeneous_gamma3, inhomogeneous_scene
 from jko_cvx.studies.reproduce.phase_views import contour_view, snapshot_numbers, surface_view, zoom_window
 from jko_cvx.studies.solvers.figures import pyplot
@@ -64,8 +65,10 @@ def reproduce_gk3_panels(out: Path, quick: bool = False, **sweep_opts: Any) -> p
     panels_df = pd.DataFrame(rows)
     records_df = pd.DataFrame(records)
     panels_df.to_csv(out / "gk3_panels.csv", index=False)
+    record_csv(out / "gk3_panels.csv")
     records_df.to_csv(out / "gk3_panels_records.csv", index=False)
-    (out / "gk3_panels.md").write_text(
+    record_csv(out / "gk3_panels_records.csv")
+    write_markdown(out / "gk3_panels.md",
         f"# fig:gk3_ih_2_C2_2, fig:gk3_ih_2_C2, fig:gk3_ih_2_C5_2, fig:gk3_ih_2_C5: gamma = 3, N = {n}, "
         f"to t = {t_end:g}\n\n"
         "The inhom_gamma3 runs (eqn:f0, delta0 = 0.02, delta = 0.5, dt = 0.05).  One row per panel: the "

@@ -39,6 +39,7 @@ import pandas as pd
 
 from jko_cvx.engine.loop import simulate
 from jko_cvx.engine.verdict import StopReason
+from jko_cvx.environment import record_csv, write_markdown
 from jko_cvx.scene.model import Scene
 from jko_cvx.studies.reproduce.g2bu import g2bu_run
 from jko_cvx.studies.reproduce.gamma1p5 import COLLAPSE_SPREAD, gamma1p5_scene
@@ -333,14 +334,17 @@ def write_report(
     conv = _gamma1p5_convergence(rows)
     g2 = _g2bu_table(runs[runs.study == "g2bu"].reset_index(drop=True))
     rows.to_csv(out / "grid_convergence.csv", index=False)
+    record_csv(out / "grid_convergence.csv")
     conv.to_csv(out / "grid_convergence_gamma1p5.csv", index=False)
+    record_csv(out / "grid_convergence_gamma1p5.csv")
     g2.to_csv(out / "grid_convergence_g2bu.csv", index=False)
+    record_csv(out / "grid_convergence_g2bu.csv")
     absent = ""
     if missing:
         absent = "\n\n**Points not run** (the tables leave them out):\n\n" + "\n".join(
             "- " + ", ".join(f"{k} = {v}" for k, v in p.items()) for p in missing
         )
-    (out / "grid_convergence.md").write_text(
+    write_markdown(out / "grid_convergence.md",
         "# Grid convergence of sec:sp_inhom_gamma_1p5 and tab:g2bu\n\n"
         + (__doc__ or "").split("\n\n", 1)[1].split("\n\nFor a quantity")[0]
         + absent

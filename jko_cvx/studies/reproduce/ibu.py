@@ -17,6 +17,7 @@ import numpy as np
 import pandas as pd
 
 from jko_cvx.engine.loop import simulate
+from jko_cvx.environment import record_csv, write_markdown
 from jko_cvx.scene.model import Scene, shipped_scene
 from jko_cvx.studies.sweep import run_sweep
 
@@ -93,7 +94,8 @@ def reproduce_ibu(out: Path, quick: bool = False, **sweep_opts: Any) -> pd.DataF
     slope_com = float(np.polyfit(np.log(df.t[late]), np.log(df.centre_of_mass[late]), 1)[0])
     dev = float((df.centre_of_mass[late] / df.law[late] - 1).abs().max())
     df.to_csv(out / "ibu.csv", index=False)
-    (out / "ibu.md").write_text(
+    record_csv(out / "ibu.csv")
+    write_markdown(out / "ibu.md",
         f"# sec:ibu: gamma = 3, two bumps, N_v = 101, dt = 0.01, to t = {t_end:g}\n\n"
         f"Fitted exponent of the peak position (argmax f, v > 0) over t in [{t_end / 2:g}, {t_end:g}]: "
         f"{slope_peak:.3f}; of the bump's centre of mass: {slope_com:.3f} (the law p0/(1 + 2 M p0 t) has "

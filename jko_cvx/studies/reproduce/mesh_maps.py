@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from jko_cvx.environment import record_csv, write_markdown
 from jko_cvx.grid import Grid
 from jko_cvx.mesh.maps import OneBumpMap, TwoBumpMap
 from jko_cvx.mesh.remapping import remap
@@ -76,7 +77,8 @@ def reproduce_mesh_maps(out: Path, quick: bool = False, **_sweep_opts: Any) -> p
         plt.close(fig)
     df = pd.DataFrame(rows)
     df.to_csv(out / "mesh_maps.csv", index=False)
-    (out / "mesh_maps.md").write_text(
+    record_csv(out / "mesh_maps.csv")
+    write_markdown(out / "mesh_maps.md",
         "# fig:mr_demon and fig:mr_demon_mu2 (delta = 0.5, N = 121)\n\n"
         "The paper's figures show the maps and the refined densities; it gives no numbers.  The maps\n"
         "put about delta N points into the set {f > delta0 max f}.\n\n"

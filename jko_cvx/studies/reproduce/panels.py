@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from jko_cvx.environment import record_csv, write_markdown
 from jko_cvx.studies.reproduce.g2bu import RECORDS, g2bu_run
 from jko_cvx.studies.reproduce.ibu import ibu_point
 from jko_cvx.studies.solvers.figures import pyplot
@@ -38,6 +39,7 @@ def reproduce_ibu_panels(out: Path, quick: bool = False, **sweep_opts: Any) -> p
         [pd.DataFrame({"t": s["t"], "v": s["v"], "f": s["f"]}) for s in (first, last)], ignore_index=True
     )
     df.to_csv(out / "ibu_panels.csv", index=False)
+    record_csv(out / "ibu_panels.csv")
     v, f = np.asarray(last["v"]), np.asarray(last["f"])
     pos = v > 0
     record = {
@@ -47,7 +49,7 @@ def reproduce_ibu_panels(out: Path, quick: bool = False, **sweep_opts: Any) -> p
         "f at v = 0 / max f": float(np.interp(0.0, v, f) / f.max()),
         "seconds": run["seconds"],
     }
-    (out / "ibu_panels.md").write_text(
+    write_markdown(out / "ibu_panels.md",
         "# fig:gk3: the initial datum and f(t_end, v) of sec:ibu\n\n"
         + pd.DataFrame([record]).to_markdown(index=False, floatfmt=".4g")
         + "\n"
@@ -101,7 +103,8 @@ def reproduce_g2bu_records(out: Path, quick: bool = False, **sweep_opts: Any) ->
     run = run_sweep(g2bu_run, [point], out / "cache" / "g2bu_records", desc="g2bu_records", **sweep_opts).iloc[0]
     d = pd.DataFrame(run.records)[list(RECORDS)]
     d.to_csv(out / "g2bu_records.csv", index=False)
-    (out / "g2bu_records.md").write_text(
+    record_csv(out / "g2bu_records.csv")
+    write_markdown(out / "g2bu_records.md",
         "# fig:gk2_evo_example2 records: lambda = 310, 121 x 201\n\n"
         f"{len(d) - 1} steps; verdict: {run.reason} at t = {d.t.iloc[-1]:.5g}; "
         f"min dx {d.min_dx.min():.3g}, min dv {d.min_dv.min():.3g}, max f {d.max_f.max():.4g}; "

@@ -25,6 +25,7 @@ import pandas as pd
 
 from jko_cvx.collision import CollisionProblem, solve_collision
 from jko_cvx.diagnostics import diagnostics
+from jko_cvx.environment import record_csv, write_markdown
 from jko_cvx.grid import Grid
 from jko_cvx.kernels import PowerKernel
 from jko_cvx.mesh.maps import OneBumpMap, TwoBumpMap, periodic_map_grid
@@ -163,8 +164,10 @@ def reproduce_property_budget(out: Path, quick: bool = False, **_sweep_opts: Any
             summaries.append({"case": label, "v_remap": v_remap, "t_end": t_end, **_summary(df), "seconds": secs})
     table = pd.concat(frames, ignore_index=True)
     table.to_csv(out / "property_budget.csv", index=False)
+    record_csv(out / "property_budget.csv")
     summary = pd.DataFrame(summaries)
     summary.to_csv(out / "property_budget_summary.csv", index=False)
+    record_csv(out / "property_budget_summary.csv")
     lines = [
         "# Which sub-step breaks prop:properties (moments 2-4 non-increasing, f log f non-decreasing)",
         "",
@@ -175,5 +178,5 @@ def reproduce_property_budget(out: Path, quick: bool = False, **_sweep_opts: Any
         summary.set_index(["case", "v_remap"]).T.to_markdown(floatfmt=".3g"),
         "",
     ]
-    (out / "property_budget.md").write_text("\n".join(lines) + "\n")
+    write_markdown(out / "property_budget.md", "\n".join(lines) + "\n")
     return table

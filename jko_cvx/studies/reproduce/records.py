@@ -18,6 +18,7 @@ from typing import Any
 import pandas as pd
 
 from jko_cvx.engine.loop import simulate
+from jko_cvx.environment import record_csv, write_markdown
 from jko_cvx.studies.reproduce.blowup_tables import blowup_scene
 from jko_cvx.studies.sweep import run_sweep
 
@@ -133,7 +134,8 @@ def reproduce_gk1_records(out: Path, quick: bool = False, **sweep_opts) -> pd.Da
     summary["retries"] = [int(sum(r)) for r in df["retries"]]
     summary["T_end"] = [ts[-1] for ts in df.t]
     summary.to_csv(out / "gk1_records.csv", index=False)
-    (out / "gk1_records.md").write_text(
+    record_csv(out / "gk1_records.csv")
+    write_markdown(out / "gk1_records.md",
         "# fig:gk1_2, fig:gk1_adpt_tau, fig:gk1_tb: records of gamma = 1 runs\n\n"
         + summary.to_markdown(index=False, floatfmt=".4g")
         + f"\n\nWall time {wall:.1f} s.\n"

@@ -39,6 +39,7 @@ from typing import Any
 
 import pandas as pd
 
+from jko_cvx.environment import record_csv, write_markdown
 from jko_cvx.studies.reproduce import REPRODUCTIONS
 from jko_cvx.studies.sweep import code_provenance, holding, shared_points
 from jko_cvx.threads import THREADS_ENV
@@ -67,15 +68,18 @@ SECTION = (
     "gk1_final",
     "mesh_maps",
     "g2bu_loglog",
+    "discrimination",
 )
 """The entries of the paper's numerical section, in the order they start: by CPU time, longest first
 (measured one entry at a time on 2 cores: ``inhom_gamma1p5``
 first, the entries of a few seconds last), then the entries that read others' files (an entry starts after
 the one before it has, so these come last).  ``grid_convergence``
-(the study the paper lacks, 41 minutes on its own) is not part of the section: run it by name."""
+(the study the paper lacks, 41 minutes on its own) is not part of the section: run it by name; nor is
+``conclusions``, which reads its files and those of the paper-variants study script."""
 
 NEEDS: dict[str, tuple[str, ...]] = {
     "g2bu_loglog": ("tab_g2bu",),  # reads tab_g2bu.csv
+    "discrimination": ("tab_bu", "tab_bu_tb2", "tab_g2bu", "tab_bu_beta_scan"),  # reads their CSVs
 }
 """The entries each entry reads files of (it starts after they have finished)."""
 
@@ -244,6 +248,7 @@ def _print_row(row: dict[str, Any]) -> None:
 def _write(out: Path, df: pd.DataFrame, wall: float, cpu: float, started: str, workers, quick, fresh, how) -> None:
     prov = code_provenance(reproduce_section)
     df.to_csv(out / "section.csv", index=False)
+    record_csv(out / "section.csv")
     modified = " (jko_cvx modified)" if prov["jko_cvx_modified"] else ""
     lines = [
         f"# The numerical section in one run ({'quick' if quick else 'full'} forms)",
@@ -258,4 +263,4 @@ def _write(out: Path, df: pd.DataFrame, wall: float, cpu: float, started: str, w
         "pool's workers; a Dask cluster's CPU is not counted).",
         "",
     ]
-    (out / "section.md").write_text("\n".join(lines))
+    write_markdown(out / "section.md", "\n".join(lines))

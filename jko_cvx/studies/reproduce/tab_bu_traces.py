@@ -31,6 +31,7 @@ import numpy as np
 import pandas as pd
 
 from jko_cvx.engine.loop import simulate
+from jko_cvx.environment import record_csv, write_markdown
 from jko_cvx.grid import Grid
 from jko_cvx.mesh.maps import concentration_set
 from jko_cvx.studies.reproduce.blowup_tables import TAB_BU_BETA, TAB_BU_TB2_BETA, blowup_scene
@@ -107,6 +108,7 @@ def reproduce_tab_bu_traces(out: Path, quick: bool = False, **_sweep_opts: Any) 
         frames.append(df.assign(case=label, data=data, eps_v=eps, dt=dt, beta=beta, T_b=df.attrs["T_b"]))
     table = pd.concat(frames, ignore_index=True)
     table.to_csv(out / "tab_bu_traces.csv", index=False)
+    record_csv(out / "tab_bu_traces.csv")
     lines += ["", f"Wall time {time.perf_counter() - t0:.1f} s (one process)."]
-    (out / "tab_bu_traces.md").write_text("\n".join(lines) + "\n")
+    write_markdown(out / "tab_bu_traces.md", "\n".join(lines) + "\n")
     return table

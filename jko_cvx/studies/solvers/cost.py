@@ -31,6 +31,7 @@ import pandas as pd
 
 from jko_cvx.collision import CollisionProblem, Status, solve_collision
 from jko_cvx.collision.conic import clear_model_cache
+from jko_cvx.environment import record_csv, write_markdown
 from jko_cvx.grid import Grid
 from jko_cvx.kernels import PowerKernel
 from jko_cvx.studies.sweep import code_identity
@@ -190,6 +191,7 @@ def cost_growth(out: Path, quick: bool = False, repeats: int = 5, **_sweep_opts:
     )
     for name, df in (("step", step), ("batch", batch), ("time_step", tstep), ("exponents", fits)):
         df.to_csv(out / f"cost_growth_{name}.csv", index=False)
+        record_csv(out / f"cost_growth_{name}.csv")
     wide = step.pivot_table(index="N_v", columns=["gamma", "method"], values="median_s")
     wide.columns = [f"gamma={g:g} {m} [s]" for g, m in wide.columns]
     text = (
@@ -209,7 +211,7 @@ def cost_growth(out: Path, quick: bool = False, repeats: int = 5, **_sweep_opts:
         + fits.to_markdown(index=False, floatfmt=".2f")
         + "\n"
     )
-    (out / "cost_growth.md").write_text(text)
+    write_markdown(out / "cost_growth.md", text)
     _plot(step, batch, tstep, out / "cost_growth.png")
     return {"step": step, "batch": batch, "time_step": tstep, "exponents": fits}
 

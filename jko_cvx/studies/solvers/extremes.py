@@ -34,6 +34,7 @@ import pandas as pd
 
 from jko_cvx.collision import CollisionProblem, conic_solvers, solve_collision
 from jko_cvx.collision.nlp import nlp_available
+from jko_cvx.environment import record_csv, write_markdown
 from jko_cvx.grid import Grid
 from jko_cvx.kernels import PowerKernel
 
@@ -250,6 +251,7 @@ def extremes(out: Path, quick: bool = False, **_sweep_opts: Any) -> pd.DataFrame
     out.mkdir(parents=True, exist_ok=True)
     df = extremes_matrix(quick=quick, progress=True)
     df.to_csv(out / "extremes.csv", index=False)
+    record_csv(out / "extremes.csv")
     matrix = df.pivot(index="case", columns="solver", values="outcome").reindex(df.case.unique())
     short = {
         "certified": "ok",
@@ -279,5 +281,5 @@ def extremes(out: Path, quick: bool = False, **_sweep_opts: Any) -> pd.DataFrame
         )
         + "\n"
     )
-    (out / "extremes.md").write_text(text)
+    write_markdown(out / "extremes.md", text)
     return df

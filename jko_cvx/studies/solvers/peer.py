@@ -48,6 +48,7 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from jko_cvx.collision import CollisionProblem, CollisionResult, solve_collision
+from jko_cvx.environment import record_csv, write_markdown
 from jko_cvx.evolve import evolve_fixed_grid
 from jko_cvx.exact import GaussianMixture, exact_gamma1, exact_gamma2
 from jko_cvx.finite_volume import Cells, evolve_finite_volume
@@ -466,7 +467,9 @@ def work_precision_peer(out: Path, quick: bool = False, repeats: int | None = No
         df = pd.DataFrame([_run(p, repeats) for p in _plan(quick)])
         order = pd.DataFrame(_order_rows(quick))
     df.to_csv(out / f"{name}.csv", index=False)
+    record_csv(out / f"{name}.csv")
     order.to_csv(out / f"{name}_time_order.csv", index=False)
+    record_csv(out / f"{name}_time_order.csv")
     ok = df[np.isfinite(df.l1)]
     _plot_wp(ok, out / f"{name}.png")
     _plot_order(order, out / f"{name}_time_order.png")
@@ -530,5 +533,5 @@ def work_precision_peer(out: Path, quick: bool = False, repeats: int | None = No
             "",
         ]
     )
-    (out / f"{name}.md").write_text(text)
+    write_markdown(out / f"{name}.md", text)
     return df

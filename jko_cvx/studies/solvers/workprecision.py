@@ -37,6 +37,7 @@ import pandas as pd
 
 from jko_cvx.collision import CollisionProblem, conic_solvers
 from jko_cvx.collision.nlp import nlp_available
+from jko_cvx.environment import record_csv, write_markdown
 from jko_cvx.evolve import evolve_fixed_grid
 from jko_cvx.exact import GaussianMixture, exact_gamma1, exact_gamma2
 from jko_cvx.grid import Grid
@@ -99,6 +100,7 @@ def work_precision_step(out: Path, quick: bool = False, repeats: int = 5, **_swe
     df = pd.concat(frames, ignore_index=True)
     cols = ["problem", "family", "setting", "status", "certified", "median_s", "iterations", "kkt", "f_error"]
     df[cols].to_csv(out / "work_precision_step.csv", index=False)
+    record_csv(out / "work_precision_step.csv")
     _plot(df, "problem", "median_s", "f_error", out / "work_precision_step.png", "one collision step")
     fronts = _front_table(df, "problem", "median_s", "f_error", targets=(1e-4, 1e-6, 1e-8))
     text = (
@@ -113,7 +115,7 @@ def work_precision_step(out: Path, quick: bool = False, repeats: int = 5, **_swe
         + df[cols].to_markdown(index=False, floatfmt=".3g")
         + "\n"
     )
-    (out / "work_precision_step.md").write_text(text)
+    write_markdown(out / "work_precision_step.md", text)
     return df
 
 
@@ -192,6 +194,7 @@ def work_precision_run(out: Path, quick: bool = False, **sweep_opts: Any) -> pd.
     name = "work_precision_run"
     df = run_sweep(_run_point_swept, _run_points(quick), out / "cache" / name, desc=name, **sweep_opts)
     df.to_csv(out / f"{name}.csv", index=False)
+    record_csv(out / f"{name}.csv")
     df["panel"] = [f"gamma={g:g}" for g in df.gamma]
     ok = df[np.isfinite(df.error)]
     _plot(ok[ok.sweep != "bias"], "panel", "seconds", "error", out / f"{name}.png", "whole run, L1 error vs exact: ")
@@ -224,7 +227,7 @@ def work_precision_run(out: Path, quick: bool = False, **sweep_opts: Any) -> pd.
         + df.drop(columns=["panel"]).to_markdown(index=False, floatfmt=".3g")
         + "\n"
     )
-    (out / f"{name}.md").write_text(text)
+    write_markdown(out / f"{name}.md", text)
     return df
 
 

@@ -59,5 +59,8 @@ def test_quick_beta_scan_reproduces_the_shipped_target_entries(tmp_path):
     quick = reproduce_tab_bu_beta_scan(tmp_path, quick=True, executor="serial", progress=False).set_index("beta")
     shipped = pd.read_csv(Path(__file__).parents[3] / "studies/results/reproduce/tab_bu_beta_scan_summary.csv")
     target = "g1 at eps_v = 1e-3/16, dt = 0.00125"
+    # the shipped file may come from another BLAS kernel, thread count or library version
+    # (studies/results/reproduce/environment.json): the step at which min dv crosses eps_v may
+    # move by one there, so the tolerance is one step (0.00125) -- bit for bit only within one environment
     for beta in (1000.0, 6000.0):
-        assert quick.loc[beta, target] == shipped.set_index("beta").loc[beta, target]
+        assert quick.loc[beta, target] == pytest.approx(shipped.set_index("beta").loc[beta, target], abs=0.00125 + 1e-9)

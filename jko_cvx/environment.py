@@ -1,0 +1,167 @@
+"""The environment a result was computed in: versions, git commit, BLAS library and threads.
+
+Numbers computed with another BLAS kernel, thread count or library version are not bit for
+bit those of the shipped files (the order of floating-point sums changes); they agree within
+stated tolerances.  Every result file therefore records the environment that produced it:
+:func:`environment` is the record, :func:`environment_line` its one-line Markdown form, and
+:func:`write_markdown` / :func:`record_csv` the writers the reproductions and benchmarks use
+(a header line in each Markdown file; ``environment.json`` beside the CSV files, one entry per
+file name).
+
+Versions are read with :mod:`importlib.metadata`, not by importing the packages (importing
+cvxpy takes about a second); the BLAS library is what :func:`threadpoolctl.threadpool_info`
+finds loaded after numpy.
+"""
+
+from __future__ import annotations
+
+import importlib.metadata
+import json
+import os
+import platform
+import subprocess
+import tempfile
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+__all__ = [
+    "ENVIRONMENT_FILE",
+    "PACKAGES",
+    "environment",
+    "environment_line",
+    "git_state",
+    "installed_version",
+    "record_csv",
+    "write_markdown",
+]
+
+PACKAGE_DIR = Path(__file__).resolve().parent
+"""The ``jko_cvx`` package directory."""
+
+PACKAGES = ("numpy", "scipy", "cvxpy", "clarabel", "threadpoolctl")
+"""The distributions whose versions :func:`environment` records besides jko_cvx and Python."""
+
+ENVIRONMENT_FILE = "environment.json"
+"""The file beside CSV results that records, per file name, the environment that wrote it."""
+
+
+def installed_version(name: str) -> str:
+    """The installed distribution's version, without importing it; ``"not installed"`` if absent."""
+    try:
+        return importlib.metadata.version(name)
+    except importlib.metadata.PackageNotFoundError:
+        return "not installed"
+
+
+def git_state(path: Path = PACKAGE_DIR) -> tuple[str | None, bool | None]:
+    """The git commit of the checkout ``path`` sits in and whether its files under ``path`` differ from it.
+
+    ``(None, None)`` outside a git checkout or without git.
+    """
+
+    def git(*args: str) -> str | None:
+        try:
+            done = subprocess.run(["git", *args], capture_output=True, text=True, cwd=path, timeout=30)
+        except (OSError, subprocess.SubprocessError):
+            return None
+        return done.stdout.strip() if done.returncode == 0 else None
+
+    commit = git("rev-parse", "HEAD")
+    if not commit:
+        return None, None
+    status = git("status", "--porcelain", ".")
+    return commit, None if status is None else bool(status)
+
+
+def _blas() -> list[dict[str, Any]]:
+    import numpy  # noqa: F401  (loads the BLAS threadpoolctl is to find)
+    from threadpoolctl import threadpool_info
+
+    keys = ("internal_api", "version", "architecture", "threading_layer", "num_threads", "filepath")
+    return [{k: lib.get(k) for k in keys} for lib in threadpool_info() if lib.get("user_api") == "blas"]
+
+
+def environment() -> dict[str, Any]:
+    """The environment of this process: package versions, git commit, platform, BLAS.
+
+    Returns
+    -------
+    dict
+        ``jko_cvx`` (version), ``git_commit`` and ``jko_cvx_modified`` (:func:`git_state`),
+        ``python``, one key per entry of :data:`PACKAGES` (installed versions), ``machine``
+        (operating system, release, architecture), ``cpu_count`` and ``blas``: per BLAS library
+        loaded, its implementation (``internal_api``), ``version``, kernel ``architecture``,
+        threading layer, ``num_threads`` and file.  JSON-serialisable.
+    """
+    from jko_cvx._version import __version__
+
+    commit, modified = git_state()
+    return {
+        "jko_cvx": __version__,
+        "git_commit": commit,
+        "jko_cvx_modified": modified,
+        "python": platform.python_version(),
+        **{name: installed_version(name) for name in PACKAGES},
+        "machine": f"{platform.system()} {platform.release()} {platform.machine()}",
+        "cpu_count": os.cpu_count(),
+        "blas": _blas(),
+    }
+
+
+def environment_line(env: dict[str, Any] | None = None) -> str:
+    """One line of Markdown naming ``env`` (default: :func:`environment`), for the head of a report."""
+    env = environment() if env is None else env
+    commit = "not a git checkout" if env["git_commit"] is None else str(env["git_commit"])[:12]
+    if env["jko_cvx_modified"]:
+        commit += " (jko_cvx modified)"
+    libs = [f"{b['internal_api']} {b['version']} {b['architecture']} kernel, {b['num_threads']} threads"
+            for b in env["blas"]]  # fmt: skip
+    blas = "; ".join(libs) or "no BLAS found"
+    versions = ", ".join(f"{name} {env[name]}" for name in PACKAGES if name in env)
+    return (
+        f"*Environment: jko_cvx {env['jko_cvx']} (git {commit}), Python {env['python']}, {versions}; "
+        f"BLAS {blas}; {env['machine']}, {env['cpu_count']} CPUs.*"
+    )
+
+
+def write_markdown(path: Path, text: str, env: dict[str, Any] | None = None) -> None:
+    """Write the Markdown report ``text`` to ``path`` with :func:`environment_line` under its title.
+
+    The line goes after the first line when that is a heading (``# ...``), at the top otherwise.
+    """
+    line = environment_line(env)
+    head, _, rest = text.partition("\n")
+    if head.startswith("#"):
+        text = f"{head}\n\n{line}\n" + (rest if rest.startswith("\n") else f"\n{rest}")
+    else:
+        text = f"{line}\n\n{text}"
+    Path(path).write_text(text)
+
+
+def record_csv(*paths: Path, env: dict[str, Any] | None = None) -> None:
+    """Record ``env`` (default: :func:`environment`) and the time for each written file in ``paths``.
+
+    The record is :data:`ENVIRONMENT_FILE` in each file's directory: a JSON object from file name
+    to ``{"written": ISO time, "environment": {...}}``; other files' entries are kept.  Written
+    atomically (a temporary file, then a rename).
+    """
+    env = environment() if env is None else env
+    written = datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+    by_dir: dict[Path, list[str]] = {}
+    for p in map(Path, paths):
+        if not p.is_file():
+            raise FileNotFoundError(f"paths: {p} is not a file written before its environment is recorded")
+        by_dir.setdefault(p.parent, []).append(p.name)
+    for folder, names in by_dir.items():
+        target = folder / ENVIRONMENT_FILE
+        try:
+            record = json.loads(target.read_text()) if target.exists() else {}
+        except ValueError as exc:
+            raise ValueError(f"{target} does not read as JSON ({exc}); remove it or repair it") from exc
+        record.update({name: {"written": written, "environment": env} for name in names})
+        fd, tmp = tempfile.mkstemp(dir=folder, prefix=".environment.", suffix=".tmp")
+        with os.fdopen(fd, "w") as fh:
+            json.dump(dict(sorted(record.items())), fh, indent=1, sort_keys=True)
+            fh.write("\n")
+        os.replace(tmp, target)
