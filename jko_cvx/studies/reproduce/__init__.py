@@ -16,6 +16,7 @@ from jko_cvx.studies.reproduce.explicit_figures import reproduce_explicit_figure
 from jko_cvx.studies.reproduce.explicit_sketch import reproduce_explicit2_sketch
 from jko_cvx.studies.reproduce.fisher_width import reproduce_fisher_width
 from jko_cvx.studies.reproduce.g2bu import reproduce_tab_g2bu
+from jko_cvx.studies.reproduce.g2bu_control import reproduce_tab_g2bu_control
 from jko_cvx.studies.reproduce.gamma1p5 import reproduce_inhom_gamma1p5
 from jko_cvx.studies.reproduce.gk1_final import reproduce_gk1_final
 from jko_cvx.studies.reproduce.gk2_bu import reproduce_gk2_bu
@@ -39,6 +40,7 @@ REPRODUCTIONS = {
     "mesh_maps": reproduce_mesh_maps,
     "inhom_gamma1p5": reproduce_inhom_gamma1p5,
     "tab_g2bu": reproduce_tab_g2bu,
+    "tab_g2bu_control": reproduce_tab_g2bu_control,
     "tab_bu_traces": reproduce_tab_bu_traces,
     "property_budget": reproduce_property_budget,
     "tab_bu_beta_scan": reproduce_tab_bu_beta_scan,
@@ -82,4 +84,5 @@ __all__ = [
     "reproduce_tab_bu_tb2",
     "reproduce_tab_bu_traces",
     "reproduce_tab_g2bu",
+    "reproduce_tab_g2bu_control",
 ]

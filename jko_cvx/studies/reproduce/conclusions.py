@@ -227,8 +227,26 @@ def _properties(root: Path) -> dict[str, Any]:
     }
 
 
+def _g2bu_control(root: Path) -> dict[str, Any]:
+    """What the control sweep shows below the threshold lambda = 309.8."""
+    d = _read(root, "tab_g2bu_control.csv")
+    below = d[~d["above threshold"].astype(bool)]
+    fired = below[below.verdict == "blow-up"]
+    return {
+        "below": len(below),
+        "fired": len(fired),
+        "first": "; ".join(
+            f"from lambda = {g['lambda'].min():g} on {nx} x {nv}" for (nx, nv), g in fired.groupby(["n_x", "n_v"])
+        )
+        or "nowhere",
+        "tb_lo": float(fired.T_b.min()) if len(fired) else float("nan"),
+        "tb_hi": float(fired.T_b.max()) if len(fired) else float("nan"),
+    }
+
+
 def _g2bu(root: Path) -> dict[str, Any]:
     a = _disc(root, "tab_g2bu")
+    c = _g2bu_control(root)
     return {
         "claim": "tab:g2bu: gamma = 2 finite mass blows up near T = 0.1 as lambda approaches the threshold 310",
         "paper": "T_b 0.10349 (lambda = 220) to 0.10009 (310)",
@@ -237,12 +255,14 @@ def _g2bu(root: Path) -> dict[str, Any]:
             f"0.1 scores {a['trivial (analytic T) within tol of paper']}; |T_b - 0.1| max "
             f"{a['max |ours - analytic T|']:.3g}"
         ),
-        "evidence": "discrimination.csv; tab_g2bu.csv; grid_convergence_g2bu.csv",
+        "evidence": "discrimination.csv; tab_g2bu.csv; tab_g2bu_control.csv; grid_convergence_g2bu.csv",
         "verdict": "not settled",
         "why": (
-            "the count does not discriminate (the paper's row spans 0.0034), no control below the threshold is "
-            "shipped (the x-criterion also fires at lambda = 100 in an unshipped run), and the grid study "
-            "refines v only though the blow-up is detected in x"
+            f"the count does not discriminate (the paper's row spans 0.0034), and the control shows the criterion "
+            f"does not either: below the threshold it fires in {c['fired']} of {c['below']} runs "
+            f"({c['first']}: tab_g2bu_control.csv, refined in x and v), with T_b "
+            f"{c['tb_lo']:.3g} to {c['tb_hi']:.3g} there; the grid study refines v only though the blow-up is "
+            "detected in x"
         ),
     }
 
@@ -336,7 +356,7 @@ CONCLUSIONS: tuple[Callable[[Path], dict[str, Any]], ...] = (
 EVIDENCE = (
     "discrimination.csv", "tab_bu.csv", "tab_bu_beta_scan_summary.csv", "tab_bu_tb2.csv", "paper_variants.csv",
     "gk1_final.csv", "ibu.csv", "inhom_gamma3.csv", "inhom_gamma1p5.csv", "property_budget_summary.csv",
-    "tab_g2bu.csv", "explicit.csv",
+    "tab_g2bu.csv", "tab_g2bu_control.csv", "explicit.csv",
 )  # fmt: skip
 """The files the rows read (each row's ``evidence`` names these and the files beside them)."""
 
