@@ -35,12 +35,23 @@ record's duration unless given); the exponential law :math:`\\log\\max f = c_0 +
 The two are compared by the Akaike information criterion
 :math:`n \\log(\\mathrm{RSS}/n) + 2k` (k = 3 and 2 parameters).
 
-Error bar: :math:`\\sigma_T = (\\sigma_{\\rm fit}^2 + \\delta_{\\rm win}^2)^{1/2}`, with
-:math:`\\sigma_{\\rm fit}` from the covariance of the fit (residual variance scaled) and
-:math:`\\delta_{\\rm win}` the largest change of :math:`T` when the window loses its last
-record, ends where max f reached half its last value, or starts at
-:math:`\\rho^2 \\max f(t_0)` instead (the residuals are systematic,
-not independent noise, and the covariance alone does not cover the error).
+Error bar: the residuals are systematic, not independent noise (the numerical max f lags the
+exact one near :math:`T`: the grid resolves the concentration only so far, and the implicit step
+lags by :math:`O(\\Delta t)`), so the covariance alone does not cover the error.  The bar is
+
+.. math:: \\sigma_T = k\\,\\bigl(\\sigma_{\\rm fit}^2 + \\delta_{\\rm end}^2 + \\delta_{\\rm half}^2
+          + \\delta_{\\rm start}^2 + (c\\,\\Delta t)^2\\bigr)^{1/2},
+
+with :math:`\\sigma_{\\rm fit}` from the covariance of the fit (residual variance scaled),
+:math:`\\delta_{\\rm end}` the largest change of :math:`T` over the nested windows that drop up to
+a fifth of the records at the end (at most :data:`END_FITS` fits), :math:`\\delta_{\\rm half}`
+its change when the window ends where max f reached half its last value,
+:math:`\\delta_{\\rm start}` the largest change when the window starts later
+(:data:`START_GROWTHS`), :math:`\\Delta t` the window's last step, and :math:`k` =
+:data:`ERR_SCALE`, :math:`c` = :data:`DT_SCALE` calibrated on homogeneous :math:`\\gamma = 1` runs
+with exact :math:`T` for a nominal 90 % coverage (``studies/blowup_fit_validation.py`` fits them
+on one set of data and measures the coverage on held-out data).  The bar is symmetric; the error
+it covers is mostly a positive bias (:math:`T` late).
 
 Kinds: ``"finite_time"`` when the power law's :math:`T` lies inside the horizon (below 95 %
 of it), :math:`a > 2\\sigma_a`, :math:`\\sigma_T < H/4` and the power law beats the
@@ -62,6 +73,16 @@ __all__ = ["KINDS", "BlowupFit", "fit_blowup"]
 
 KINDS = ("finite_time", "no_finite_time", "undetermined")
 RATE_SPAN = 2
+END_FRACTION = 5
+"""The nested windows of the error bar drop up to ``n // END_FRACTION`` trailing records ..."""
+END_FITS = 8
+"""... in at most ``END_FITS`` evenly spaced counts."""
+START_GROWTHS = (1.5, 2.25, 2.7)
+"""The later starts of the error bar: max f above ``g * growth * max f(t_0)`` (growth 1.5: 2.25, 3.4, 4 max f0)."""
+ERR_SCALE = 1.6
+"""k of the error bar; calibrated (``studies/blowup_fit_validation.py``) for ~90 % coverage on gamma = 1 runs."""
+DT_SCALE = 0.25
+"""c of the error bar: the time step's share (the implicit step's lag)."""
 
 
 @dataclass(frozen=True)
@@ -82,6 +103,9 @@ class BlowupFit:
         Why that kind, in words (with the numbers).
     window : tuple of int or None
         ``(start, stop)``: the records ``start <= i < stop`` of the arrays given that were fitted.
+    T_b_fit_spread, dt_last : float or None
+        The error bar's unscaled parts: :math:`(\\sigma_{\\rm fit}^2 + \\delta_{\\rm end}^2 + \\ldots)^{1/2}` and the
+        last time step of the window, :math:`\\sigma_T = k (\\ldots + (c\\,\\Delta t)^2)^{1/2}`.
     """
 
     T_b_fit: float | None
@@ -92,6 +116,8 @@ class BlowupFit:
     blowup_kind: str
     reason: str
     window: tuple[int, int] | None
+    T_b_fit_spread: float | None = None
+    dt_last: float | None = None
 
     def curve(self, t: ArrayLike) -> np.ndarray:
         """The fitted :math:`C (T - t)^{-a}` at ``t < T`` (NaN elsewhere)."""
@@ -106,6 +132,31 @@ class BlowupFit:
 
 def _undetermined(reason: str, window: tuple[int, int] | None = None) -> BlowupFit:
     return BlowupFit(None, None, None, None, None, "undetermined", reason, window)
+
+
+def _window_spread(
+    t: np.ndarray, m: np.ndarray, start: int, stop: int, T: float, T_max: float,
+    growth: float, max_step_growth: float, rate_drop: float, min_points: int,
+) -> float:  # fmt: skip
+    """T's shifts on the other windows (module docstring): :math:`(\\delta_{\\rm end}^2 + \\ldots)^{1/2}`."""
+    n = stop - start
+
+    def shift(i0: int, i1: int) -> float:  # |T(window t[i0:i1]) - T|, 0 when too short or not fitted
+        if i1 - i0 < min_points:
+            return 0.0
+        alt = _fit_power(t[i0:i1], np.log(m[i0:i1]), T_max)
+        return 0.0 if alt is None else abs(float(alt[0][2]) - T)
+
+    drops = np.unique(np.linspace(1, max(1, n // END_FRACTION), min(END_FITS, max(1, n // END_FRACTION))).round())
+    d_end = max((shift(start, stop - int(j)) for j in drops), default=0.0)
+    half = int(np.searchsorted(m[start:stop], m[stop - 1] / 2, side="right"))  # m sorted enough on the approach
+    d_half = shift(start, start + half) if half < n - 1 else 0.0
+    d_start = 0.0
+    for g in START_GROWTHS:
+        later = _window(t[:stop], m[:stop], g * growth, max_step_growth, rate_drop)
+        if not isinstance(later, str) and later[0] > start:
+            d_start = max(d_start, shift(later[0], stop))
+    return float(np.sqrt(d_end**2 + d_half**2 + d_start**2))
 
 
 def _power(t: np.ndarray, log_c: float, a: float, T: float) -> np.ndarray:
@@ -264,28 +315,22 @@ def fit_blowup(
     log_c, a, T = (float(x) for x in p)
     err = np.sqrt(np.clip(np.diag(cov), 0, np.inf)) if np.all(np.isfinite(cov)) else np.full(3, np.inf)
     sig_a, sig_T = float(err[1]), float(err[2])
-    # window sensitivity: drop the last record; start at growth**2
-    shifts = []
-    if n - 1 >= min_points:
-        alt = _fit_power(tw[:-1], y[:-1], T_max)
-        if alt is not None:
-            shifts.append(abs(float(alt[0][2]) - T))
-    half = int(np.searchsorted(m[start:stop], m[stop - 1] / 2, side="right"))  # m sorted enough on the approach
-    if min_points <= half < n - 1:
-        alt = _fit_power(tw[:half], y[:half], T_max)
-        if alt is not None:
-            shifts.append(abs(float(alt[0][2]) - T))
-    later = _window(t, m, growth**2, max_step_growth, rate_drop)
-    if not isinstance(later, str) and later[0] > start and stop - later[0] >= min_points:
-        alt = _fit_power(t[later[0] : stop], np.log(m[later[0] : stop]), T_max)
-        if alt is not None:
-            shifts.append(abs(float(alt[0][2]) - T))
-    T_err = float(np.hypot(sig_T, max(shifts, default=0.0)))
+    spread = _window_spread(t, m, start, stop, T, T_max, growth, max_step_growth, rate_drop, min_points)
+    dt_last = float(tw[-1] - tw[-2])
+    T_err = ERR_SCALE * float(np.sqrt(sig_T**2 + spread**2 + (DT_SCALE * dt_last) ** 2))
     numbers = (
         f"T = {T:.6g} +- {T_err:.2g}, a = {a:.4g} +- {sig_a:.2g}, AIC power {aic_pow:.1f} / exponential "
         f"{aic_exp:.1f}, {n} records t = {tw[0]:.4g}..{tw[-1]:.4g}, horizon {T_max:.4g}"
     )
-    out = {"T_b_fit": T, "T_b_fit_err": T_err, "blowup_rate": a, "blowup_rate_err": sig_a, "log_C": log_c}
+    out = {
+        "T_b_fit": T,
+        "T_b_fit_err": T_err,
+        "blowup_rate": a,
+        "blowup_rate_err": sig_a,
+        "log_C": log_c,
+        "T_b_fit_spread": float(np.hypot(sig_T, spread)),
+        "dt_last": dt_last,
+    }
     if rms > noise:
         why = f"records too noisy (rms residual {rms:.2g} > {noise:g} in log max f)"
         return BlowupFit(**out, blowup_kind="undetermined", reason=f"{why}: {numbers}{cut}{early}", window=win)
