@@ -69,7 +69,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.optimize import curve_fit
 
-__all__ = ["KINDS", "BlowupFit", "fit_blowup"]
+__all__ = ["KINDS", "BlowupFit", "ThresholdExtrapolation", "extrapolate_thresholds", "fit_blowup"]
 
 KINDS = ("finite_time", "no_finite_time", "undetermined")
 RATE_SPAN = 2
@@ -347,3 +347,110 @@ def fit_blowup(
         return BlowupFit(**out, blowup_kind="finite_time", reason=f"power law: {numbers}{cut}{early}", window=win)
     kind = "undetermined" if early else "no_finite_time"
     return BlowupFit(**out, blowup_kind=kind, reason=f"{'; '.join(fails)}: {numbers}{cut}{early}", window=win)
+
+
+@dataclass(frozen=True)
+class ThresholdExtrapolation:
+    """The paper's threshold times extrapolated to :math:`\\varepsilon_v \\to 0` (:func:`extrapolate_thresholds`).
+
+    Attributes
+    ----------
+    T, T_err : float
+        The limit :math:`T_0` and its error bar.
+    c, p : float
+        :math:`T_b(\\varepsilon) = T_0 - c\\,\\varepsilon^p` (:math:`c > 0`: the threshold fires early).
+    d : float or None
+        The time step's coefficient (:math:`+ d\\,\\Delta t`), None when one step was given.
+    n : int
+        Number of threshold times fitted.
+    """
+
+    T: float
+    T_err: float
+    c: float
+    p: float
+    d: float | None
+    n: int
+
+
+def _threshold_law(x: np.ndarray, T: float, c: float, p: float, d: float = 0.0) -> np.ndarray:
+    return T - c * x[0] ** p + d * x[1]
+
+
+def extrapolate_thresholds(
+    eps_v: ArrayLike, T_b: ArrayLike, dt: ArrayLike | float | None = None, *, p_range: tuple[float, float] = (0.05, 3.0)
+) -> ThresholdExtrapolation:
+    """Extrapolate threshold times :math:`T_b(\\varepsilon_v, \\Delta t)` to :math:`\\varepsilon_v, \\Delta t \\to 0`.
+
+    The paper's blow-up time is the first step with :math:`\\min dv < \\varepsilon_v`
+    (``sec: numerics``); it fires before the singularity, the earlier the larger
+    :math:`\\varepsilon_v`.  Least squares fit of
+
+    .. math:: T_b(\\varepsilon, \\Delta t) = T_0 - c\\,\\varepsilon^{p} + d\\,\\Delta t
+
+    (the :math:`d` term only when the runs have more than one :math:`\\Delta t`), a cross-check of
+    :func:`fit_blowup` from different information (the mesh, not max f).  Error bar:
+    :math:`(\\sigma_{\\rm fit}^2 + \\delta_{\\rm range}^2 + \\Delta t_{\\max}^2)^{1/2}`, with
+    :math:`\\delta_{\\rm range}` the change of :math:`T_0` when the largest threshold is left out
+    and :math:`\\Delta t_{\\max}` the time quantum of the threshold times (a threshold fires
+    within a step).
+
+    Parameters
+    ----------
+    eps_v, T_b : array_like
+        Thresholds (> 0, at least three distinct) and their threshold times (finite; a run in
+        which a threshold never fired has no time to give).
+    dt : float or array_like, optional
+        The time step of each threshold time's run (one value for all); default 0 (no quantum).
+    p_range : (float, float)
+        Bounds of the exponent p.
+
+    Returns
+    -------
+    ThresholdExtrapolation
+    """
+    e = np.asarray(eps_v, dtype=float)
+    tb = np.asarray(T_b, dtype=float)
+    if e.ndim != 1 or tb.shape != e.shape:
+        raise ValueError(f"eps_v and T_b must be 1-d arrays of one length, got shapes {e.shape} and {tb.shape}")
+    if not (np.all(np.isfinite(e)) and np.all(e > 0)):
+        raise ValueError(f"eps_v must be finite and > 0, got {e.tolist()}")
+    if not np.all(np.isfinite(tb)):
+        raise ValueError(f"T_b must be finite (a threshold that never fired has no time), got {tb.tolist()}")
+    h = np.broadcast_to(np.asarray(0.0 if dt is None else dt, dtype=float), e.shape).copy()
+    if not (np.all(np.isfinite(h)) and np.all(h >= 0)):
+        raise ValueError(f"dt must be finite and >= 0, got {np.asarray(dt).tolist()}")
+    lo, hi = p_range
+    if not 0 < lo < hi < np.inf:
+        raise ValueError(f"p_range must be 0 < low < high < inf, got {p_range!r}")
+    with_dt = np.unique(h).size > 1
+    k = 4 if with_dt else 3
+    if np.unique(e).size < 3 or e.size < k + 1:
+        raise ValueError(
+            f"extrapolate_thresholds needs at least {k + 1} threshold times over >= 3 distinct eps_v "
+            f"(the law has {k} parameters), got {e.size} over {np.unique(e).size}"
+        )
+
+    def fit(sel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        x = np.vstack([e[sel] / e.max(), h[sel]])  # eps scaled to <= 1: c of order the time range
+        p0 = [float(tb[sel].max()), float(np.ptp(tb[sel])) or 1e-3, 0.8] + ([0.0] if with_dt else [])
+        lo_b = [-np.inf, -np.inf, lo] + ([-np.inf] if with_dt else [])
+        hi_b = [np.inf, np.inf, hi] + ([np.inf] if with_dt else [])
+        law = _threshold_law if with_dt else (lambda x, T, c, p: _threshold_law(x, T, c, p))
+        return curve_fit(law, x, tb[sel], p0=p0, bounds=(lo_b, hi_b), method="trf", max_nfev=5000)
+
+    try:
+        p, cov = fit(np.ones(e.size, dtype=bool))
+    except (RuntimeError, ValueError) as exc:
+        raise RuntimeError(f"the threshold-time fit did not converge: {exc}") from None
+    sig = float(np.sqrt(cov[0, 0])) if np.isfinite(cov[0, 0]) else float(np.inf)
+    shift = 0.0
+    rest = e < e.max()
+    if np.unique(e[rest]).size >= 3 and rest.sum() >= k + 1:
+        try:
+            shift = abs(float(fit(rest)[0][0]) - float(p[0]))
+        except (RuntimeError, ValueError):
+            shift = float(np.inf)
+    err = float(np.sqrt(sig**2 + shift**2 + h.max() ** 2))
+    c = float(p[1]) / e.max() ** float(p[2])  # back to unscaled eps
+    return ThresholdExtrapolation(float(p[0]), err, c, float(p[2]), float(p[3]) if with_dt else None, int(e.size))
