@@ -134,12 +134,14 @@ def main(argv: list[str] | None = None) -> None:
                 f"max {d.T_b_fit_err.max():.2g}")  # fmt: skip
 
     tune, held = fitted[fitted.set == "tune"], fitted[fitted.set == "held_out"]
+    others = ", ".join(f"{k} {v}" for k, v in g1.kind[g1.kind != "finite_time"].value_counts().items())
     lines = [
         "# Blow-up-time estimator against exact times (homogeneous gamma = 1) and the Osgood criterion", "", head, "",
         f"Error bar sigma_T = k (sigma_fit^2 + delta_win^2 + (c dt)^2)^(1/2), k = ERR_SCALE = {ERR_SCALE:g}, "
         f"c = DT_SCALE = {DT_SCALE:g} (jko_cvx.blowup), nominal coverage {NOMINAL:.0%}.", "",
         f"gamma = 1: {len(g1)} runs, {int((g1.kind == 'finite_time').sum())} classified finite_time "
-        f"(others: {dict(g1.kind[g1.kind != 'finite_time'].value_counts()) or 'none'}); paper's threshold |T_b - T| "
+        f"(others: {others or 'none'}); "
+        "paper's threshold |T_b - T| "
         f"median {(g1.T_b - g1.T_exact).abs().median():.2g}.", "",
         f"- tune (the constants' data): {summary(tune)}.",
         f"- **held out** (other data and grids): {summary(held) if len(held) else 'none'}.", "",
