@@ -49,8 +49,8 @@ its change when the window ends where max f reached half its last value,
 :math:`\\delta_{\\rm start}` the largest change when the window starts later
 (:data:`START_GROWTHS`), :math:`\\Delta t` the window's last step, and :math:`k` =
 :data:`ERR_SCALE`, :math:`c` = :data:`DT_SCALE` calibrated on homogeneous :math:`\\gamma = 1` runs
-with exact :math:`T` for a nominal 90 % coverage (``studies/blowup_fit_validation.py`` fits them
-on one set of data and measures the coverage on held-out data).  The bar is symmetric; the error
+with exact :math:`T` for a nominal 90 % coverage (the repository's validation study fits them on
+one set of data and measures the coverage on held-out data).  The bar is symmetric; the error
 it covers is mostly a positive bias (:math:`T` late).
 
 Kinds: ``"finite_time"`` when the power law's :math:`T` lies inside the horizon (below 95 %
@@ -82,7 +82,7 @@ END_FITS = 8
 START_GROWTHS = (1.5, 2.25, 2.7)
 """The later starts of the error bar: max f above ``g * growth * max f(t_0)`` (growth 1.5: 2.25, 3.4, 4 max f0)."""
 ERR_SCALE = 1.6
-"""k of the error bar; calibrated (``studies/blowup_fit_validation.py``) for ~90 % coverage on gamma = 1 runs."""
+"""k of the error bar; calibrated for a nominal 90 % coverage of exact gamma = 1 blow-up times."""
 DT_SCALE = 0.25
 """c of the error bar: the time step's share (the implicit step's lag)."""
 
@@ -399,7 +399,7 @@ def extrapolate_thresholds(
     :math:`\\delta_{\\rm range}` the change of :math:`T_0` when the largest threshold is left out
     and :math:`\\Delta t_{\\max}` the time quantum of the threshold times (a threshold fires
     within a step).  The bar is not calibrated: on the gamma = 1 runs of
-    ``studies/blowup_fit_validation.py`` it covers the exact time in about 56 % of the runs (the
+    the validation study it covers the exact time in about 56 % of the runs (the
     law's free exponent over a decade and a half of thresholds biases :math:`T_0` by about
     :math:`10^{-2}`); read an agreement with :func:`fit_blowup` as a check, not a second estimate.
 
