@@ -48,11 +48,13 @@ from jko_cvx.studies.sweep import run_sweep
 
 __all__ = [
     "DATA",
+    "FIT_COLUMNS",
     "TAB_BU_BETA",
     "TAB_BU_TB2_BETA",
     "blowup_scene",
     "blowup_time",
     "blowup_times",
+    "fit_columns",
     "reproduce_tab_bu",
     "reproduce_tab_bu_tb2",
     "table_entries",
@@ -98,7 +100,7 @@ def blowup_time(data: str, eps_v: float, dt: float, beta: float = TAB_BU_BETA) -
         "T_b": float(run.verdict["T_b"]) if run.blowup else float("nan"),
         "steps": len(run.diagnostics) - 1,
         "failed_steps": int((run.diagnostics.failed > 0).sum()),
-        **_fit_columns(run.verdict),
+        **fit_columns(run.verdict),
         "seconds": time.perf_counter() - t0,
     }
 
@@ -107,7 +109,7 @@ FIT_COLUMNS = ("T_b_fit", "T_b_fit_err", "blowup_kind")
 """The estimate of :mod:`jko_cvx.blowup` beside the paper's T_b (NaN where no power law was fitted)."""
 
 
-def _fit_columns(v) -> dict[str, Any]:
+def fit_columns(v) -> dict[str, Any]:
     """T_b_fit, its error bar and the kind of a verdict or a :class:`~jko_cvx.blowup.BlowupFit`."""
 
     def num(x):
@@ -166,13 +168,13 @@ def replayed_entry(diagnostics: pd.DataFrame, verdict: Verdict, eps_v: float) ->
                 "T_b": float(rows[k]["t"]),
                 "steps": k,
                 "failed_steps": int((diagnostics["failed"].iloc[: k + 1] > 0).sum()),
-                **(_fit_columns(_FitView(fit)) if fit is not None else {}),
+                **(fit_columns(_FitView(fit)) if fit is not None else {}),
             }
     return {
         "T_b": float(verdict["T_b"]) if verdict.blowup else float("nan"),
         "steps": len(rows) - 1,
         "failed_steps": int((diagnostics["failed"] > 0).sum()),
-        **(_fit_columns(verdict) if "max_f" in diagnostics else {}),
+        **(fit_columns(verdict) if "max_f" in diagnostics else {}),
     }
 
 

@@ -38,6 +38,7 @@ from jko_cvx.engine.loop import simulate, snapshot_record
 from jko_cvx.environment import record_csv, write_markdown
 from jko_cvx.grid import Grid
 from jko_cvx.scene.model import Scene, shipped_scene
+from jko_cvx.studies.reproduce.blowup_tables import FIT_COLUMNS, fit_columns
 from jko_cvx.studies.reproduce.paper import TAB_G2BU
 from jko_cvx.studies.sweep import run_sweep
 
@@ -122,6 +123,7 @@ def g2bu_run(lam: float, n_x: int, n_v: int, t_end: float = 0.2) -> dict[str, An
         "B_x": bool(run.verdict["B_x"]),
         "B_v": bool(run.verdict["B_v"]),
         "reason": run.verdict["reason"],
+        **fit_columns(run.verdict),
         "steps": len(d) - 1,
         "min_dx": float(d.min_dx.min()),
         "min_dv": float(d.min_dv.min()),
@@ -174,7 +176,7 @@ def reproduce_tab_g2bu(out: Path, quick: bool = False, **sweep_opts: Any) -> pd.
     df["max components of {f > 0.1}"] = [max(c) for c in df.components]
     df["split slice-steps"] = [f"{a} / {b}" for a, b in zip(df["split slices"], df.slices, strict=True)]
     cols = ["lambda", "n_v", "T_b", "paper T_b", "T_b - paper", "within 0.005", "direction", "reason"]
-    cols += ["log ratio at T_b", "infinite-mass ratio 2/(lambda rho0 T)", "max components of {f > 0.1}"]
+    cols += [*FIT_COLUMNS, "log ratio at T_b", "infinite-mass ratio 2/(lambda rho0 T)", "max components of {f > 0.1}"]
     cols += ["split slice-steps", "secondary peak"]
     cols += ["steps", "min_dx", "min_dv", "max_f", "mass_drift", "failed_slices", "seconds"]
     df[cols].to_csv(out / "tab_g2bu.csv", index=False)
@@ -186,7 +188,8 @@ def reproduce_tab_g2bu(out: Path, quick: bool = False, **sweep_opts: Any) -> pd.
         "infinite-mass solution has 2/(lambda rho0 T) at every t.  Components: the most connected "
         "components of {f(t, x, .) > 0.1} on any x-slice at any step (thm_condbu asks for 1); split "
         "slice-steps: how many (x-slice, step) pairs have more than one; secondary peak: the largest f on "
-        "a component other than the main one (the level is 0.1).\n\n"
+        "a component other than the main one (the level is 0.1).  T_b_fit, T_b_fit_err, blowup_kind: the "
+        "power-law fit of max f (jko_cvx.blowup) beside the paper's T_b.\n\n"
         + df[cols].to_markdown(index=False, floatfmt=".5g")
         + "\n"
     )

@@ -41,6 +41,7 @@ from jko_cvx.engine.loop import simulate
 from jko_cvx.engine.verdict import StopReason
 from jko_cvx.environment import record_csv, write_markdown
 from jko_cvx.scene.model import Scene
+from jko_cvx.studies.reproduce.blowup_tables import FIT_COLUMNS, fit_columns
 from jko_cvx.studies.reproduce.g2bu import g2bu_run
 from jko_cvx.studies.reproduce.gamma1p5 import COLLAPSE_SPREAD, gamma1p5_scene
 from jko_cvx.studies.reproduce.paper import TAB_G2BU
@@ -101,6 +102,7 @@ def _gamma1p5(case: str, n: int, grid: str, t_end: float) -> dict[str, Any]:
         "T_b": float(run.verdict["T_b"]) if stop.blowup and stop is not StopReason.SPREAD_V else float("nan"),
         "t_collapse": float(run.verdict["T_b"]) if stop is StopReason.SPREAD_V else float("nan"),
         "t_stop": float(run.t),
+        **fit_columns(run.verdict),
         "steps": len(d) - 1,
         "t": d.t.tolist(),
         "min_spread_v": d.min_spread_v.tolist(),
@@ -117,7 +119,7 @@ def _g2bu(lam: float, n_x: int, n_v: int) -> dict[str, Any]:
     """One ``tab:g2bu`` run (:func:`~jko_cvx.studies.reproduce.g2bu.g2bu_run`) without its snapshot payload."""
     r = g2bu_run(lam, n_x, n_v)
     keep = ("blowup", "T_b", "B_x", "B_v", "reason", "steps", "min_dx", "min_dv", "max_f", "mass_drift")
-    keep += ("failed_slices", "components", "split slices", "slices", "secondary peak")
+    keep += ("failed_slices", "components", "split slices", "slices", "secondary peak", *FIT_COLUMNS)
     return {k: r[k] for k in keep}
 
 
@@ -183,6 +185,7 @@ def _gamma1p5_rows(df: pd.DataFrame) -> pd.DataFrame:
                 "t stop": r.t_stop,
                 "T_b (paper's criteria)": r.T_b,
                 f"t(sigma_v < {COLLAPSE_SPREAD:g})": r.t_collapse,
+                **{k: r.get(k, float("nan")) for k in FIT_COLUMNS},
                 **{f"sigma_v(t={tk:g})": _at(r.t, r.min_spread_v, tk) for tk in _SPREAD_TIMES},
                 "sigma_v (stop)": r.min_spread_v[-1],
                 "max f (stop)": r.max_f[-1],
@@ -229,6 +232,7 @@ def _g2bu_table(df: pd.DataFrame) -> pd.DataFrame:
         for _, r in g.iterrows():
             n = int(r.n_v)
             row[f"T_b (N_v = {n})"] = r.T_b
+            row.update({f"{k} ({n})": r.get(k, float("nan")) for k in FIT_COLUMNS})
             row[f"direction ({n})"] = "x" if r.B_x else ("v" if r.B_v else "-")
             row[f"max components ({n})"] = max(r.components) if len(r.components) else 0
             row[f"split fraction ({n})"] = r["split slices"] / max(r.slices, 1)
@@ -239,8 +243,22 @@ def _g2bu_table(df: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def _fit_words(r: pd.Series) -> str:
+    """The power-law fit of max f in words (jko_cvx.blowup), or nothing where the rows predate it."""
+    kind = r.get("blowup_kind")
+    if not isinstance(kind, str):
+        return ""
+    tb = r.get("T_b_fit")
+    at = f", T_b_fit = {tb:.4g} +- {r.get('T_b_fit_err'):.2g}" if tb is not None and np.isfinite(tb) else ""
+    return f"; the fit of max f: {kind}{at}"
+
+
 def _outcome(r: pd.Series, collapse: str) -> str:
     """One run's outcome in words: the density's collapse, the paper's T_b, or neither by its end."""
+    return _outcome_paper(r, collapse) + _fit_words(r)
+
+
+def _outcome_paper(r: pd.Series, collapse: str) -> str:
     side = {True: "before", False: "after"}
     if np.isfinite(r[collapse]):
         return f"collapse in v at t = {r[collapse]:.4g}, {side[r[collapse] < MEETING_TIME]} the bumps meet (t = 1)"
@@ -274,6 +292,16 @@ def _conclusions(rows: pd.DataFrame, g2runs: pd.DataFrame) -> list[str]:
             f"lambda = {int(finest.lam.min())}-{int(finest.lam.max())} (paper: {min(TAB_G2BU.values()):.5g}-"
             f"{max(TAB_G2BU.values()):.5g}); every run flagged blow-up: {bool(finest.blowup.all())}."
         )
+        if "blowup_kind" in finest:
+            kinds = finest.blowup_kind.value_counts().to_dict()
+            fitted = finest[finest.blowup_kind == "finite_time"]
+            span = (
+                f"; finite_time T_b_fit from {fitted.T_b_fit.min():.5g} to {fitted.T_b_fit.max():.5g} "
+                f"(error bars up to {fitted.T_b_fit_err.max():.2g})"
+                if len(fitted)
+                else ""
+            )
+            lines.append(f"- tab:g2bu under the power-law fit of max f (jko_cvx.blowup): kinds {kinds}{span}.")
     return lines
 
 

@@ -72,6 +72,9 @@ def test_quick_grid_convergence_runs_both_studies_and_keeps_the_invariants(tmp_p
     g2 = pd.read_csv(tmp_path / "grid_convergence_g2bu.csv")
     assert g2["lambda"].tolist() == [310]
     assert {"T_b (N_v = 61)", "T_b (N_v = 81)"} <= set(g2.columns)
+    assert {"T_b_fit (61)", "T_b_fit_err (81)", "blowup_kind (61)"} <= set(g2.columns)
+    assert rows.blowup_kind.isin(["finite_time", "no_finite_time", "undetermined"]).all()
+    assert "the fit of max f:" in (tmp_path / "grid_convergence.md").read_text()
 
     # a stopped sweep: the partial report lists the point it lacks and refuses a tampered entry
     cache = sorted((tmp_path / "cache" / "grid_convergence").glob("*.json"))
@@ -137,3 +140,36 @@ def test_the_shipped_report_is_consistent_with_its_runs():
     report = (results / "grid_convergence.md").read_text()
     assert "Points not run" not in report
     assert len(rows) == 2 * len(GRIDS) * 2 and len(pd.read_csv(results / "grid_convergence_g2bu.csv")) == 9
+
+
+def test_the_blowup_fit_columns_reach_the_g2bu_table_and_the_conclusions():
+    """T_b_fit, its error bar and the kind of each run stand beside T_b per N_v, and the restated
+    conclusions count the kinds; rows of code that predates the fit give NaN, not an error."""
+    from jko_cvx.studies.reproduce.grid_convergence import _conclusions, _g2bu_table
+
+    runs = pd.DataFrame(
+        {
+            "lam": [310.0] * 3,
+            "n_v": [201, 401, 801],
+            "T_b": [0.0935, 0.0941, 0.0944],
+            "T_b_fit": [0.0952, 0.0961, float("nan")],
+            "T_b_fit_err": [0.002, 0.001, float("nan")],
+            "blowup_kind": ["finite_time", "finite_time", "undetermined"],
+            "B_x": [True] * 3,
+            "B_v": [False] * 3,
+            "blowup": [True] * 3,
+            "components": [[1], [1], [1]],
+            "split slices": [0, 0, 0],
+            "slices": [10, 10, 10],
+            "seconds": [1.0, 2.0, 3.0],
+        }
+    )
+    table = _g2bu_table(runs)
+    assert table["T_b_fit (401)"].iloc[0] == 0.0961 and table["T_b_fit_err (201)"].iloc[0] == 0.002
+    assert table["blowup_kind (801)"].iloc[0] == "undetermined"
+    empty = pd.DataFrame(columns=["case", "grid", "n"])
+    lines = _conclusions(empty, runs)
+    assert any("kinds {'undetermined': 1}" in line for line in lines)  # the finest grid only
+    old = _g2bu_table(runs.drop(columns=["T_b_fit", "T_b_fit_err", "blowup_kind"]))
+    assert np.isnan(old["T_b_fit (201)"].iloc[0])
+    assert not any("power-law fit" in line for line in _conclusions(empty, runs.drop(columns=["blowup_kind"])))

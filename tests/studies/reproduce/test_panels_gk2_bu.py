@@ -38,3 +38,18 @@ def test_shipped_gk2_bu_has_the_T_b_of_the_shipped_tab_g2bu(lam):
     row = pd.read_csv(SHIPPED / "gk2_bu.csv").set_index("lambda").loc[lam]
     table = pd.read_csv(SHIPPED / "tab_g2bu.csv")
     assert row.T_b == pytest.approx(table[table.n_v == 201].set_index("lambda").loc[int(lam), "T_b"], rel=1e-12)
+
+
+def test_a_g2bu_point_carries_the_fit_of_its_own_records():
+    """The fit columns of a tab:g2bu point are the power-law fit of that run's max f record."""
+    import numpy as np
+
+    from jko_cvx.blowup import fit_blowup
+    from jko_cvx.studies.reproduce.g2bu import g2bu_run
+
+    r = g2bu_run(310.0, 31, 51)
+    assert r["failed_slices"] == 0  # every record certified: the fit takes them all
+    rec = r["records"]
+    fit = fit_blowup(np.array(rec["t"]), np.array(rec["max_f"]))
+    assert r["blowup_kind"] == fit.blowup_kind
+    assert r["T_b_fit"] == fit.T_b_fit and r["T_b_fit_err"] == fit.T_b_fit_err

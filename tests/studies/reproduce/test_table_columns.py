@@ -121,3 +121,19 @@ def test_tab_bu_asks_for_the_beta_scans_points_in_the_same_form(monkeypatch, tmp
     scan = asked["beta scan"]
     assert len(asked["tab_bu"]) == 15 and len(scan) == 15 * len(beta_scan.BETAS)
     assert all(pair in scan for pair in asked["tab_bu"])
+
+
+def test_a_bar_too_wide_leaves_the_kind_undetermined_not_no_finite_time():
+    """tab:bu_tb2's two-bump g4 (gamma = 1, exact T = 0.5) at dt = 0.01: the power law beats the
+    exponential and its T lies inside the horizon, but the window choices move T by more than a
+    quarter of the horizon: nothing excludes the collapse, so the kind is undetermined."""
+    from jko_cvx.blowup import fit_blowup
+    from jko_cvx.engine.loop import simulate
+    from jko_cvx.studies.reproduce.blowup_tables import TAB_BU_TB2_BETA, blowup_scene
+
+    run = simulate(blowup_scene("g4", 1e-3, 0.01, TAB_BU_TB2_BETA))
+    d = run.diagnostics
+    fit = fit_blowup(d.t.to_numpy(), d.max_f.to_numpy(), certified=(d.failed == 0).to_numpy())
+    assert fit.blowup_kind == "undetermined", fit.reason
+    assert fit.reason.startswith("error bar wider than a quarter of the horizon:")
+    assert fit.T_b_fit_err > abs(fit.T_b_fit - 0.5)  # the honest bar covers the exact time
