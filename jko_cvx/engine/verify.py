@@ -54,6 +54,13 @@ The verdict is ``verified`` when at least one slice was compared and every compa
 agrees; otherwise it names the first step and slice (in step order, then slice order) that
 does not, with both statuses and why.
 
+Trajectory
+----------
+``trajectory=True`` also runs the whole scene with the reference method (into ``DIR/reference/``)
+and compares the stop reason, T_b and max f(t) at the times both runs share
+(:mod:`jko_cvx.engine._trajectory`); the verdict gains a trajectory part (agrees / differs, with
+the first time max f parts beyond the tolerance) and ``verified`` needs both.
+
 Run directory
 -------------
 With ``out`` the verification lives in a run directory of the scene
@@ -85,6 +92,7 @@ from jko_cvx.collision._checks import check_bool, check_int
 from jko_cvx.collision.solve import OPTIONS
 from jko_cvx.engine._rundir import RunDir
 from jko_cvx.engine._state import Ledger, RunState
+from jko_cvx.engine._trajectory import TrajectoryComparison, compare_trajectories
 from jko_cvx.engine.errors import RunDirError
 from jko_cvx.engine.loop import ACCEPT_KKT, simulate
 from jko_cvx.engine.run import Run
@@ -137,10 +145,12 @@ class VerifySettings:
     every: int
     slices: str | int
     tolerance: float
+    trajectory: bool = False
 
     def to_dict(self) -> dict[str, Any]:
-        return {"reference": self.reference, "options": self.options, "every": self.every, "slices": self.slices,
-                "tolerance": self.tolerance}  # fmt: skip
+        d = {"reference": self.reference, "options": self.options, "every": self.every, "slices": self.slices,
+             "tolerance": self.tolerance}  # fmt: skip
+        return {**d, "trajectory": True} if self.trajectory else d  # verifications without it read as before
 
     def slice_indices(self, n_x: int) -> np.ndarray:
         """The compared x-slices: all, or ``slices`` evenly spread indices (both ends included)."""
@@ -150,7 +160,12 @@ class VerifySettings:
 
 
 def _check_settings(
-    scene: Scene, reference: str | None, options: dict[str, Any] | None, every: int, slices: str | int
+    scene: Scene,
+    reference: str | None,
+    options: dict[str, Any] | None,
+    every: int,
+    slices: str | int,
+    trajectory: bool = False,
 ) -> VerifySettings:
     """The settings, checked against the scene before any work (each refusal names the argument)."""
     if not isinstance(scene, Scene):
@@ -193,7 +208,15 @@ def _check_settings(
     if unknown:
         raise TypeError(f"unknown reference_options {unknown} for reference={reference!r}")
     tolerance = SAFETY * reference_accuracy(reference, opts)  # checks every option's value too
-    return VerifySettings(reference, opts, every, slices, tolerance)
+    check_bool("trajectory", trajectory)
+    if trajectory:
+        reference_scene(scene, reference, opts)  # the reference's scene must load: refused here, before any work
+    return VerifySettings(reference, opts, every, slices, tolerance, trajectory)
+
+
+def reference_scene(scene: Scene, reference: str, options: dict[str, Any]) -> Scene:
+    """``scene`` with ``collision.method`` the reference and ``collision.options`` its options."""
+    return scene.replace({"collision.method": reference, "collision.options": dict(options)})
 
 
 _JUDGED = (Status.CONVERGED, Status.NOT_CERTIFIED, Status.NONCONVEX)  # the certificate's outcomes, judged again
@@ -325,7 +348,8 @@ class VerifyTracker(Tracker):
             return
         recorded = _read_settings(rd.path, rd.ledger)
         new = json.loads(json.dumps(self.settings.to_dict()))
-        diff = [f"{k}: {recorded.get(k)!r} -> {new[k]!r}" for k in sorted(new) if recorded.get(k) != new[k]]
+        diff = [f"{k}: {recorded.get(k)!r} -> {new.get(k)!r}" for k in sorted(set(new) | set(recorded))
+                if recorded.get(k) != new.get(k)]  # fmt: skip
         if diff:
             raise RunDirError(
                 f"cannot resume the verification in {rd.path}: its settings differ ({'; '.join(diff)}); resume with "
@@ -401,16 +425,21 @@ class Verification:
     run: Run
     table: pd.DataFrame
     settings: VerifySettings
+    reference_run: Run | None = None
+    trajectory: TrajectoryComparison | None = None
 
     @property
     def verified(self) -> bool:
-        return verify_verdict(self.table)[0]
+        """Every compared slice agrees and, with ``trajectory``, the two runs agree too."""
+        return verify_verdict(self.table)[0] and (self.trajectory is None or self.trajectory.agree)
 
     @property
     def verdict(self) -> str:
-        """:func:`verify_verdict`'s text; where nothing was compared, with the reason the run ended."""
+        """:func:`verify_verdict`'s text; where nothing was compared, with the reason the run ended; then the
+        trajectory part (:mod:`jko_cvx.engine._trajectory`)."""
         text = verify_verdict(self.table, self.settings.reference)[1]
-        return text if len(self.table) else f"{text}; the run: {self.run.verdict.reason}"
+        text = text if len(self.table) else f"{text}; the run: {self.run.verdict.reason}"
+        return text if self.trajectory is None else f"{text}; {self.trajectory.text}"
 
 
 def _frame(rows: Sequence[dict[str, Any]]) -> pd.DataFrame:
@@ -482,6 +511,7 @@ def verify(
     resume: bool = False,
     overwrite: bool = False,
     progress: bool = False,
+    trajectory: bool = False,
 ) -> Verification:
     """Run ``scene`` and re-solve every ``every``-th step's collision problems with a reference.
 
@@ -501,6 +531,11 @@ def verify(
         :data:`~jko_cvx.engine.loop.ACCEPT_KKT`); its ``tol`` sets the tolerance.
     out, resume, overwrite, progress
         As for :func:`~jko_cvx.engine.loop.simulate`.
+    trajectory : bool, default False
+        Also run the whole scene with the reference method (:func:`reference_scene`; into
+        ``out/reference/``, resumed and overwritten with the verification) and compare T_b, the
+        stop reason and max f(t) (:mod:`jko_cvx.engine._trajectory`: common times, the same
+        tolerance); ``trajectory.csv`` beside ``verify.csv``.
 
     Raises
     ------
@@ -509,9 +544,13 @@ def verify(
     RunDirError
         ``out`` cannot be used as asked, or ``resume`` with other settings than the verification's.
     """
-    settings = _check_settings(scene, reference, reference_options, every, slices)
+    settings = _check_settings(scene, reference, reference_options, every, slices, trajectory)
     for name, flag in (("resume", resume), ("overwrite", overwrite), ("progress", progress)):
         check_bool(name, flag)
+    sub = None if out is None else Path(out) / REFERENCE_DIR
+    if sub is not None and (sub.is_symlink() or (sub.exists() and not sub.is_dir())):
+        raise RunDirError(f"{sub} is a symbolic link or not a directory: a verification's reference run is never "
+                          "followed through a link; remove it")  # fmt: skip
     holder: list[VerifyTracker] = []
 
     def observers(rd: RunDir | None) -> list[Tracker]:
@@ -524,12 +563,24 @@ def verify(
     tracker = holder[0]
     table = _frame(tracker.rows)
     result = Verification(run, table, settings)
+    if trajectory:
+        ref_scene = reference_scene(scene, settings.reference, settings.options)
+        again = resume and sub is not None and (sub / "checkpoint.npz").exists()  # killed during the reference run
+        # no checkpoint there: nothing of the reference run to keep (the outer directory's own rules
+        # already refused or moved aside an earlier one), so what a kill left before it is replaced
+        result.reference_run = simulate(ref_scene, out=sub, resume=again, overwrite=not again and sub is not None,
+                                        progress=progress)  # fmt: skip
+        result.trajectory = compare_trajectories(run, result.reference_run, settings.tolerance)
     if tracker.rundir is not None:
         _write_report(result, tracker.rundir.path, tracker.rundir.ledger)
     return result
 
 
 # ---------------------------------------------------------------- files
+REFERENCE_DIR = "reference"
+"""The subdirectory of a verification directory that holds the reference's run (``trajectory``)."""
+
+
 def _missing_steps(rows: Sequence[dict[str, Any]], every: int, last: int) -> list[int]:
     """The steps up to ``last`` a verification compares (multiples of ``every``) that have no row."""
     return sorted(set(range(every, last + 1, every)) - {int(r["step"]) for r in rows})
@@ -633,6 +684,31 @@ def _write_report(result: Verification, path: Path, ledger: Ledger) -> None:
             t.sort_values("df", ascending=False, kind="stable").head(10).to_markdown(index=False, floatfmt=".3g"),
             "",
         ]
+    tr = result.trajectory
+    if tr is not None:
+        ledger.save_text(path / "trajectory.csv", tr.table.to_csv(index=False))
+        ref = result.reference_run
+        judged = tr.table[tr.table["matched"]]
+        lines += [
+            f"## Trajectory: the scene run again with {s.reference} (in {REFERENCE_DIR}/)",
+            "",
+            f"**{tr.text}**",
+            "",
+            "| | tested | reference |",
+            "|---|---|---|",
+            f"| method | {run.scene.collision.method} | {s.reference} |",
+            f"| stop | {run.verdict.reason} | {ref.verdict.reason} |",
+            f"| T_b | {tr.T_b} | {tr.T_b_ref} |",
+            f"| steps, t | {run.steps}, {run.t:.6g} | {ref.steps}, {ref.t:.6g} |",
+            f"| collision time (s) | {run.seconds.get('collision', float('nan')):.3g} | "
+            f"{ref.seconds.get('collision', float('nan')):.3g} |",
+            "",
+            f"max f(t) compared at {len(judged)} common times (a reference time within 1e-6 of the smaller dt; "
+            f"{len(tr.table) - len(judged)} other tested times interpolated, not judged): max relative difference "
+            f"{judged['dmax_f'].max() if len(judged) else float('nan'):.2e}, tolerance {tr.tolerance:.1e} "
+            "(trajectory.csv).",
+            "",
+        ]
     ledger.save_text(path / "verify.md", "\n".join(lines))
     ledger.write(path / "verify.png", lambda tmp: _plot(result, tmp))
 
@@ -643,8 +719,20 @@ def _plot(result: Verification, file: str) -> None:
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
 
-    t, s = result.table, result.settings
-    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
+    t, s, tr = result.table, result.settings, result.trajectory
+    if tr is None:
+        fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
+    else:
+        fig, (ax1, ax2, ax3) = plt.subplots(3, 1, figsize=(7, 8.5), sharex=True)
+        d, r = result.run.diagnostics, result.reference_run.diagnostics
+        ax3.plot(d["t"], d["max_f"], "-", label=f"max f, {result.run.scene.collision.method}")
+        ax3.plot(r["t"], r["max_f"], "--", label=f"max f, {s.reference}")
+        bad = tr.table[tr.table["outcome"] == "differ"]
+        if len(bad):
+            ax3.axvline(bad["t"].iloc[0], color="r", lw=0.8, label="max f parts")
+        ax3.set_ylabel("max f")
+        ax3.set_xlabel("t")
+        ax3.legend(fontsize=7)
     if len(t):
         worst = t.groupby("step").agg({"t": "first", "df": "max", "dJ": "max", "kkt": "max", "kkt_ref": "max"})
         ax1.semilogy(worst["t"], np.maximum(worst["df"], 1e-17), "o-", ms=3, label="max |f - f_ref| / max f_ref")
