@@ -761,7 +761,8 @@ def _plot(result: Verification, file: str) -> None:
             ax.axvline(run.verdict.T_b, color="m", lw=1.0, label=f"T_b = {run.verdict.T_b:.4g}" if ax is ax1 else None)
     ax1.set_ylabel("discrepancy (max over slices)")
     ax2.set_ylabel("KKT residual (max over slices)")
-    ax2.set_xlabel("t")
+    if tr is None:
+        ax2.set_xlabel("t")
     for ax in (ax1, ax2):
         ax.legend(fontsize=7)
     ax1.set_title(f"{result.run.scene.name}: {result.run.scene.collision.method} against {s.reference}")
