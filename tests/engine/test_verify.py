@@ -85,7 +85,7 @@ def test_a_loose_method_is_flagged_at_the_first_step_it_parts():
 
 def test_the_error_estimate_is_the_distance_to_the_minimiser():
     from jko_cvx import CollisionProblem, Grid, PowerKernel
-    from jko_cvx.engine.verify import f_error_estimate
+    from jko_cvx.collision.estimate import f_error_estimate
 
     g = Grid.uniform(-2.0, 2.0, 61)
     f0 = np.exp(-2 * (g.points - 0.5) ** 2) + 0.5 * np.exp(-8 * (g.points + 0.7) ** 2)
@@ -249,7 +249,7 @@ def test_the_reference_solves_a_near_vacuum_slice_in_units_of_its_largest_densit
     # conic reference stopped at KKT 0.5 (MAX_ITERATIONS after 50 passes); the same problem in units of
     # max f* is solved, certified against the original problem and equal to Newton's answer
     from jko_cvx import CollisionProblem, Grid, PowerKernel
-    from jko_cvx.engine.verify import solve_reference
+    from jko_cvx.collision.estimate import solve_reference
 
     g = Grid.uniform(-4.0, 4.0, 41)
     f_star = 1e-10 * (0.84 + 0.16 * np.exp(-(g.points**2)))
