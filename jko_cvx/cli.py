@@ -6,7 +6,7 @@ run until the blow-up criterion min dv < eps_v fires; exact T = 0.5), writes the
 directory (refusing one that holds a run, unless ``--overwrite``) and prints the verdict;
 Ctrl-C (SIGINT) or SIGTERM writes a checkpoint, prints the command that resumes it and exits
 with status 130.  ``jko-cvx export RUN_DIR --netcdf FILE`` writes a run as netCDF.
-``jko-cvx verify SCENE [--reference conic|nlp] [--every K] [--slices all|N]`` runs a scene and
+``jko-cvx verify SCENE [--reference conic|nlp] [--every K] [--slices all|N] [--trajectory]`` runs a scene and
 re-solves every K-th step's collision problems with a reference (:mod:`jko_cvx.engine.verify`).
 ``jko-cvx solve`` solves one collision step with every method; ``jko-cvx solvers`` lists the installed
 conic solvers; ``jko-cvx reproduce NAME [--quick]`` regenerates one of the paper's tables or figures
@@ -279,6 +279,9 @@ def _verify_parser(sub) -> None:
     p.add_argument("--every", type=_at_least(1), default=1, help="compare every K-th step (default 1)")
     p.add_argument("--slices", type=_slices, default="all", help="x-slices compared: all, or N evenly spread")
     p.add_argument("--out", type=_directory, default=None, help="directory (default runs/<scene name>_verify)")
+    p.add_argument("--trajectory", action="store_true",
+                   help="also run the whole scene with the reference (into DIR/reference/) and compare T_b, the stop "
+                        "reason and max f(t)")  # fmt: skip
     again = p.add_mutually_exclusive_group()
     again.add_argument("--resume", action="store_true", help="continue an interrupted verification")
     again.add_argument("--overwrite", action="store_true", help="replace what the directory holds")
@@ -296,11 +299,12 @@ def _verify(args) -> int:
     t0 = time.perf_counter()
     try:
         ver = verify(scene, args.reference, every=args.every, slices=args.slices, out=out, resume=args.resume,
-                     overwrite=args.overwrite, progress=not args.quiet)  # fmt: skip
+                     overwrite=args.overwrite, progress=not args.quiet, trajectory=args.trajectory)  # fmt: skip
     except RunInterrupted as exc:
         cmd = ["jko-cvx", "verify", str(args.scene), "--out", str(out), "--resume", "--every", str(args.every),
                "--slices", str(args.slices)]  # fmt: skip
         cmd += [] if args.reference is None else ["--reference", args.reference]
+        cmd += ["--trajectory"] if args.trajectory else []
         print(f"\njko-cvx: interrupted ({signal.Signals(exc.signum).name}) at step {exc.step}, t = {exc.t:.6g}; "
               f"checkpoint written.\nResume with:\n  {shlex.join(cmd)}", file=sys.stderr)  # fmt: skip
         return 130
@@ -310,7 +314,10 @@ def _verify(args) -> int:
     print(f"  {ver.verdict}")
     print(f"  wall {wall:.2f} s (the run's collision solves {ver.run.seconds['collision']:.2f} s, reference "
           f"{ver.table['seconds_ref'].sum():.2f} s)")  # fmt: skip
-    print(f"  wrote {out}/ (verify.csv, verify.md, verify.png beside the run's files)")
+    if ver.reference_run is not None:
+        print(f"  reference run: {ver.reference_run.summary()}")
+    print(f"  wrote {out}/ (verify.csv, verify.md, verify.png beside the run's files"
+          f"{'; trajectory.csv, reference/' if ver.trajectory is not None else ''})")  # fmt: skip
     return 0 if ver.verified else 1
 
 

@@ -47,8 +47,9 @@ __all__ = ["RunDir", "canonical_scene", "flat_scene_record", "read_snapshots", "
 
 RUN_FILES = ("scene.json", "metadata.json", "checkpoint.npz", "diagnostics.csv", "verdict.json")
 FIGURES = ("solution.png", "records.png")
-VERIFY_FILES = ("verify.json", "verify.csv", "verify.md", "verify.png")
-"""A verification's files beside the run's (:mod:`jko_cvx.engine.verify`): moved aside by an overwrite too."""
+VERIFY_FILES = ("verify.json", "verify.csv", "verify.md", "verify.png", "trajectory.csv", "reference")
+"""A verification's files beside the run's (:mod:`jko_cvx.engine.verify`; ``reference/`` holds the reference's
+run): moved aside by an overwrite too."""
 _SNAPSHOT = re.compile(r"step_(\d+)\.npz")
 _ASIDE = ".replaced"  # an overwritten run, kept until the new run has started
 
@@ -304,7 +305,7 @@ class RunDir:
         if not aside.is_dir():
             return
         for p in self._run_files():  # the new run's first files
-            p.unlink()
+            shutil.rmtree(p) if p.is_dir() and not p.is_symlink() else p.unlink()
         for p in sorted(aside.rglob("*")):
             if p.is_file() and not p.is_symlink():
                 target = self.path / p.relative_to(aside)

@@ -6,8 +6,9 @@ collision problem -- the very :class:`~jko_cvx.collision.CollisionProblem` the l
 (``alg:SPMCSL-JKO``'s f* after transport, the grid, dt, strength, Fisher form and weight, the
 momentum constraint) -- is solved again by the reference, started cold from its own initial
 point (never from the tested method's answer; posed in units of the slice's largest density and
-certified against the problem itself, :func:`solve_reference`), and the two answers are compared.  The run
-itself goes on with the tested method's answer: the reference only watches
+certified against the problem itself, :func:`~jko_cvx.collision.estimate.solve_reference`), and the
+two answers are compared.  The run itself goes on with the tested method's answer: the reference
+only watches
 (:meth:`~jko_cvx.engine.trackers.Tracker.solved`, before the step is committed).
 
 Per step and slice (one row of ``verify.csv``): both statuses, both KKT residuals
@@ -30,7 +31,7 @@ J is within ``tol`` of the minimum lies within about :math:`\\sqrt{tol}` of the 
 method is allowed an error of the reference's size).
 
 A posteriori, each answer also gets an estimate of its own distance to the minimiser
-(:func:`f_error_estimate`: one Newton step on the constraint's null space, the reduced
+(:func:`~jko_cvx.collision.estimate.f_error_estimate`: one Newton step on the constraint's null space, the reduced
 gradient over the reduced Hessian): columns ``err`` (tested) and ``err_ref`` (reference).  It
 is far smaller than the a priori bound where the step is well conditioned (conic at tol 1e-10:
 1e-9 to 1e-7 against :math:`\\sqrt{tol}` = 1e-5) and says when a step is too ill-conditioned for
@@ -53,6 +54,13 @@ Outcome of a slice (``outcome`` column)
 The verdict is ``verified`` when at least one slice was compared and every compared slice
 agrees; otherwise it names the first step and slice (in step order, then slice order) that
 does not, with both statuses and why.
+
+Trajectory
+----------
+``trajectory=True`` also runs the whole scene with the reference method (into ``DIR/reference/``)
+and compares the stop reason, T_b and max f(t) at the times both runs share
+(:mod:`jko_cvx.engine._trajectory`); the verdict gains a trajectory part (agrees / differs, with
+the first time max f parts beyond the tolerance) and ``verified`` needs both.
 
 Run directory
 -------------
@@ -80,11 +88,13 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from jko_cvx.collision import CollisionProblem, CollisionResult, Status, solve_collision
+from jko_cvx.collision import CollisionProblem, CollisionResult, Status
 from jko_cvx.collision._checks import check_bool, check_int
+from jko_cvx.collision.estimate import f_error_estimate, solve_reference
 from jko_cvx.collision.solve import OPTIONS
 from jko_cvx.engine._rundir import RunDir
 from jko_cvx.engine._state import Ledger, RunState
+from jko_cvx.engine._trajectory import TrajectoryComparison, compare_trajectories
 from jko_cvx.engine.errors import RunDirError
 from jko_cvx.engine.loop import ACCEPT_KKT, simulate
 from jko_cvx.engine.run import Run
@@ -137,10 +147,12 @@ class VerifySettings:
     every: int
     slices: str | int
     tolerance: float
+    trajectory: bool = False
 
     def to_dict(self) -> dict[str, Any]:
-        return {"reference": self.reference, "options": self.options, "every": self.every, "slices": self.slices,
-                "tolerance": self.tolerance}  # fmt: skip
+        d = {"reference": self.reference, "options": self.options, "every": self.every, "slices": self.slices,
+             "tolerance": self.tolerance}  # fmt: skip
+        return {**d, "trajectory": True} if self.trajectory else d  # verifications without it read as before
 
     def slice_indices(self, n_x: int) -> np.ndarray:
         """The compared x-slices: all, or ``slices`` evenly spread indices (both ends included)."""
@@ -150,7 +162,12 @@ class VerifySettings:
 
 
 def _check_settings(
-    scene: Scene, reference: str | None, options: dict[str, Any] | None, every: int, slices: str | int
+    scene: Scene,
+    reference: str | None,
+    options: dict[str, Any] | None,
+    every: int,
+    slices: str | int,
+    trajectory: bool = False,
 ) -> VerifySettings:
     """The settings, checked against the scene before any work (each refusal names the argument)."""
     if not isinstance(scene, Scene):
@@ -193,41 +210,15 @@ def _check_settings(
     if unknown:
         raise TypeError(f"unknown reference_options {unknown} for reference={reference!r}")
     tolerance = SAFETY * reference_accuracy(reference, opts)  # checks every option's value too
-    return VerifySettings(reference, opts, every, slices, tolerance)
+    check_bool("trajectory", trajectory)
+    if trajectory:
+        reference_scene(scene, reference, opts)  # the reference's scene must load: refused here, before any work
+    return VerifySettings(reference, opts, every, slices, tolerance, trajectory)
 
 
-_JUDGED = (Status.CONVERGED, Status.NOT_CERTIFIED, Status.NONCONVEX)  # the certificate's outcomes, judged again
-
-
-def solve_reference(problem: CollisionProblem, reference: str, options: dict[str, Any]) -> CollisionResult:
-    """The reference's answer to ``problem``, solved in units of its largest density.
-
-    Every term of J but the energy is 1-homogeneous in ``(f, m)`` (the kinetic term
-    :math:`2m^2/s`, both Fisher forms) and the energy is 2-homogeneous, so with
-    :math:`c = \\max f^*` the minimiser of the step for ``(f^*, strength)`` is ``c`` times the
-    minimiser for ``(f^* / c, c * strength)``: the same problem, with densities of order one.
-    The reference solves that one, cold; its answer, scaled back, is certified against
-    ``problem`` itself (:func:`~jko_cvx.collision.certify`, the reference's ``kkt_tol``; a
-    failure status it claimed is kept).  Why: Clarabel's tolerances are partly absolute, and
-    on the near-vacuum x-slices of ``inhom_gamma3_lambda4`` (perspective form, beta = 30,
-    41 x 41, first step; max f* from 1e-10 to 5e-3) the conic reference returned SOLVER_ERROR or
-    MAX_ITERATIONS with KKT residuals 0.08-0.8 on all 10 such slices sampled; in units of max f*
-    all 10 reach 1e-8 to 1e-10, within 2e-10 of Newton.
-    """
-    from jko_cvx.collision import certify
-
-    c = float(np.max(problem.f_star))
-    if not (np.isfinite(c) and c > 0) or c == 1.0:
-        return solve_collision(problem, method=reference, **options)
-    scaled = CollisionProblem(problem.grid, problem.kernel, problem.f_star / c, problem.dt, problem.strength * c,
-                              problem.beta, problem.fisher, problem.conserve_momentum)  # fmt: skip
-    res = solve_collision(scaled, method=reference, **options)
-    opts = OPTIONS[reference](**options)
-    f, m = res.f * c, res.m * c
-    cert = certify(problem, f, m, kkt_tol=opts.kkt_tol, check_convexity=opts.check_convexity,
-                   claimed=None if res.status in _JUDGED else res.status)  # fmt: skip
-    return CollisionResult.from_certificate(problem, f, m, cert, reference, res.iterations, res.seconds,
-                                            {**res.info, "scaled_by": c})  # fmt: skip
+def reference_scene(scene: Scene, reference: str, options: dict[str, Any]) -> Scene:
+    """``scene`` with ``collision.method`` the reference and ``collision.options`` its options."""
+    return scene.replace({"collision.method": reference, "collision.options": dict(options)})
 
 
 def _tested_accepted(status: Status, kkt: float) -> bool:
@@ -243,63 +234,6 @@ def _outcome(status: Status, kkt: float, ref: CollisionResult, df: float, dJ: fl
     if not _tested_accepted(status, kkt):
         return METHOD_FAILED
     return AGREE if (df <= tol and dJ <= tol) else DIFFER
-
-
-def f_error_estimate(problem: CollisionProblem, f: np.ndarray, m: np.ndarray) -> float:
-    """Distance in f from the feasible point ``(f, m)`` to the step's minimiser, estimated by one Newton step.
-
-    On the constraint's null space (``f = f^* - D p / h``, ``m = p``; with ``conserve_momentum``
-    also :math:`\\Delta v^\\top p = 0`) the Newton correction is :math:`p = H_r^{-1} g_r` with the
-    reduced gradient :math:`g_r = Z^\\top \\nabla J` and the reduced Hessian :math:`H_r = Z^\\top
-    \\nabla^2 J Z` (:meth:`~jko_cvx.collision.CollisionProblem.reduced_hessian`); the estimate is
-    :math:`\\max_j w_j |(D p / h)_j| / \\max_j f_j` with the certificate's weights
-    :math:`w_j = f_j / \\max f` (populated cells count in full), exact to second order, and
-    bounded by :math:`\\|g_r\\| / \\lambda_{\\min}(H_r)`, so it grows as the step becomes
-    ill-conditioned.  Fluxes through vacuum edges (infinite curvature) are frozen, and the
-    correction of each cell is cut at :math:`\\pm f_j` (near vacuum J is not quadratic, and no
-    solver pins those cells at these tolerances).  ``inf``
-    where :math:`H_r` is not positive definite or not finite.  Against a tight Newton solve (N = 61,
-    gamma = 1 and 1.5, both Fisher forms and none, with and without the momentum constraint, Newton
-    stopped at 1e-2 and 1e-4): within 30 % of the same weighted distance (``tests/engine/test_verify.py``).
-    """
-    import scipy.linalg as sla
-
-    f, m = np.asarray(f, dtype=float), np.asarray(m, dtype=float)
-    with np.errstate(all="ignore"):
-        gf, gm = problem.gradient(f, m)
-        Z = problem.null_space_basis()
-        g = Z.T @ np.concatenate([gf, gm])
-        H = problem.reduced_hessian(f, m)
-    d = np.diag(H)
-    keep = np.isfinite(d) & (d > 0)
-    Hk, gk = H[np.ix_(keep, keep)], g[keep]
-    if not (np.all(np.isfinite(Hk)) and np.all(np.isfinite(gk))) or f.max() <= 0:
-        return np.inf
-    s = 1 / np.sqrt(np.diag(Hk))  # Jacobi scaling: near-vacuum cells put 1e90 on the diagonal
-    try:
-        chol = sla.cho_factor(Hk * s[:, None] * s[None, :])
-    except np.linalg.LinAlgError:
-        return np.inf
-
-    def solve(r: np.ndarray) -> np.ndarray:
-        return s * sla.cho_solve(chol, s * r)
-
-    p = solve(gk)
-    if problem.conserve_momentum and keep.sum() > 1:
-        a = problem.grid.dv[keep]
-        q = solve(a)
-        p = p - q * (a @ p) / (a @ q)
-    full = np.zeros(problem.n - 1)
-    full[keep] = p
-    # Near vacuum J is far from quadratic (the Fisher and kinetic terms curve like 1/s_k) and the
-    # Newton step means nothing there: on tab_bu_g1 (61 points, beta = 30, step 5) it asked for
-    # +3.7e-5 max f at the end cell, where f = 7e-10, and 1.8e-5 at its neighbours, at every point
-    # tried (conic at tol 1e-12 and 1e-13, Newton at 1e-14: all within 3e-8 of one another).  So the
-    # correction is cut at +-f_j and weighted by f_j / max f, the certificate's weights.
-    fpos = np.maximum(f, 0.0)
-    delta = np.clip(Z[: problem.n] @ full, -fpos, fpos) * (fpos / f.max())
-    est = float(np.abs(delta).max() / f.max())
-    return est if np.isfinite(est) else np.inf
 
 
 def _at(value: Any, i: int, batched: bool) -> Any:
@@ -325,7 +259,8 @@ class VerifyTracker(Tracker):
             return
         recorded = _read_settings(rd.path, rd.ledger)
         new = json.loads(json.dumps(self.settings.to_dict()))
-        diff = [f"{k}: {recorded.get(k)!r} -> {new[k]!r}" for k in sorted(new) if recorded.get(k) != new[k]]
+        diff = [f"{k}: {recorded.get(k)!r} -> {new.get(k)!r}" for k in sorted(set(new) | set(recorded))
+                if recorded.get(k) != new.get(k)]  # fmt: skip
         if diff:
             raise RunDirError(
                 f"cannot resume the verification in {rd.path}: its settings differ ({'; '.join(diff)}); resume with "
@@ -401,16 +336,21 @@ class Verification:
     run: Run
     table: pd.DataFrame
     settings: VerifySettings
+    reference_run: Run | None = None
+    trajectory: TrajectoryComparison | None = None
 
     @property
     def verified(self) -> bool:
-        return verify_verdict(self.table)[0]
+        """Every compared slice agrees and, with ``trajectory``, the two runs agree too."""
+        return verify_verdict(self.table)[0] and (self.trajectory is None or self.trajectory.agree)
 
     @property
     def verdict(self) -> str:
-        """:func:`verify_verdict`'s text; where nothing was compared, with the reason the run ended."""
+        """:func:`verify_verdict`'s text; where nothing was compared, with the reason the run ended; then the
+        trajectory part (:mod:`jko_cvx.engine._trajectory`)."""
         text = verify_verdict(self.table, self.settings.reference)[1]
-        return text if len(self.table) else f"{text}; the run: {self.run.verdict.reason}"
+        text = text if len(self.table) else f"{text}; the run: {self.run.verdict.reason}"
+        return text if self.trajectory is None else f"{text}; {self.trajectory.text}"
 
 
 def _frame(rows: Sequence[dict[str, Any]]) -> pd.DataFrame:
@@ -482,6 +422,7 @@ def verify(
     resume: bool = False,
     overwrite: bool = False,
     progress: bool = False,
+    trajectory: bool = False,
 ) -> Verification:
     """Run ``scene`` and re-solve every ``every``-th step's collision problems with a reference.
 
@@ -501,6 +442,11 @@ def verify(
         :data:`~jko_cvx.engine.loop.ACCEPT_KKT`); its ``tol`` sets the tolerance.
     out, resume, overwrite, progress
         As for :func:`~jko_cvx.engine.loop.simulate`.
+    trajectory : bool, default False
+        Also run the whole scene with the reference method (:func:`reference_scene`; into
+        ``out/reference/``, resumed and overwritten with the verification) and compare T_b, the
+        stop reason and max f(t) (:mod:`jko_cvx.engine._trajectory`: common times, the same
+        tolerance); ``trajectory.csv`` beside ``verify.csv``.
 
     Raises
     ------
@@ -509,9 +455,13 @@ def verify(
     RunDirError
         ``out`` cannot be used as asked, or ``resume`` with other settings than the verification's.
     """
-    settings = _check_settings(scene, reference, reference_options, every, slices)
+    settings = _check_settings(scene, reference, reference_options, every, slices, trajectory)
     for name, flag in (("resume", resume), ("overwrite", overwrite), ("progress", progress)):
         check_bool(name, flag)
+    sub = None if out is None else Path(out) / REFERENCE_DIR
+    if sub is not None and (sub.is_symlink() or (sub.exists() and not sub.is_dir())):
+        raise RunDirError(f"{sub} is a symbolic link or not a directory: a verification's reference run is never "
+                          "followed through a link; remove it")  # fmt: skip
     holder: list[VerifyTracker] = []
 
     def observers(rd: RunDir | None) -> list[Tracker]:
@@ -524,12 +474,24 @@ def verify(
     tracker = holder[0]
     table = _frame(tracker.rows)
     result = Verification(run, table, settings)
+    if trajectory:
+        ref_scene = reference_scene(scene, settings.reference, settings.options)
+        again = resume and sub is not None and (sub / "checkpoint.npz").exists()  # killed during the reference run
+        # no checkpoint there: nothing of the reference run to keep (the outer directory's own rules
+        # already refused or moved aside an earlier one), so what a kill left before it is replaced
+        result.reference_run = simulate(ref_scene, out=sub, resume=again, overwrite=not again and sub is not None,
+                                        progress=progress)  # fmt: skip
+        result.trajectory = compare_trajectories(run, result.reference_run, settings.tolerance)
     if tracker.rundir is not None:
         _write_report(result, tracker.rundir.path, tracker.rundir.ledger)
     return result
 
 
 # ---------------------------------------------------------------- files
+REFERENCE_DIR = "reference"
+"""The subdirectory of a verification directory that holds the reference's run (``trajectory``)."""
+
+
 def _missing_steps(rows: Sequence[dict[str, Any]], every: int, last: int) -> list[int]:
     """The steps up to ``last`` a verification compares (multiples of ``every``) that have no row."""
     return sorted(set(range(every, last + 1, every)) - {int(r["step"]) for r in rows})
@@ -633,6 +595,31 @@ def _write_report(result: Verification, path: Path, ledger: Ledger) -> None:
             t.sort_values("df", ascending=False, kind="stable").head(10).to_markdown(index=False, floatfmt=".3g"),
             "",
         ]
+    tr = result.trajectory
+    if tr is not None:
+        ledger.save_text(path / "trajectory.csv", tr.table.to_csv(index=False))
+        ref = result.reference_run
+        judged = tr.table[tr.table["matched"]]
+        lines += [
+            f"## Trajectory: the scene run again with {s.reference} (in {REFERENCE_DIR}/)",
+            "",
+            f"**{tr.text}**",
+            "",
+            "| | tested | reference |",
+            "|---|---|---|",
+            f"| method | {run.scene.collision.method} | {s.reference} |",
+            f"| stop | {run.verdict.reason} | {ref.verdict.reason} |",
+            f"| T_b | {tr.T_b} | {tr.T_b_ref} |",
+            f"| steps, t | {run.steps}, {run.t:.6g} | {ref.steps}, {ref.t:.6g} |",
+            f"| collision time (s) | {run.seconds.get('collision', float('nan')):.3g} | "
+            f"{ref.seconds.get('collision', float('nan')):.3g} |",
+            "",
+            f"max f(t) compared at {len(judged)} common times (a reference time within 1e-6 of the smaller dt; "
+            f"{len(tr.table) - len(judged)} other tested times interpolated, not judged): max relative difference "
+            f"{judged['dmax_f'].max() if len(judged) else float('nan'):.2e}, tolerance {tr.tolerance:.1e} "
+            "(trajectory.csv).",
+            "",
+        ]
     ledger.save_text(path / "verify.md", "\n".join(lines))
     ledger.write(path / "verify.png", lambda tmp: _plot(result, tmp))
 
@@ -643,8 +630,20 @@ def _plot(result: Verification, file: str) -> None:
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
 
-    t, s = result.table, result.settings
-    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
+    t, s, tr = result.table, result.settings, result.trajectory
+    if tr is None:
+        fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
+    else:
+        fig, (ax1, ax2, ax3) = plt.subplots(3, 1, figsize=(7, 8.5), sharex=True)
+        d, r = result.run.diagnostics, result.reference_run.diagnostics
+        ax3.plot(d["t"], d["max_f"], "-", label=f"max f, {result.run.scene.collision.method}")
+        ax3.plot(r["t"], r["max_f"], "--", label=f"max f, {s.reference}")
+        bad = tr.table[tr.table["outcome"] == "differ"]
+        if len(bad):
+            ax3.axvline(bad["t"].iloc[0], color="r", lw=0.8, label="max f parts")
+        ax3.set_ylabel("max f")
+        ax3.set_xlabel("t")
+        ax3.legend(fontsize=7)
     if len(t):
         worst = t.groupby("step").agg({"t": "first", "df": "max", "dJ": "max", "kkt": "max", "kkt_ref": "max"})
         ax1.semilogy(worst["t"], np.maximum(worst["df"], 1e-17), "o-", ms=3, label="max |f - f_ref| / max f_ref")
@@ -673,7 +672,8 @@ def _plot(result: Verification, file: str) -> None:
             ax.axvline(run.verdict.T_b, color="m", lw=1.0, label=f"T_b = {run.verdict.T_b:.4g}" if ax is ax1 else None)
     ax1.set_ylabel("discrepancy (max over slices)")
     ax2.set_ylabel("KKT residual (max over slices)")
-    ax2.set_xlabel("t")
+    if tr is None:
+        ax2.set_xlabel("t")
     for ax in (ax1, ax2):
         ax.legend(fontsize=7)
     ax1.set_title(f"{result.run.scene.name}: {result.run.scene.collision.method} against {s.reference}")

@@ -85,7 +85,7 @@ def test_a_loose_method_is_flagged_at_the_first_step_it_parts():
 
 def test_the_error_estimate_is_the_distance_to_the_minimiser():
     from jko_cvx import CollisionProblem, Grid, PowerKernel
-    from jko_cvx.engine.verify import f_error_estimate
+    from jko_cvx.collision.estimate import f_error_estimate
 
     g = Grid.uniform(-2.0, 2.0, 61)
     f0 = np.exp(-2 * (g.points - 0.5) ** 2) + 0.5 * np.exp(-8 * (g.points + 0.7) ** 2)
@@ -249,7 +249,7 @@ def test_the_reference_solves_a_near_vacuum_slice_in_units_of_its_largest_densit
     # conic reference stopped at KKT 0.5 (MAX_ITERATIONS after 50 passes); the same problem in units of
     # max f* is solved, certified against the original problem and equal to Newton's answer
     from jko_cvx import CollisionProblem, Grid, PowerKernel
-    from jko_cvx.engine.verify import solve_reference
+    from jko_cvx.collision.estimate import solve_reference
 
     g = Grid.uniform(-4.0, 4.0, 41)
     f_star = 1e-10 * (0.84 + 0.16 * np.exp(-(g.points**2)))
@@ -259,3 +259,108 @@ def test_the_reference_solves_a_near_vacuum_slice_in_units_of_its_largest_densit
     assert ref.success and ref.kkt_residual <= 1e-6 and ref.info["scaled_by"] == f_star.max()
     assert np.abs(ref.f - newton.f).max() <= 1e-6 * newton.f.max()
     assert abs(prob.mass_error(ref.f)) < 1e-12
+
+
+# ---- the trajectory part: the whole scene run again with the reference (jko_cvx.engine._trajectory)
+def test_trajectories_of_newton_and_conic_agree(tmp_path):
+    sc = _scene()
+    ver = verify(sc, "conic", trajectory=True, out=tmp_path / "v")
+    assert ver.verified and "trajectory agrees" in ver.verdict, ver.verdict
+    tr = ver.trajectory
+    assert tr.agree and tr.stop == tr.stop_ref == "T_END" and tr.T_b is None and tr.T_b_ref is None
+    # independently: the reference's run is the scene simulated under conic, and the table compares max f at every step
+    conic = simulate(sc.replace({"collision.method": "conic", "collision.options": {}}))
+    assert np.array_equal(ver.reference_run.diagnostics["max_f"], conic.diagnostics["max_f"])
+    assert tr.table["matched"].all() and len(tr.table) == 6
+    assert np.array_equal(tr.table["max_f"], simulate(sc).diagnostics["max_f"])
+    assert tr.table["dmax_f"].max() < 1e-6  # one step agrees to ~1e-7 in f: five steps stay far below 1e-4
+    out = tmp_path / "v"
+    assert (out / "reference" / "verdict.json").exists() and (out / "trajectory.csv").exists()
+    assert "## Trajectory" in (out / "verify.md").read_text()
+    with pytest.raises(RunDirError, match="already holds a run"):  # reference/ counts as part of the verification
+        verify(sc, "conic", trajectory=True, out=out)
+    again = verify(sc, "conic", trajectory=True, out=out, overwrite=True)
+    assert again.trajectory.agree and (out / "reference" / "verdict.json").exists()
+
+
+def test_a_loose_method_parts_in_max_f_and_is_flagged():
+    # Newton stopped at a KKT residual of 0.1 parts from the reference at step 3 (9e-5 in f); along the run
+    # its max f falls 1.6e-2 behind the reference's at t = 0.04 (step 4)
+    sc = _scene(**{"collision.options": {"tol": 0.1}})
+    ver = verify(sc, "conic", reference_options={"tol": 1e-12}, trajectory=True)
+    tr = ver.trajectory
+    assert not ver.verified and not tr.agree
+    assert "trajectory differs: max f parts first at t = 0.04 " in ver.verdict, ver.verdict
+    # independently of the comparison code: the two runs' max f at t = 0.04
+    loose, ref = (
+        simulate(sc).diagnostics,
+        simulate(sc.replace({"collision.method": "conic", "collision.options": {"tol": 1e-12}})).diagnostics,
+    )
+    gap = abs(loose["max_f"] - ref["max_f"]) / ref["max_f"]
+    assert gap.iloc[3] < 1e-5 < gap.iloc[4], list(gap)
+
+
+def test_trajectories_matched_at_common_times_only():
+    from jko_cvx.engine._trajectory import compare_trajectories
+
+    sc = _scene()
+    run = simulate(sc)
+    fine = simulate(sc.replace({"collision.method": "conic", "collision.options": {}, "time.dt": 0.005}))
+    tr = compare_trajectories(run, fine, 1e-2)
+    # every tested time 0, 0.01, ..., 0.05 is a time of the half-step run; the other way round half are not
+    assert tr.table["matched"].all() and len(tr.table) == 6
+    back = compare_trajectories(fine, run, 1e-2)
+    assert list(back.table["matched"]) == [k % 2 == 0 for k in range(11)]
+    assert set(back.table.loc[~back.table["matched"], "outcome"]) == {"not judged"}
+
+
+def test_an_interrupted_trajectory_verification_resumes(tmp_path):
+    scene_file = tmp_path / "g1.toml"
+    src = resources.files("jko_cvx.scene").joinpath("shipped/tab_bu_g1.toml").read_text()
+    scene_file.write_text(
+        src.replace("n = 121", "n = 41")
+        .replace("t_end = 1.0", "t_end = 0.3")
+        .replace('fisher = "log"', 'fisher = "perspective"')
+        .replace("beta = 6000.0", "beta = 30.0")
+        .replace("checkpoint_every = 5", "checkpoint_every = 3")
+    )
+    out = tmp_path / "v"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "jko_cvx.cli", "verify", str(scene_file), "--out", str(out), "--quiet", "--trajectory",
+         "--every", "10"],
+        env=dict(os.environ, PYTHONUNBUFFERED="1"), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    )  # fmt: skip
+    ck = out / "reference" / "checkpoint.npz"
+    deadline = time.time() + 120
+    while not ck.exists() and time.time() < deadline and proc.poll() is None:
+        time.sleep(0.02)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    killed_at = int(np.load(ck)["step"])
+    assert 0 < killed_at < 30 and not (out / "reference" / "verdict.json").exists()
+    scene = load_scene(scene_file)
+    resumed = verify(scene, out=out, resume=True, every=10, trajectory=True)
+    fresh = verify(scene, every=10, trajectory=True)
+    assert resumed.trajectory.agree, resumed.verdict
+    pd.testing.assert_frame_equal(resumed.trajectory.table, fresh.trajectory.table, check_exact=True)
+    assert resumed.reference_run.steps == 30
+    with pytest.raises(RunDirError, match="settings differ"):  # a verification without the trajectory is another one
+        verify(scene, out=out, resume=True, every=10)
+
+
+def test_cli_trajectory_flag(tmp_path, capsys):
+    from jko_cvx.cli import main
+
+    src = resources.files("jko_cvx.scene").joinpath("shipped/tab_bu_g1.toml").read_text()
+    good = tmp_path / "good.toml"
+    small = src.replace("n = 121", "n = 41").replace("t_end = 1.0", "t_end = 0.02")
+    good.write_text(small.replace("beta = 6000.0", "beta = 30.0").replace('fisher = "log"', 'fisher = "perspective"'))
+    assert main(["verify", str(good), "--out", str(tmp_path / "g"), "--quiet", "--trajectory"]) == 0
+    out = capsys.readouterr().out
+    assert "trajectory agrees" in out and "reference run:" in out, out
+    assert (tmp_path / "g" / "reference" / "verdict.json").exists()
+    link = tmp_path / "l"
+    link.mkdir()
+    (link / "reference").symlink_to(tmp_path / "g" / "reference")
+    assert main(["verify", str(good), "--out", str(link), "--quiet", "--trajectory"]) == 2
+    assert "symbolic link" in capsys.readouterr().err
