@@ -43,3 +43,4 @@ myst_heading_anchors = 3
 
 html_theme = "furo"
 html_title = f"jko_cvx {release}"
+smartquotes = False  # the generated references quote the code's own strings verbatim

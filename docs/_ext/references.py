@@ -53,6 +53,17 @@ def scene_tables() -> list[tuple[str, type, str]]:
     return tables
 
 
+def scene_keys() -> list[str]:
+    """Every dotted scene key the reference documents (the options of ``collision.options`` aside)."""
+    keys: list[str] = []
+    for where, cls, _ in scene_tables():
+        axes = ("refine.v", "refine.x") if where == "refine.v" else (where,)
+        names = [f.name for f in dataclasses.fields(cls)]
+        keys += [f"{a}.{n}" if a else n for a in axes for n in names]
+    keys += ["initial.kind", "refine.concentration_set"]
+    return list(dict.fromkeys(keys))
+
+
 def _default(f: dataclasses.Field) -> str:
     if f.default is dataclasses.MISSING:
         return "**required**"
@@ -109,8 +120,11 @@ def scene_reference_rst() -> list[str]:
         for f in dataclasses.fields(cls):
             rule = f.metadata["rule"]
             dotted = f"{where}.{f.name}" if where else f.name
-            if where == "refine.v":
-                dotted = f"refine.v.{f.name}, refine.x.{f.name}"
+            if where == "refine.v":  # one table for both axes
+                rows.append(
+                    [f"``refine.v.{f.name}``, ``refine.x.{f.name}``", _type(rule), rule.describe(), _default(f)]
+                )
+                continue
             rows.append([f"``{dotted}``", _type(rule), rule.describe(), _default(f)])
         if where == "refine.v":
             default = dataclasses.fields(RefineTable)[2].default
@@ -160,11 +174,11 @@ def cli_reference_rst() -> list[str]:
     from jko_cvx.cli import build_parser
 
     parser = build_parser()
-    lines = ["::", "", *("   " + ln for ln in parser.format_help().splitlines()), ""]
+    lines = [".. code-block:: text", "", *("   " + ln for ln in parser.format_help().splitlines()), ""]
     helps = _help_of(parser)
     for name, sub in _subparsers(parser).items():
         lines += _heading(f"jko-cvx {name}", "-")
-        lines += [helps.get(name, ""), "", "::", ""]
+        lines += [helps.get(name, ""), "", ".. code-block:: text", ""]
         lines += ["   " + ln for ln in sub.format_help().splitlines()]
         lines.append("")
     return lines
