@@ -23,7 +23,7 @@ extensions = [
     "sphinx.ext.napoleon",
     "sphinx.ext.mathjax",
     "myst_parser",
-    "references",
+    "jko_references",
 ]
 
 source_suffix = {".rst": "restructuredtext", ".md": "markdown"}

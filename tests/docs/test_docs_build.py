@@ -29,7 +29,7 @@ pytest.importorskip("furo")
 ROOT = Path(__file__).resolve().parents[2]
 DOCS = ROOT / "docs"
 sys.path.insert(0, str(DOCS / "_ext"))
-import references  # noqa: E402  (docs/_ext/references.py: the generators)
+import jko_references as references  # noqa: E402  (docs/_ext/jko_references.py: the generators)
 
 import jko_cvx  # noqa: E402
 from jko_cvx.scene import schema  # noqa: E402
