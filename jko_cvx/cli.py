@@ -334,7 +334,8 @@ def main(argv: list[str] | None = None) -> int:
         return 130
 
 
-def _main(argv: list[str] | None) -> int:
+def build_parser() -> argparse.ArgumentParser:
+    """The ``jko-cvx`` argument parser (its subcommands and options; the CLI reference is generated from it)."""
     parser = argparse.ArgumentParser(prog="jko-cvx", description=__doc__.split("\n")[0])
     parser.add_argument("--version", action="version", version=f"jko-cvx {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -394,7 +395,11 @@ def _main(argv: list[str] | None) -> int:
     p_cmp.add_argument("--repeats", type=_at_least(1), default=5)
     p_cmp.add_argument("--out", type=_directory, default=Path("results/compare"), help="output directory")
     _verify_parser(sub)
-    args = parser.parse_args(argv)
+    return parser
+
+
+def _main(argv: list[str] | None) -> int:
+    args = build_parser().parse_args(argv)
     try:
         if args.command == "verify":
             return _verify(args)
