@@ -50,6 +50,7 @@ SECTION = (
     "inhom_gamma1p5",
     "tab_bu_beta_scan",
     "tab_g2bu",
+    "tab_g2bu_control",
     "gk1_records",
     "gk2_bu",
     "inhom_gamma3",
