@@ -114,10 +114,12 @@ class Scene:
         return self.initial.density(xgrid, vgrid)
 
     def replace(self, changes: Mapping[str, Any]) -> Scene:
-        """A copy with the attributes at the dotted paths of ``changes`` set, not revalidated.
+        """A copy with the attributes at the dotted paths of ``changes`` set, validated as a whole.
 
-        The nested counterpart of :func:`dataclasses.replace` (``{"v.n": 41, "time.dt": 0.02}``);
-        a document to validate goes through :func:`with_overrides` and :func:`scene_from_dict`.
+        The nested counterpart of :func:`dataclasses.replace` (``{"v.n": 41, "time.dt": 0.02}``).
+        The result must be a scene :func:`scene_from_dict` accepts: a change that makes the scene
+        inconsistent (``{"collision.method": "sqp"}`` on a scene whose momentum constraint or
+        options belong to Newton) raises :class:`SceneError` naming the key, before any work.
 
         >>> default_scene().replace({"time.dt": 0.005, "t_end": 0.5}).time.dt
         0.005
@@ -125,6 +127,10 @@ class Scene:
         out: Any = self
         for dotted, val in changes.items():
             out = _replace_path(out, str(dotted).split("."), val, str(dotted))
+        try:
+            scene_from_dict(out.to_dict())
+        except SceneError as exc:
+            raise SceneError(f"replace({dict(changes)!r}) gives an invalid scene: {exc}") from None
         return out
 
     def to_dict(self) -> dict[str, Any]:

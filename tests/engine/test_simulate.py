@@ -317,9 +317,13 @@ def test_refine_v_conserve_energy_reaches_the_remap(monkeypatch):
 
 
 def test_simulate_refuses_an_oversized_scene_built_in_code(tmp_path):
-    """dataclasses.replace skips the loader's checks: simulate applies the size limits itself, before writing."""
+    """dataclasses.replace skips the loader's checks: simulate applies the size limits itself, before writing.
+    Scene.replace validates the result and refuses the same changes at once."""
     s = default_scene()
-    for bad in (s.replace({"time.dt": 1e-300}), s.replace({"v.n": 10**7})):
+    for table, key, value in (("time", "dt", 1e-300), ("v", "n", 10**7)):
+        with pytest.raises(SceneError, match="JKO_CVX_MAX_"):
+            s.replace({f"{table}.{key}": value})
+        bad = dataclasses.replace(s, **{table: dataclasses.replace(getattr(s, table), **{key: value})})
         with pytest.raises(SceneError, match="JKO_CVX_MAX_"):
             simulate(bad, out=tmp_path / "run")
         assert not (tmp_path / "run").exists()

@@ -1,0 +1,41 @@
+"""Scene.replace validates the scene it returns: a change that is fine alone but inconsistent with the
+rest of the scene is refused at once, naming the key, not at the first solve after files are written."""
+
+from __future__ import annotations
+
+import pytest
+
+from jko_cvx.engine.loop import simulate
+from jko_cvx.scene import SceneError, default_scene, shipped_scene
+
+
+def test_switching_to_the_sqp_keeps_no_momentum_constraint_it_cannot_honour(tmp_path):
+    s = shipped_scene("tab_bu_g1")  # Newton, momentum constraint on
+    with pytest.raises(SceneError, match=r"collision\.conserve_momentum = true needs method 'newton' or 'conic'"):
+        s.replace({"collision.method": "sqp"})
+    ok = s.replace({"collision.method": "sqp", "collision.conserve_momentum": False, "t_end": 0.02})
+    assert ok.collision.method == "sqp"
+    run = simulate(ok, out=tmp_path / "run", progress=False)
+    assert run.t == pytest.approx(0.02)
+
+
+def test_options_of_one_method_are_refused_for_another():
+    s = default_scene().replace({"collision.options": {"max_iter": 50}})  # a Newton option
+    with pytest.raises(SceneError, match=r"collision\.options"):
+        s.replace({"collision.method": "conic", "collision.fisher": "perspective"})
+
+
+@pytest.mark.parametrize(
+    "changes, key", [({"v.n": "41"}, "v.n"), ({"time.dt": -1.0}, "time.dt"), ({"gamma": True}, "gamma")]
+)
+def test_a_bad_value_is_named(changes, key):
+    with pytest.raises(SceneError, match=key.replace(".", r"\.")):
+        default_scene().replace(changes)
+
+
+def test_a_valid_replace_equals_the_scene_loaded_with_the_same_overrides():
+    from jko_cvx.scene import scene_from_dict, with_overrides
+
+    s = default_scene()
+    changes = {"v.n": 41, "time.dt": 0.02, "t_end": 0.1}
+    assert s.replace(changes) == scene_from_dict(with_overrides(s.to_dict(), changes))
