@@ -42,11 +42,12 @@ def _run_scene(scene_path: Path | None, out: Path | None, resume: bool, overwrit
 
     scene = default_scene() if scene_path is None else load_scene(scene_path)
     out = out if out is not None else Path("runs") / scene.name
+    # what continues this run (after an interrupt) or redraws its figures (after a finished run)
+    cmd = ["jko-cvx", "run", *([] if scene_path is None else [str(scene_path)]), "--out", str(out), "--resume"]
     t0 = time.perf_counter()
     try:
         run = simulate(scene, out=out, resume=resume, overwrite=overwrite, progress=not quiet)
     except RunInterrupted as exc:
-        cmd = ["jko-cvx", "run", *([] if scene_path is None else [str(scene_path)]), "--out", str(out), "--resume"]
         print(
             f"\njko-cvx: interrupted ({signal.Signals(exc.signum).name}) at step {exc.step}, t = {exc.t:.6g}; "
             f"checkpoint written to {out / 'checkpoint.npz'}.\nResume with:\n  {shlex.join(cmd)}",
@@ -64,7 +65,6 @@ def _run_scene(scene_path: Path | None, out: Path | None, resume: bool, overwrit
     try:
         save_figures(run, out)
     except KeyboardInterrupt:  # the run itself is complete and on disk; only figures are missing
-        cmd = ["jko-cvx", "run", *([] if scene_path is None else [str(scene_path)]), "--out", str(out), "--resume"]
         print(
             f"\njko-cvx: interrupted while drawing the figures; the run in {out} is complete "
             f"(verdict.json written: {run.summary()}).\nRedraw the figures with:\n  {shlex.join(cmd)}",

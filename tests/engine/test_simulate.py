@@ -1,11 +1,7 @@
 """The study engine: scenes, the time loop, blow-up detection, run directories and resume."""
 
 import dataclasses
-import os
 import signal
-import subprocess
-import sys
-import time
 import tomllib
 from pathlib import Path
 
@@ -19,6 +15,7 @@ from jko_cvx.scene.model import SceneError, default_scene, load_scene, scene_fro
 from jko_cvx.studies.reproduce.ibu import bump_positions
 
 from ._inject import failing
+from ._kill import signal_cli_when
 
 SCENES = Path(__file__).parents[2] / "jko_cvx" / "scene" / "shipped"
 
@@ -133,19 +130,8 @@ def test_killed_run_resumes_to_the_uninterrupted_result(tmp_path):
         .replace("checkpoint_every = 100", "checkpoint_every = 20")
     )
     out = tmp_path / "run"
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "jko_cvx.cli", "run", str(scene_file), "--out", str(out), "--quiet"],
-        env=env,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
     ck = out / "checkpoint.npz"
-    deadline = time.time() + 120
-    while not ck.exists() and time.time() < deadline and proc.poll() is None:
-        time.sleep(0.02)
-    proc.send_signal(signal.SIGKILL)
-    proc.wait()
+    signal_cli_when(["run", str(scene_file), "--out", str(out), "--quiet"], ck, signal.SIGKILL)
     killed_at = int(np.load(ck)["step"])
     assert 0 < killed_at < 400, "the run must have been killed mid-way"
     resumed = simulate(load_scene(scene_file), out=out, resume=True)

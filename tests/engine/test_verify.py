@@ -1,10 +1,6 @@
 """``verify``: a solver against an independent reference along a whole run (jko_cvx.engine.verify)."""
 
-import os
 import signal
-import subprocess
-import sys
-import time
 from importlib import resources
 
 import numpy as np
@@ -20,6 +16,7 @@ from jko_cvx.scene import shipped_scene
 from jko_cvx.scene.model import load_scene
 
 from ._inject import failing
+from ._kill import signal_cli_when
 
 # tab_bu_g1 on 41 points, 5 steps of 0.01, with the perspective form (the form conic poses)
 SMALL = {"v.n": 41, "t_end": 0.05, "collision.fisher": "perspective", "collision.beta": 30.0}
@@ -179,8 +176,8 @@ def test_load_verification_round_trip_and_refusals(tmp_path):
         load_verification(plain)
 
 
-@pytest.mark.parametrize("signum", [signal.SIGKILL, signal.SIGTERM], ids=["SIGKILL", "SIGTERM"])
-def test_killed_verification_resumes_to_the_uninterrupted_table(tmp_path, signum):
+def _small_g1_file(tmp_path):
+    """tab_bu_g1 at 41 points, perspective form, beta = 30, to t = 0.3, a checkpoint every 3 steps."""
     scene_file = tmp_path / "g1.toml"
     src = resources.files("jko_cvx.scene").joinpath("shipped/tab_bu_g1.toml").read_text()
     scene_file.write_text(
@@ -190,21 +187,16 @@ def test_killed_verification_resumes_to_the_uninterrupted_table(tmp_path, signum
         .replace("beta = 6000.0", "beta = 30.0")
         .replace("checkpoint_every = 5", "checkpoint_every = 3")
     )
+    return scene_file
+
+
+@pytest.mark.parametrize("signum", [signal.SIGKILL, signal.SIGTERM], ids=["SIGKILL", "SIGTERM"])
+def test_killed_verification_resumes_to_the_uninterrupted_table(tmp_path, signum):
+    scene_file = _small_g1_file(tmp_path)
     out = tmp_path / "v"
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "jko_cvx.cli", "verify", str(scene_file), "--out", str(out), "--quiet"],
-        env=env,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
     ck = out / "checkpoint.npz"
-    deadline = time.time() + 120
-    while not ck.exists() and time.time() < deadline and proc.poll() is None:
-        time.sleep(0.02)
-    time.sleep(0.1)  # SIGTERM checkpoints the last accepted step, most likely not a multiple of 3
-    proc.send_signal(signum)
-    proc.wait()
+    # settle: SIGTERM checkpoints the last accepted step, most likely not a multiple of 3
+    signal_cli_when(["verify", str(scene_file), "--out", str(out), "--quiet"], ck, signum, settle=0.1)
     killed_at = int(np.load(ck)["step"])
     assert 0 < killed_at < 30, "the verification must have been killed mid-way"
     scene = load_scene(scene_file)
@@ -315,27 +307,11 @@ def test_trajectories_matched_at_common_times_only():
 
 
 def test_an_interrupted_trajectory_verification_resumes(tmp_path):
-    scene_file = tmp_path / "g1.toml"
-    src = resources.files("jko_cvx.scene").joinpath("shipped/tab_bu_g1.toml").read_text()
-    scene_file.write_text(
-        src.replace("n = 121", "n = 41")
-        .replace("t_end = 1.0", "t_end = 0.3")
-        .replace('fisher = "log"', 'fisher = "perspective"')
-        .replace("beta = 6000.0", "beta = 30.0")
-        .replace("checkpoint_every = 5", "checkpoint_every = 3")
-    )
+    scene_file = _small_g1_file(tmp_path)
     out = tmp_path / "v"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "jko_cvx.cli", "verify", str(scene_file), "--out", str(out), "--quiet", "--trajectory",
-         "--every", "10"],
-        env=dict(os.environ, PYTHONUNBUFFERED="1"), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-    )  # fmt: skip
     ck = out / "reference" / "checkpoint.npz"
-    deadline = time.time() + 120
-    while not ck.exists() and time.time() < deadline and proc.poll() is None:
-        time.sleep(0.02)
-    proc.send_signal(signal.SIGKILL)
-    proc.wait()
+    argv = ["verify", str(scene_file), "--out", str(out), "--quiet", "--trajectory", "--every", "10"]
+    signal_cli_when(argv, ck, signal.SIGKILL)
     killed_at = int(np.load(ck)["step"])
     assert 0 < killed_at < 30 and not (out / "reference" / "verdict.json").exists()
     scene = load_scene(scene_file)
