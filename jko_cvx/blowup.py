@@ -71,6 +71,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.optimize import curve_fit
 
+from jko_cvx._numbers import real_array
+
 __all__ = ["KINDS", "BlowupFit", "ThresholdExtrapolation", "extrapolate_thresholds", "fit_blowup"]
 
 KINDS = ("finite_time", "no_finite_time", "undetermined")
@@ -220,6 +222,16 @@ def _window(
     return start, stop
 
 
+def _paired_records(name_a: str, a: ArrayLike, name_b: str, b: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+    """Two records of real numbers, 1-d and of one length (``ValueError`` / ``TypeError`` naming them)."""
+    x, y = real_array(name_a, a), real_array(name_b, b)
+    if x.ndim != 1 or y.shape != x.shape:
+        raise ValueError(
+            f"{name_a} and {name_b} must be 1-d arrays of one length, got shapes {x.shape} and {y.shape}"
+        )
+    return x, y
+
+
 def fit_blowup(
     t: ArrayLike,
     max_f: ArrayLike,
@@ -263,10 +275,7 @@ def fit_blowup(
     -------
     BlowupFit
     """
-    t = np.asarray(t, dtype=float)
-    m = np.asarray(max_f, dtype=float)
-    if t.ndim != 1 or m.shape != t.shape:
-        raise ValueError(f"t and max_f must be 1-d arrays of one length, got shapes {t.shape} and {m.shape}")
+    t, m = _paired_records("t", t, "max_f", max_f)
     if not (growth > 1 and np.isfinite(growth)):
         raise ValueError(f"growth must be a finite number > 1, got {growth!r}")
     if not max_step_growth > 0:
@@ -417,10 +426,7 @@ def extrapolate_thresholds(
     -------
     ThresholdExtrapolation
     """
-    e = np.asarray(eps_v, dtype=float)
-    tb = np.asarray(T_b, dtype=float)
-    if e.ndim != 1 or tb.shape != e.shape:
-        raise ValueError(f"eps_v and T_b must be 1-d arrays of one length, got shapes {e.shape} and {tb.shape}")
+    e, tb = _paired_records("eps_v", eps_v, "T_b", T_b)
     if not (np.all(np.isfinite(e)) and np.all(e > 0)):
         raise ValueError(f"eps_v must be finite and > 0, got {e.tolist()}")
     if not np.all(np.isfinite(tb)):
