@@ -9,13 +9,12 @@ blow-up detection and run directories go through :func:`jko_cvx.engine.loop.simu
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from numbers import Real
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from jko_cvx._numbers import real_array
+from jko_cvx._numbers import is_real, real_array
 from jko_cvx.collision import CollisionProblem, CollisionResult, solve_collision
 from jko_cvx.collision._checks import check_bool
 from jko_cvx.grid import Grid
@@ -130,7 +129,7 @@ def evolve_fixed_grid(
 
 def _check_evolve_args(grid, kernel, f0, dt, t_end, strength, beta, fisher, time_order) -> tuple[NDArray, int]:
     """The checked initial density and the step count; every error names the argument, before any step."""
-    if isinstance(t_end, (bool, np.bool_)) or not isinstance(t_end, Real) or not (np.isfinite(t_end) and t_end > 0):
+    if not is_real(t_end) or not (np.isfinite(t_end) and t_end > 0):
         raise ValueError(f"t_end must be a finite number > 0, got {t_end!r}")
     if time_order not in (1, 2) or isinstance(time_order, bool):
         raise ValueError(f"time_order must be 1 or 2, got {time_order!r}")

@@ -39,11 +39,12 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from numbers import Integral, Real
+from numbers import Integral
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from jko_cvx._numbers import is_real
 from jko_cvx.kernels import PowerKernel
 
 __all__ = ["Cells", "FiniteVolumeRun", "evolve_finite_volume"]
@@ -222,7 +223,7 @@ def evolve_finite_volume(
         ("cfl", cfl, lambda x: 0 < x <= _POSITIVITY_CFL, f"in (0, {_POSITIVITY_CFL}]"),
         ("theta", theta, lambda x: 1 <= x <= 2, "in [1, 2]"),
     ):
-        if isinstance(val, (bool, np.bool_)) or not isinstance(val, Real) or not ok(val):
+        if not is_real(val) or not ok(val):
             raise ValueError(f"{name} must be {rng}, got {val!r}")
     if isinstance(max_steps, (bool, np.bool_)) or not isinstance(max_steps, Integral) or max_steps < 1:
         raise ValueError(f"max_steps must be an integer >= 1, got {max_steps!r}")

@@ -8,17 +8,19 @@ from __future__ import annotations
 
 import inspect
 from collections.abc import Callable
-from numbers import Integral, Real
+from numbers import Integral
 from typing import Any
 
 import numpy as np
+
+from jko_cvx._numbers import is_real
 
 __all__ = ["check_bool", "check_callable", "check_choice", "check_int", "check_options_dict", "check_unit"]
 
 
 def check_unit(name: str, value: object) -> float:
     """``value`` as a float in the open interval (0, 1), else ``ValueError`` naming ``name``."""
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, Real) or not 0 < float(value) < 1:
+    if not is_real(value) or not 0 < float(value) < 1:
         raise ValueError(f"{name} must lie in (0, 1) (a real number), got {value!r}")
     return float(value)
 

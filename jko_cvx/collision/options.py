@@ -24,11 +24,9 @@ import dataclasses
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from numbers import Real
 from typing import Any
 
-import numpy as np
-
+from jko_cvx._numbers import is_real
 from jko_cvx.collision._checks import check_bool, check_callable, check_choice, check_int, check_unit
 
 __all__ = ["KINDS", "Options", "Spec", "option", "scene_specs"]
@@ -107,7 +105,7 @@ class Spec:
         if self.kind == "float":
             if (self.lo, self.hi, self.lo_open, self.hi_open) == (0.0, 1.0, True, True):
                 return check_unit(label, value)
-            if isinstance(value, (bool, np.bool_)) or not isinstance(value, Real) or not self.contains(float(value)):
+            if not is_real(value) or not self.contains(float(value)):
                 raise ValueError(f"{label} must {self.describe()}, got {value!r}")
             return float(value)
         if self.kind == "int":

@@ -29,10 +29,10 @@ v-remap of a narrow slice; ``tests/engine/test_floor_and_last_step.py``, ``tests
 
 from __future__ import annotations
 
-from numbers import Real
-
 import numpy as np
 from numpy.typing import NDArray
+
+from jko_cvx._numbers import is_real
 
 __all__ = ["check_floor", "restore_moments", "restore_three_moments"]
 
@@ -43,7 +43,7 @@ _MAX_EXPONENT = 600.0  # bound on |beta (v - vbar)|: keeps the bracket finite
 def check_floor(floor: float) -> None:
     """``ValueError`` naming ``floor`` unless it is a finite real number >= 0 (the density floor
     of the remaps, the transport, the moment restorations and the SQP's positivity safeguard)."""
-    if isinstance(floor, (bool, np.bool_)) or not isinstance(floor, Real) or not (np.isfinite(floor) and floor >= 0):
+    if not is_real(floor) or not (np.isfinite(floor) and floor >= 0):
         raise ValueError(f"floor must be a finite number >= 0, got {floor!r}")
 
 
