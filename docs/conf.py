@@ -1,6 +1,9 @@
 """Sphinx configuration: built offline (no intersphinx), warnings are errors in the build command.
 
-Build: ``python -m sphinx -W --keep-going -b html docs docs/_build/html``.
+Build: ``python -m sphinx -W --keep-going -b html docs docs/_build/html``.  The tutorials are
+MyST-NB text notebooks, executed at build time in a temporary directory (their figures and
+printed output are the package's own); ``-D nb_execution_mode=off`` skips that (the test suite
+runs their code cells itself, ``tests/docs/test_tutorials.py``).
 """
 
 import sys
@@ -22,11 +25,11 @@ extensions = [
     "sphinx.ext.autosummary",
     "sphinx.ext.napoleon",
     "sphinx.ext.mathjax",
-    "myst_parser",
+    "myst_nb",  # MyST Markdown, and the tutorials executed as notebooks
     "jko_references",
 ]
 
-source_suffix = {".rst": "restructuredtext", ".md": "markdown"}
+source_suffix = {".rst": "restructuredtext", ".md": "myst-nb"}
 exclude_patterns = ["_build", "Thumbs.db", ".DS_Store"]
 root_doc = "index"
 
@@ -39,6 +42,12 @@ napoleon_numpy_docstring = True
 napoleon_use_rtype = False
 
 myst_enable_extensions = ["dollarmath"]
+
+nb_execution_mode = "force"  # every build runs every tutorial: no cached outputs from older code
+nb_execution_in_temp = True  # what a tutorial writes (run directories) lands in a temporary directory
+nb_execution_raise_on_error = True
+nb_execution_timeout = 300  # seconds per cell
+nb_merge_streams = True
 myst_heading_anchors = 3
 
 html_theme = "furo"

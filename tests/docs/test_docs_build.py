@@ -23,7 +23,7 @@ from pathlib import Path
 import pytest
 
 pytest.importorskip("sphinx")
-pytest.importorskip("myst_parser")
+pytest.importorskip("myst_nb")
 pytest.importorskip("furo")
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -36,10 +36,15 @@ from jko_cvx.scene import schema  # noqa: E402
 from jko_cvx.scene.initial import INITIAL_KINDS  # noqa: E402
 from jko_cvx.scene.model import scene_from_dict  # noqa: E402
 
+SPHINX = (sys.executable, "-m", "sphinx", "-W", "--keep-going", "-q", "-b", "html")
+
 
 @pytest.fixture(scope="module")
 def built(tmp_path_factory) -> Path:
-    """The HTML output of a clean ``sphinx -W --keep-going`` build of a copy of ``docs/``."""
+    """The HTML output of a clean ``sphinx -W --keep-going`` build of a copy of ``docs/``.
+
+    The tutorials are not executed here (``tests/docs/test_tutorials.py`` runs their cells);
+    ``.ci/run`` builds once more with them executed."""
     tmp = tmp_path_factory.mktemp("docs")
     src = tmp / "docs"
     shutil.copytree(
@@ -48,7 +53,7 @@ def built(tmp_path_factory) -> Path:
     out = tmp / "html"
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
     proc = subprocess.run(
-        [sys.executable, "-m", "sphinx", "-W", "--keep-going", "-q", "-b", "html", str(src), str(out)],
+        [*SPHINX, "-D", "nb_execution_mode=off", str(src), str(out)],
         capture_output=True,
         text=True,
         env=env,
