@@ -33,6 +33,15 @@ import pandas as pd
 
 from jko_cvx.studies.reproduce.beta_scan import within
 
+# The documentation pages whose narrative quotes measured numbers (``readme`` of a claim).
+BAD_INPUT_PAGE = "docs/guides/bad_input.md"
+FISHER_WEIGHT_PAGE = "docs/guides/fisher_weight.md"
+PAPER_CHOICES_PAGE = "docs/guides/paper_choices.md"
+REPRODUCING_PAGE = "docs/guides/reproducing.md"
+SCALE_THREADS_PAGE = "docs/guides/scale_threads.md"
+SCENES_RUNS_PAGE = "docs/guides/scenes_runs.md"
+SOLVERS_PAGE = "docs/guides/solvers.md"
+
 __all__ = ["CLAIMS", "Claim", "claim_values", "within", "write_summary"]
 
 
@@ -434,7 +443,7 @@ CLAIMS: tuple[Claim, ...] = (
         "smallest scanned beta with a bias under 6 %: {}, {}, {} for w = 0.5, 0.25, 0.125; beta = 30 multiplies "
         "the error by {} at w = 0.125",
         "log form; error / error(beta = inf) <= 1.06",
-        "README.md",
+        SOLVERS_PAGE,
     ),
     Claim(
         "inhom_gamma1p5.grids",
@@ -490,7 +499,7 @@ CLAIMS: tuple[Claim, ...] = (
         "against the exact 0.5 (its {} runs, one per data and dt, take {} s in all)",
         "as tab_bu.within, tab_bu.target; the seconds of each (data, dt) run once (every eps_v of a column is "
         "read off one run)",
-        "README.md",
+        REPRODUCING_PAGE,
     ),
     Claim(
         "readme.inhom_gamma3",
@@ -498,7 +507,7 @@ CLAIMS: tuple[Claim, ...] = (
         _seconds,
         "`inhom_gamma3` {} s; full `tab_g2bu`",
         "sum of seconds",
-        "README.md",
+        REPRODUCING_PAGE,
     ),
     Claim(
         "readme.g3_g2bu",
@@ -506,7 +515,7 @@ CLAIMS: tuple[Claim, ...] = (
         lambda d: (f"{d.seconds.sum():.0f}", str(int(d[d.n_v == 201]["within 0.005"].sum()))),
         "full `tab_g2bu` {} s, {} of 9 blow-up times within 0.005 of the paper's",
         "sum of seconds; within 0.005 at n_v = 201",
-        "README.md",
+        REPRODUCING_PAGE,
     ),
     Claim(
         "gk1_final",
@@ -583,7 +592,7 @@ CLAIMS: tuple[Claim, ...] = (
         lambda d: _scale_row(d, 3.0, "structured (default)"),
         "| gamma = 3, structured (default) | {} ({}) | {} ({}) | {} ({}) | {} ({}) |",
         "medians, wall (CPU), N_v = 121, 481, 1025; exponents log(t481/t121)/log(481/121)",
-        "README.md",
+        SCALE_THREADS_PAGE,
     ),
     Claim(
         "scale.newton.gamma1p5",
@@ -591,7 +600,7 @@ CLAIMS: tuple[Claim, ...] = (
         lambda d: _scale_row(d, 1.5, "structured (default)"),
         "| gamma = 3/2, structured (default) | {} ({}) | {} ({}) | {} ({}) | {} ({}) |",
         "as scale.newton.gamma3",
-        "README.md",
+        SCALE_THREADS_PAGE,
     ),
     Claim(
         "scale.newton.dense3",
@@ -599,7 +608,7 @@ CLAIMS: tuple[Claim, ...] = (
         lambda d: _scale_row(d, 3.0, "dense Cholesky"),
         "| gamma = 3, dense Cholesky | {} ({}) | {} ({}) | | {} ({}) |",
         "as scale.newton.gamma3, dense rows",
-        "README.md",
+        SCALE_THREADS_PAGE,
     ),
     Claim(
         "scale.newton.dense1p5",
@@ -607,7 +616,7 @@ CLAIMS: tuple[Claim, ...] = (
         lambda d: _scale_row(d, 1.5, "dense Cholesky"),
         "| gamma = 3/2, dense Cholesky | {} ({}) | {} ({}) | | {} ({}) |",
         "as scale.newton.gamma3, dense rows",
-        "README.md",
+        SCALE_THREADS_PAGE,
     ),
     Claim(
         "scale.newton.gamma4",
@@ -615,7 +624,7 @@ CLAIMS: tuple[Claim, ...] = (
         lambda d: _scale_row(d, 4.0, "structured (default)"),
         "| gamma = 4, structured (default) | {} ({}) | {} ({}) | {} ({}) | {} ({}) |",
         "as scale.newton.gamma3, gamma = 4 (low-rank path)",
-        "README.md",
+        SCALE_THREADS_PAGE,
     ),
     Claim(
         "scale.newton.dense4",
@@ -623,7 +632,7 @@ CLAIMS: tuple[Claim, ...] = (
         lambda d: _scale_row(d, 4.0, "dense Cholesky"),
         "| gamma = 4, dense Cholesky | {} ({}) | {} ({}) | | {} ({}) |",
         "as scale.newton.gamma3, gamma = 4 dense rows",
-        "README.md",
+        SCALE_THREADS_PAGE,
     ),
     Claim(
         "scale.step",
@@ -633,7 +642,7 @@ CLAIMS: tuple[Claim, ...] = (
         "{} s wall ({} s CPU; collision {} s, refinement {} s, transport {} s; the slowest slice needs {} "
         "Newton iterations), peak memory {} GiB.",
         "wall and CPU seconds per step, split, max Newton iterations, peak RSS",
-        "README.md",
+        SCALE_THREADS_PAGE,
     ),
     Claim(
         "scale.loaded",
@@ -641,7 +650,7 @@ CLAIMS: tuple[Claim, ...] = (
         lambda d: (f"{d.wall_per_step_s.iloc[0]:.2f}",),
         "longer wall times: {} s for the 481 x 481 step",
         "the 481 x 481 structured row of the loaded run",
-        "README.md",
+        SCALE_THREADS_PAGE,
     ),
 )
 
@@ -703,7 +712,7 @@ CLAIMS += (
         lambda d: (f"{d[d.returncode == 0].wall_s.sum() / 60:.0f}", f"{d[d.returncode == 0].cpu_s.sum() / 60:.0f}"),
         "every `jko-cvx reproduce` entry, fresh, on 2 workers, took {} min of wall time and {} min of CPU",
         "sums over the entries",
-        "README.md",
+        SCALE_THREADS_PAGE,
     ),
     Claim(
         "regenerate.inhom_gamma1p5",
@@ -799,7 +808,7 @@ CLAIMS += (
         "`jko-cvx reproduce section --fresh --workers 2` regenerated it in {} s ({} min) of wall time, {} "
         "entries, {} s of CPU: the goal of 20 minutes is {}",
         "the total line of the section's timing",
-        "README.md",
+        SCALE_THREADS_PAGE,
     ),
     Claim(
         "regenerate.section.code",
@@ -819,7 +828,7 @@ CLAIMS += (
             _section_total,
             "{} s ({} min) of wall time, {} entries, {} s of CPU: the goal {}",
             f"the total line of the section's timing finished at {stamp[:2]}:{stamp[2:]} UTC",
-            "README.md",
+            SCALE_THREADS_PAGE,
         )
         for label, stamp in (("earlier", "0549"), ("first_rerun", "0753"))
     ),
@@ -829,7 +838,7 @@ CLAIMS += (
         lambda text: _section_code(text)[1:2],
         "(`regenerate_timing_section_2026-12-02T0549.md`, 1-minute load {} before it started)",
         "the record line of the 05:49 timing",
-        "README.md",
+        SCALE_THREADS_PAGE,
     ),
 )
 
@@ -1005,7 +1014,7 @@ CLAIMS += (
         _gc_wall,
         "The whole sweep ran once on one code, 2 workers, {} min of wall time",
         "the report's last line, seconds / 60",
-        "README.md",
+        SCALE_THREADS_PAGE,
     ),
     Claim(
         "inhom_gamma1p5.crawl_steps",
@@ -1030,7 +1039,7 @@ CLAIMS += (
         ),
         "(the mapped 481 x 481 runs: {} min for lambda = 10 and {} min for lambda = 5",
         "seconds / 60 of that run",
-        "README.md",
+        SCALE_THREADS_PAGE,
     ),
     Claim(
         "grid_convergence.failure_t",
@@ -1261,7 +1270,7 @@ def _bench_claims() -> tuple[Claim, ...]:
                         f"{fisher} Fisher, N = {n}, {method}: median s, iterations, "
                         + ("DC passes, " if fisher == "perspective" else "")
                         + "KKT, build s, in-solver s",
-                        "README.md",
+                        SOLVERS_PAGE,
                     )
                 )
     claims += [
@@ -1272,7 +1281,7 @@ def _bench_claims() -> tuple[Claim, ...]:
             "Ratios of the medians at N = 61, 121, 241, 481: conic / Newton {} (perspective); SQP / Newton {} "
             "(perspective) and {} (log); nlp / conic {} (perspective); nlp / SQP {} (perspective) and {} (log).",
             "medians per solve, bench_collision.csv",
-            "README.md",
+            SOLVERS_PAGE,
         ),
         Claim(
             "bench.growth",
@@ -1282,7 +1291,7 @@ def _bench_claims() -> tuple[Claim, ...]:
             ),
             "nlp's time grows like N^{} (perspective) and N^{} (log) over N = 61 ... 481, the SQP's like N^{}",
             "least-squares slope of log median against log N",
-            "README.md",
+            SOLVERS_PAGE,
         ),
         Claim(
             "bench.cvxpy",
@@ -1291,7 +1300,7 @@ def _bench_claims() -> tuple[Claim, ...]:
             "CVXPY's reduction chain costs nlp {}-{} ms per solve (`canonicalize_s`); nlp's build ({}-{} s) is "
             "cheaper than conic's compile ({}-{} s)",
             "ranges over the N and Fisher forms",
-            "README.md",
+            SOLVERS_PAGE,
         ),
         Claim(
             "bench.nlp",
@@ -1299,7 +1308,7 @@ def _bench_claims() -> tuple[Claim, ...]:
             _bench_nlp,
             "{}-{} s per solve at N = 61-481, {}-{}x Newton and {}-{}x the conic re-solve (benchmark below)",
             "ranges over N = 61 ... 481 and both Fisher forms (conic: perspective only)",
-            "README.md",
+            SOLVERS_PAGE,
         ),
         Claim(
             "bench.nlp_iterations",
@@ -1307,7 +1316,7 @@ def _bench_claims() -> tuple[Claim, ...]:
             lambda d: (f"{d[d.method == 'nlp'].iterations.min()}", f"{d[d.method == 'nlp'].iterations.max()}"),
             "nlp's iteration count stays between {} and {}",
             "nlp's iterations over N and both Fisher forms",
-            "README.md",
+            SOLVERS_PAGE,
         ),
         Claim(
             "bench.sqp_iterations",
@@ -1315,7 +1324,7 @@ def _bench_claims() -> tuple[Claim, ...]:
             lambda d: tuple(f"{int(x)}" for x in d.sort_values("beta").sqp_it),
             "SQP iterations {} / {} / {} / {} for beta = 1 / 3 / 10 / 30",
             "sqp_it of bench_newton.csv",
-            "README.md",
+            PAPER_CHOICES_PAGE,
         ),
         *(
             Claim(
@@ -1324,7 +1333,7 @@ def _bench_claims() -> tuple[Claim, ...]:
                 lambda d, b=beta: _bench_beta_row(d, b),
                 f"| {beta:g} |" + " {} |" * 8,
                 f"beta = {beta:g}: conic s, KKT, sqp s, iterations, newton s, iterations, ratios",
-                "README.md",
+                SOLVERS_PAGE,
             )
             for beta in (1.0, 3.0, 10.0, 30.0)
         ),
@@ -1335,7 +1344,7 @@ def _bench_claims() -> tuple[Claim, ...]:
             "Batched Newton, 121 slices of N = 121: {} s ({} of {} slices converged, max KKT {}; one slice at a "
             "time: {} s).",
             "median of the batched solve; the loop over slices",
-            "README.md",
+            SOLVERS_PAGE,
         ),
         Claim(
             "bench.single_path",
@@ -1343,7 +1352,7 @@ def _bench_claims() -> tuple[Claim, ...]:
             _single_path,
             "(a batch of one, {}-{}x slower per small solve than the former scalar path",
             "branch/main over the one-problem table",
-            "README.md",
+            SOLVERS_PAGE,
         ),
         Claim(
             "bench.newton_growth",
@@ -1351,7 +1360,7 @@ def _bench_claims() -> tuple[Claim, ...]:
             _bench_growth_newton,
             "Newton time per solve against N = 61, 121, 241, 481: {} ms, fitted exponent {}",
             "medians; least-squares slope of log time against log N",
-            "README.md",
+            SOLVERS_PAGE,
         ),
     ]
     return tuple(claims)
@@ -1400,7 +1409,7 @@ CLAIMS += (
         "iteration count grows with N).  A whole inhomogeneous time step (gamma = 3) grows like N_x^{} (batched "
         "collision plus transport) and N_v^{}",
         "fitted exponents, cost_growth_exponents.csv",
-        "README.md",
+        SOLVERS_PAGE,
     ),
     Claim(
         "cost.at961",
@@ -1413,7 +1422,7 @@ CLAIMS += (
         ),
         "{} s (gamma = 3) and {} s (gamma = 1) per step at N = 961 against Newton's {} s and {} s (`cost_growth.md`)",
         "medians of one collision step at N_v = 961",
-        "README.md",
+        SOLVERS_PAGE,
     ),
     Claim(
         "cost.batch",
@@ -1421,7 +1430,7 @@ CLAIMS += (
         lambda d: (f"{d.speedup.min():.1f}", f"{d.speedup.max():.1f}", f"{d.B.min()}", f"{d.B.max()}"),
         "{}-{}x faster than B single calls (B = {}-{}, gamma = 3, N = 121): `cost_growth.md`",
         "one-at-a-time / batched over B",
-        "README.md",
+        SOLVERS_PAGE,
     ),
 )
 
@@ -1456,7 +1465,7 @@ def _misuse_claims() -> tuple[Claim, ...]:
             lambda d, i=i: _misuse_row(d, i),
             "| {} | `{}` | {} | {} |",
             f"row {i} of misuse_scene_cli.csv: class, input, before, message now",
-            "README.md",
+            BAD_INPUT_PAGE,
         )
         for i in range(_MISUSE_ROWS)
     )
@@ -1494,7 +1503,7 @@ CLAIMS += (
         "second moment increasing at {} steps.  The other gamma = 3 runs (lambda = 2, 6, 8, 10): {} s; {} of the "
         "five flag blow-up; for lambda = 10 min dx falls to {} and recovers to {} at t = 4 while max f peaks at {}",
         "the lambda rows of inhom_gamma3.csv",
-        "README.md",
+        SCENES_RUNS_PAGE,
     ),
     Claim(
         "readme.momentum_drift",
@@ -1502,7 +1511,7 @@ CLAIMS += (
         lambda d: (f"{d['momentum drift'].max():.1e}",),
         "Momentum drift over the `inhom_gamma3` runs (121 x 121 to t = 4): at most {}",
         "largest momentum drift of inhom_gamma3.csv",
-        "README.md",
+        SCENES_RUNS_PAGE,
     ),
 )
 
@@ -1561,7 +1570,7 @@ CLAIMS += (
         _default_scene_beta_range,
         "beta >= 1000 gives T_b = {}-{} (`tab_bu_beta_scan.csv`)",
         "g1, eps_v = 1e-3/4, dt = 0.01 over beta >= 1000 (inf included)",
-        "README.md",
+        PAPER_CHOICES_PAGE,
     ),
     Claim(
         "readme.default_tb",
@@ -1569,7 +1578,7 @@ CLAIMS += (
         _default_scene_tb,
         "(measured `T_b = {}` with these settings: `tab_bu_beta_scan.csv`, beta = 1000",
         "the g1, eps_v = 1e-3/4, dt = 0.01, beta = 1000 entry of the beta scan (the default scene's physics)",
-        "README.md",
+        FISHER_WEIGHT_PAGE,
     ),
     Claim(
         "crawl.iterations",
@@ -1585,7 +1594,7 @@ CLAIMS += (
         _sqp_failures,
         "fails on vacuum tails at weak Fisher weight (beta = {} within the first {} steps",
         "the failed runs of work_precision_run.csv (all SQP, one beta)",
-        "README.md",
+        SOLVERS_PAGE,
     ),
     Claim(
         "readme.compare",
@@ -1594,7 +1603,7 @@ CLAIMS += (
         "Newton {}-{} ms, SQP {}-{} ms, Clarabel {}-{} ms over their tolerances (`work_precision_step.csv`, the "
         "same step); SCS at tol 1e-4 returns \"optimal\" with KKT {}, which the package reports as NOT_CERTIFIED",
         "gamma = 1 rows of work_precision_step.csv",
-        "README.md",
+        SOLVERS_PAGE,
     ),
 )
 
