@@ -712,7 +712,7 @@ CLAIMS += (
         lambda d: (f"{d[d.returncode == 0].wall_s.sum() / 60:.0f}", f"{d[d.returncode == 0].cpu_s.sum() / 60:.0f}"),
         "every `jko-cvx reproduce` entry, fresh, on 2 workers, took {} min of wall time and {} min of CPU",
         "sums over the entries",
-        SCALE_THREADS_PAGE,
+        REPRODUCING_PAGE,
     ),
     Claim(
         "regenerate.inhom_gamma1p5",
@@ -808,7 +808,7 @@ CLAIMS += (
         "`jko-cvx reproduce section --fresh --workers 2` regenerated it in {} s ({} min) of wall time, {} "
         "entries, {} s of CPU: the goal of 20 minutes is {}",
         "the total line of the section's timing",
-        SCALE_THREADS_PAGE,
+        REPRODUCING_PAGE,
     ),
     Claim(
         "regenerate.section.code",
@@ -828,7 +828,7 @@ CLAIMS += (
             _section_total,
             "{} s ({} min) of wall time, {} entries, {} s of CPU: the goal {}",
             f"the total line of the section's timing finished at {stamp[:2]}:{stamp[2:]} UTC",
-            SCALE_THREADS_PAGE,
+            REPRODUCING_PAGE,
         )
         for label, stamp in (("earlier", "0549"), ("first_rerun", "0753"))
     ),
@@ -838,7 +838,7 @@ CLAIMS += (
         lambda text: _section_code(text)[1:2],
         "(`regenerate_timing_section_2026-12-02T0549.md`, 1-minute load {} before it started)",
         "the record line of the 05:49 timing",
-        SCALE_THREADS_PAGE,
+        REPRODUCING_PAGE,
     ),
 )
 
@@ -1014,7 +1014,7 @@ CLAIMS += (
         _gc_wall,
         "The whole sweep ran once on one code, 2 workers, {} min of wall time",
         "the report's last line, seconds / 60",
-        SCALE_THREADS_PAGE,
+        REPRODUCING_PAGE,
     ),
     Claim(
         "inhom_gamma1p5.crawl_steps",
@@ -1039,7 +1039,7 @@ CLAIMS += (
         ),
         "(the mapped 481 x 481 runs: {} min for lambda = 10 and {} min for lambda = 5",
         "seconds / 60 of that run",
-        SCALE_THREADS_PAGE,
+        REPRODUCING_PAGE,
     ),
     Claim(
         "grid_convergence.failure_t",
