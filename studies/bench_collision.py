@@ -17,11 +17,12 @@ is about 1e-8), with the ratios conic/newton and sqp/newton from the same run; t
 batched throughput (121 slices of N = 121) and Newton's time per solve against N with
 the fitted growth exponent.
 
-Run (README's tables): ``OPENBLAS_NUM_THREADS=1 python studies/bench_collision.py --sizes 61 121 241 481``.
+Run (the tables of docs/guides/solvers.md):
+``OPENBLAS_NUM_THREADS=1 python studies/bench_collision.py --sizes 61 121 241 481``.
 Writes ``studies/results/bench_collision.csv`` (first part), ``bench_newton.csv`` (against
 beta), ``bench_newton_growth.csv`` (Newton against N), ``bench_newton_batch.csv`` (the
 batch) and ``bench_collision.md`` (every table, with the date, the code, the thread
-setting and the machine's load), and prints the report; README.md quotes these files
+setting and the machine's load), and prints the report; docs/guides/solvers.md quotes these files
 (claims ``bench.*`` of ``tests/readme_claims.py``).
 """
 

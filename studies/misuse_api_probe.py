@@ -20,7 +20,7 @@ class whose API does not exist in the tree is ``n/a``.
     python studies/misuse_api_probe.py                       # this checkout
     python studies/misuse_api_probe.py --before OLD_TREE     # and an older tree, side by side
 
-writes ``studies/results/misuse_api.{csv,md}`` (the README's "Bad input" API table).
+writes ``studies/results/misuse_api.{csv,md}`` (the API table of docs/guides/bad_input.md).
 """
 
 from __future__ import annotations

@@ -9,7 +9,7 @@ has written no file (no run directory).
     python studies/misuse_probe.py                         # this checkout
     python studies/misuse_probe.py --before OLD_TREE       # and an older tree, side by side
 
-writes ``studies/results/misuse_scene_cli.{csv,md}`` (the README's "Bad input" table).
+writes ``studies/results/misuse_scene_cli.{csv,md}`` (the table of docs/guides/bad_input.md).
 """
 
 from __future__ import annotations

@@ -1,4 +1,6 @@
-"""Regenerate ``studies/results/reproduce/summary.md``: every number the READMEs quote, from the result files.
+"""Regenerate ``studies/results/reproduce/summary.md``: the pages' quoted numbers, from the result files.
+
+The pages: ``studies/README.md`` and the documentation's guides, ``docs/guides/*.md``.
 
 The claims live with the tests (``tests/readme_claims.py``, checked by ``tests/docs/test_quoted_numbers.py``);
 this script writes their values into ``summary.md`` in the results directory they read.

@@ -1,10 +1,10 @@
-"""The numbers README.md and ``studies/README.md`` quote, computed from the shipped result files.
+"""The numbers ``docs/guides/*.md`` and ``studies/README.md`` quote, computed from the shipped result files.
 
 Every claim is (key, file, function, quote): the function returns the number(s) formatted as
-the README prints them, and ``quote`` is the README's text with ``{}`` where they go.
+the page prints them, and ``quote`` is the page's text with ``{}`` where they go.
 ``studies/readme_claims.py`` writes ``studies/results/reproduce/summary.md`` (key, value, file,
 how it is computed); ``tests/docs/test_quoted_numbers.py`` checks that every filled-in quote appears
-in the README, so a rerun that changes a number fails the test until the prose follows.
+in its page (``readme``), so a rerun that changes a number fails the test until the prose follows.
 
 Files: a claim declares every file it reads, ``file`` and then ``also``, as relative POSIX
 paths resolved against the directory passed to :func:`claim_values` (the shipped one is
@@ -163,7 +163,7 @@ def _wall(entry: str, minutes: bool = False) -> Callable[[pd.DataFrame], tuple[s
 
 
 def _scale_row(d, gamma: float, linalg: str) -> tuple[str, ...]:
-    """A row of README's batched-Newton table: wall (CPU) at N_v = 121, 481, 1025 and the exponents."""
+    """A row of the guides' batched-Newton table: wall (CPU) at N_v = 121, 481, 1025 and the exponents."""
     rows = d[(d.gamma == gamma) & (d.linalg == linalg)].set_index("N_v")
     cells = []
     for n in (121, 481, 1025):
@@ -435,7 +435,7 @@ CLAIMS: tuple[Claim, ...] = (
         "f log f decreases in {} and {} steps of the gamma = 3 run (collision {}, x-remap {}, transport {})",
         "property_budget_summary.csv",
     ),
-    # Fisher weight against the data's width (README.md guidance row)
+    # Fisher weight against the data's width (the solver guide's guidance row)
     Claim(
         "fisher_width",
         "fisher_width.csv",
@@ -484,7 +484,7 @@ CLAIMS: tuple[Claim, ...] = (
         "from {} to {}",
         "lambda = 310, n_v = 201 and 401",
     ),
-    # README.md, "Reproducing the paper"
+    # docs/guides/reproducing.md
     Claim(
         "readme.tab_bu",
         "tab_bu.csv",
@@ -1140,7 +1140,7 @@ CLAIMS += (
 )
 
 
-# --- README's benchmark section (studies/bench_collision.py): every cell of its tables ----------------------
+# --- the solver guide's benchmark section (studies/bench_collision.py): every cell of its tables ----------------------
 
 _BENCH_SIZES = (61, 121, 241, 481)
 _BENCH_METHODS = {"perspective": ("conic", "sqp", "newton", "nlp"), "log": ("sqp", "newton", "nlp")}
@@ -1152,7 +1152,7 @@ def _opt(x: float, fmt: str) -> str:
 
 
 def _bench_row(d: pd.DataFrame, fisher: str, n: int, method: str) -> tuple[str, ...]:
-    """A row of README's one-step table: median s, iterations, [DC passes,] KKT, build s, in-solver s."""
+    """A row of the guides' one-step table: median s, iterations, [DC passes,] KKT, build s, in-solver s."""
     rows = d[(d.fisher == fisher) & (d.N == n) & (d.method == method)]
     if len(rows) != 1:
         raise ValueError(f"bench_collision.csv: expected one row for {fisher}, N = {n}, {method}")
@@ -1370,7 +1370,7 @@ CLAIMS += _bench_claims()
 
 
 
-# --- README's cost-growth paragraph and solver-table rows (jko-cvx study cost_growth) --------------------------
+# --- the solver guide's cost-growth paragraph and solver-table rows (jko-cvx study cost_growth) ---
 
 
 def _exponent(d: pd.DataFrame, what: str) -> str:
@@ -1436,20 +1436,20 @@ CLAIMS += (
 
 
 
-# --- README's "Bad input" table (studies/misuse_probe.py): every row ---------------------------------------
+# --- the bad-input guide's table (studies/misuse_probe.py): every row ---------------------------------------
 
 
 _MISUSE_ROWS = 49  # rows of misuse_scene_cli.csv; _misuse_row refuses a file with another count
 
 
 def _misuse_row(d: pd.DataFrame, i: int) -> tuple[str, ...]:
-    """Row ``i`` of README's misuse table: class, input, the outcome before, the message now.
+    """Row ``i`` of the bad-input guide's misuse table: class, input, the outcome before, the message now.
 
     Pipes are escaped for Markdown; a message longer than 170 characters is cut at 167 and
     marked with an ellipsis.
     """
     if len(d) != _MISUSE_ROWS:
-        raise ValueError(f"misuse_scene_cli.csv has {len(d)} rows, the README's table {_MISUSE_ROWS}")
+        raise ValueError(f"misuse_scene_cli.csv has {len(d)} rows, the guide's table {_MISUSE_ROWS}")
     r = d.iloc[i]
     msg = str(r["message (now)"]).removeprefix("jko-cvx: error: ")
     msg = msg if len(msg) <= 170 else msg[:167] + "..."
@@ -1475,7 +1475,7 @@ CLAIMS += _misuse_claims()
 
 
 
-# --- README's measured inhom_gamma3 runs (the inhom_gamma3 entry) -------------------------------------------
+# --- the scenes guide's measured inhom_gamma3 runs (the inhom_gamma3 entry) -------------------------------------------
 
 
 def _g3_runs(d: pd.DataFrame) -> tuple[str, ...]:
@@ -1517,7 +1517,7 @@ CLAIMS += (
 
 
 
-# --- README's `jko-cvx compare` paragraph and solver table (work_precision_step) ----------------------------
+# --- the solver guide's `jko-cvx compare` paragraph and solver table (work_precision_step) ----------------------------
 
 
 def _wps_ranges(d: pd.DataFrame) -> tuple[str, ...]:
@@ -1780,7 +1780,7 @@ def write_summary(results: Path) -> pd.DataFrame:
         "# The numbers studies/README.md quotes, computed from the result files",
         "",
         "Generated by `python studies/readme_claims.py` (the claims: `tests/readme_claims.py`); "
-        "`tests/docs/test_quoted_numbers.py` checks the READMEs against them.  Tolerances on T_b "
+        "`tests/docs/test_quoted_numbers.py` checks the pages against them.  Tolerances on T_b "
         "are applied to |ours - paper| rounded to 5 decimals.",
         "",
         "| key | value | file | how | quoted in |",

@@ -1,4 +1,4 @@
-"""Every number the READMEs quote comes from a shipped result file (the claims of ``tests/readme_claims.py``),
+"""Every number studies/README.md and docs/guides quote comes from a shipped result file (``tests/readme_claims.py``),
 and each claim reads exactly the files it declares, from the directory it is given."""
 
 import builtins

@@ -1,4 +1,4 @@
-"""``studies/bench_collision.py`` writes every table README quotes, with the run's provenance."""
+"""``studies/bench_collision.py`` writes every table the solver guide quotes, with the run's provenance."""
 
 import importlib.util
 from pathlib import Path

@@ -1,7 +1,7 @@
 """Python API misuse: each bad argument is refused before any work, naming the argument.
 
 The classes here are those ``studies/misuse_api_probe.py`` found unclear on main before the
-fixes (each of these tests fails there); the probe's table is in the README ("Bad input").
+fixes (each of these tests fails there); the probe's table is in docs/guides/bad_input.md.
 """
 
 from __future__ import annotations

@@ -8,7 +8,7 @@ scale invariant (v -> v/w leaves the discrete JKO step unchanged), so the error 
 beta = inf is the same for every width; the ratio ``error / error(beta = inf)`` is the
 Fisher bias alone.  The Fisher term does not scale like the rest: its weight relative to
 the Wasserstein term grows as the data narrow, so a weight adequate for w = 0.5 is not for
-w = 0.125.  The guidance in README.md is read off ``fisher_width.md``.
+w = 0.125.  The guidance in the documentation (the solver and Fisher-weight guides) is read off ``fisher_width.md``.
 """
 
 from __future__ import annotations
