@@ -57,9 +57,15 @@ class Grid:
 
     Examples
     --------
+    >>> import numpy as np
+    >>> from jko_cvx import Grid
     >>> g = Grid.uniform(-2.0, 2.0, 5)
     >>> g.h
     array([0.5, 1. , 1. , 1. , 0.5])
+    >>> float(g.mass(g.points**2)), float(g.moment(np.ones(5), 2))  # trapezoidal: 2 (4/2 + 1) = 6
+    (6.0, 6.0)
+    >>> Grid([-1.0, -0.1, 0.0, 0.1, 1.0]).dv  # non-uniform: finer near the origin
+    array([0.9, 0.1, 0.1, 0.9])
     """
 
     points: NDArray[np.float64]
@@ -150,6 +156,15 @@ class PeriodicGrid:
     Cell widths wrap around: :math:`h_i = (x_{i+1} - x_{i-1})/2` with
     :math:`x_N = x_0 + P` and :math:`x_{-1} = x_{N-1} - P`, so ``h.sum() == period``: the
     trapezoidal rule of a periodic function (the quadrature of ``eqn:semi_update``).
+
+    Examples
+    --------
+    >>> from jko_cvx import PeriodicGrid
+    >>> x = PeriodicGrid.uniform(1.0, 4)  # four cell-centred points on [-1, 1)
+    >>> x.points, x.h
+    (array([-0.75, -0.25,  0.25,  0.75]), array([0.5, 0.5, 0.5, 0.5]))
+    >>> PeriodicGrid([-0.9, 0.0, 0.5], period=2.0).h  # non-uniform: the first and last widths wrap around
+    array([0.75, 0.7 , 0.55])
     """
 
     points: NDArray[np.float64]

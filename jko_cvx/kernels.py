@@ -286,6 +286,19 @@ class PowerKernel:
         Exponent, ``gamma > 0``.  The paper uses 1, 3/2, 2 and 3:
         :math:`\\gamma < 2` blows up in finite time, :math:`\\gamma \\ge 2` in infinite time
         (homogeneous case).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from jko_cvx import Grid, PowerKernel
+    >>> W = PowerKernel(2.0)
+    >>> W([-1.0, 0.0, 2.0]), W.derivative([-1.0, 0.0, 2.0])
+    (array([0.5, 0. , 2. ]), array([-1.,  0.,  2.]))
+    >>> W.is_low_rank  # gamma = 2: the energy matrix is exactly rank 3
+    True
+    >>> grid = Grid.uniform(-1.0, 1.0, 5)
+    >>> PowerKernel(1.0).potential(grid, np.ones(grid.n))  # exact here: (W * 1)(v) = 1 + v^2 on [-1, 1]
+    array([2.  , 1.25, 1.  , 1.25, 2.  ])
     """
 
     gamma: float

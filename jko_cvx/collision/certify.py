@@ -52,6 +52,17 @@ class Certificate:
         :math:`J(f, m)` at the point (``inf`` outside the domain).
     kkt : KKTResidual or None
         The residual's components (None when the caller passed only ``residual``).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from jko_cvx import CollisionProblem, Grid, PowerKernel, certify, solve_collision
+    >>> grid = Grid.uniform(-2.0, 2.0, 41)
+    >>> prob = CollisionProblem(grid, PowerKernel(1.0), np.exp(-2 * grid.points**2), dt=0.01, beta=10.0)
+    >>> res = solve_collision(prob, method="newton")
+    >>> cert = certify(prob, res.f, res.m, kkt_tol=1e-6)
+    >>> cert.status.name, bool(cert.residual < 1e-6), bool(cert.residual == cert.kkt.total)
+    ('CONVERGED', True, True)
     """
 
     status: Status | NDArray
@@ -101,6 +112,21 @@ def certify(
     Certificate
         ``status`` is ``CONVERGED``, ``NOT_CERTIFIED``, ``NONCONVEX``, ``NUMERICAL_ERROR``
         or the ``claimed`` failure status.
+
+    Examples
+    --------
+    A solver's answer is certified; the feasible point ``(f_star, 0)`` (no collision at all) is not:
+
+    >>> import numpy as np
+    >>> from jko_cvx import CollisionProblem, Grid, PowerKernel, certify, solve_collision
+    >>> grid = Grid.uniform(-2.0, 2.0, 41)
+    >>> prob = CollisionProblem(grid, PowerKernel(1.0), np.exp(-2 * grid.points**2), dt=0.01, beta=10.0)
+    >>> res = solve_collision(prob, method="sqp")
+    >>> certify(prob, res.f, res.m, kkt_tol=1e-6).status.name
+    'CONVERGED'
+    >>> cert = certify(prob, prob.f_star, np.zeros(grid.n - 1), kkt_tol=1e-6)
+    >>> cert.status.name, bool(cert.residual > 1e-3)
+    ('NOT_CERTIFIED', True)
     """
     kkt_tol = check_unit("kkt_tol", kkt_tol)
     check_convexity = check_bool("check_convexity", check_convexity)

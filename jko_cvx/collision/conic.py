@@ -79,7 +79,16 @@ def _cvxpy():
 
 
 def conic_solvers() -> list[str]:
-    """Installed CVXPY solvers that accept second-order cones (Clarabel first)."""
+    """Installed CVXPY solvers that accept second-order cones (Clarabel first).
+
+    The ``solver`` option of ``solve_collision(..., method="conic")`` is one of these.
+
+    Examples
+    --------
+    >>> from jko_cvx import conic_solvers
+    >>> conic_solvers()[0]  # Clarabel is a dependency of the package
+    'CLARABEL'
+    """
     cp = _cvxpy()
     from cvxpy.reductions.solvers.defines import INSTALLED_CONIC_SOLVERS, SOLVER_MAP_CONIC
 

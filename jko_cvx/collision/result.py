@@ -13,7 +13,18 @@ __all__ = ["CollisionResult", "Status"]
 
 
 class Status(enum.Enum):
-    """Outcome of a collision solve; the value is the human-readable message."""
+    """Outcome of a collision solve; the value is the human-readable message.
+
+    Examples
+    --------
+    >>> from jko_cvx import Status
+    >>> Status.CONVERGED.success, Status.MAX_ITERATIONS.success
+    (True, False)
+    >>> [s.name for s in Status if s.success]
+    ['CONVERGED', 'LINEARIZED']
+    >>> Status.NOT_CERTIFIED.value
+    'the solver stopped but the KKT residual is above tolerance'
+    """
 
     CONVERGED = "converged: KKT residual within tolerance"
     LINEARIZED = (
@@ -62,6 +73,23 @@ class CollisionResult:
     info : dict
         Method-specific details (e.g. conic ``passes``, ``solver_status``, ``compile_seconds``;
         SQP ``exit_flag`` and ``zeta``).
+
+    Examples
+    --------
+    A batch of two slices (one row of ``f_star`` each), one status per slice:
+
+    >>> import numpy as np
+    >>> from jko_cvx import CollisionProblem, Grid, PowerKernel, solve_collision
+    >>> grid = Grid.uniform(-2.0, 2.0, 41)
+    >>> g = np.exp(-2 * grid.points**2)
+    >>> prob = CollisionProblem(grid, PowerKernel(1.0), np.stack([g, 0.5 * g]), dt=0.01, beta=10.0)
+    >>> res = solve_collision(prob, method="newton")
+    >>> res.method, res.f.shape, res.m.shape
+    ('newton', (2, 41), (2, 40))
+    >>> [s.name for s in res.status], bool(np.all(res.kkt_residual < 1e-8))
+    (['CONVERGED', 'CONVERGED'], True)
+    >>> bool(np.all(np.abs(res.mass_error) < 1e-12))  # the step conserves mass
+    True
     """
 
     f: NDArray[np.float64]

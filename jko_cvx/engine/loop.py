@@ -304,6 +304,19 @@ def simulate(
     RunInterrupted
         SIGINT / SIGTERM arrived (only with ``out``, from the main thread); the checkpoint holds
         the last accepted step.
+
+    Examples
+    --------
+    The homogeneous gamma = 1 scene of Table ``tab:bu`` (exact blow-up time 1/2), run in memory
+    until the refined grid's smallest spacing falls below ``stop.eps_v``:
+
+    >>> from jko_cvx import shipped_scene, simulate
+    >>> run = simulate(shipped_scene("tab_bu_g1"))
+    >>> run.blowup, run.verdict.stop.name, bool(abs(run.verdict.T_b - 0.5) < 0.05)
+    (True, 'EPS_V', True)
+
+    With ``out``, the run directory holds the checkpoint, diagnostics and snapshots
+    (:func:`~jko_cvx.engine.run.load_run` reads it back; ``resume=True`` continues it).
     """
     if not isinstance(scene, Scene):
         raise TypeError(

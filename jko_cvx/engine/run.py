@@ -39,7 +39,26 @@ __all__ = ["Run", "load_run"]
 
 @dataclass
 class Run:
-    """The result of :func:`~jko_cvx.engine.loop.simulate` (always returned, also when blow-up stops the run)."""
+    """The result of :func:`~jko_cvx.engine.loop.simulate` (always returned, also when blow-up stops the run).
+
+    ``diagnostics`` holds one row per accepted step (row 0: the initial state), ``snapshots`` the
+    densities at the scene's ``output`` times with their grids, ``f`` the final density on
+    ``vgrid`` (and ``xgrid`` for an inhomogeneous scene), ``verdict`` the stopping reason and
+    whether the run blew up.
+
+    Examples
+    --------
+    >>> from jko_cvx import shipped_scene, simulate
+    >>> run = simulate(shipped_scene("tab_bu_g1", {"v.n": 41, "t_end": 0.05}))
+    >>> run.steps, run.blowup, run.f.shape, run.xgrid is None
+    (5, False, (41,), True)
+    >>> print(run.summary())  # doctest: +ELLIPSIS
+    tab_bu_g1: t = 0.05, steps = 5, blow-up = False (direction: none; reached t_end); ...
+    >>> run.diagnostics[["t", "mass", "max_f"]].round(2).tail(2)
+          t  mass  max_f
+    4  0.04  1.25   1.08
+    5  0.05  1.25   1.11
+    """
 
     scene: Scene
     diagnostics: pd.DataFrame
@@ -202,6 +221,17 @@ def load_run(path: str | Path, *, allow_partial: bool = False) -> Run:
         run wrote it (its digest is not the one ``metadata.json`` records), the state fails its
         invariants (:meth:`~jko_cvx.engine._state.RunState.check`), an entry is a symbolic link,
         or the run has not ended and ``allow_partial`` is false.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> from jko_cvx import load_run, shipped_scene, simulate
+    >>> with tempfile.TemporaryDirectory() as tmp:
+    ...     run = simulate(shipped_scene("tab_bu_g1", {"v.n": 41, "t_end": 0.05}), out=Path(tmp) / "run")
+    ...     back = load_run(Path(tmp) / "run")
+    >>> back.steps, back.t == run.t, bool((back.f == run.f).all()), back.scene == run.scene
+    (5, True, True, True)
     """
     path = Path(path)
     if not path.is_dir():

@@ -454,6 +454,19 @@ def verify(
         A bad or impossible setting, naming it, before any work or file write.
     RunDirError
         ``out`` cannot be used as asked, or ``resume`` with other settings than the verification's.
+
+    Examples
+    --------
+    Two Newton steps of a small gamma = 1 scene with the perspective Fisher form, each re-solved
+    by the conic reference (the default for that form):
+
+    >>> from jko_cvx import shipped_scene, verify
+    >>> scene = shipped_scene("tab_bu_g1", {"v.n": 21, "t_end": 0.02, "collision.fisher": "perspective"})
+    >>> ver = verify(scene)
+    >>> ver.verified, len(ver.table), list(ver.table["outcome"])
+    (True, 2, ['agree', 'agree'])
+    >>> print(ver.verdict)  # doctest: +ELLIPSIS
+    verified: 2 slice solves over 2 steps agree within 1.0e-04 (max discrepancy in f ...)
     """
     settings = _check_settings(scene, reference, reference_options, every, slices, trajectory)
     for name, flag in (("resume", resume), ("overwrite", overwrite), ("progress", progress)):
@@ -537,6 +550,22 @@ def load_verification(path: str | Path) -> pd.DataFrame:
     RunDirError
         Not a verification directory, a file changed since it was written, the run has not ended,
         or rows are missing.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> from jko_cvx import load_verification, shipped_scene, verify
+    >>> scene = shipped_scene("tab_bu_g1", {"v.n": 21, "t_end": 0.02, "collision.fisher": "perspective"})
+    >>> with tempfile.TemporaryDirectory() as tmp:
+    ...     _ = verify(scene, out=Path(tmp) / "verify")
+    ...     table = load_verification(Path(tmp) / "verify")
+    >>> table.attrs["verified"]
+    True
+    >>> table[["step", "status", "status_ref", "outcome"]]
+       step     status status_ref outcome
+    0     1  CONVERGED  CONVERGED   agree
+    1     2  CONVERGED  CONVERGED   agree
     """
     path = Path(path)
     if not path.is_dir():

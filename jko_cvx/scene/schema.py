@@ -42,7 +42,19 @@ __all__ = [
 
 
 class SceneError(ValueError):
-    """A scene that does not validate; the message names the key and the allowed values."""
+    """A scene that does not validate; the message names the key and the allowed values.
+
+    A subclass of :class:`ValueError`, raised before any work or file write.
+
+    Examples
+    --------
+    >>> from jko_cvx import SceneError, shipped_scene
+    >>> try:
+    ...     shipped_scene("tab_bu_g1", {"v.n": 2})
+    ... except SceneError as exc:
+    ...     print(exc)
+    v.n must be an integer >= 3, got 2
+    """
 
 
 @dataclass(frozen=True)

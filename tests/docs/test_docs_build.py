@@ -86,6 +86,14 @@ def test_api_page_names_every_public_name(built):
     assert not empty, f"generated pages without the object's description: {empty}"
 
 
+def test_api_pages_show_the_examples(built):
+    """Each public name's page renders its docstring's Examples section (tests/docs/test_api_examples.py)."""
+    names = [n for n in jko_cvx.__all__ if not n.startswith("__")]
+    pages = {n: (built / "reference" / "generated" / f"jko_cvx.{n}.html").read_text() for n in names}
+    bare = [n for n, page in pages.items() if 'rubric">Examples' not in page or "&gt;&gt;&gt;" not in page]
+    assert not bare, f"generated pages without a rendered Examples section and doctest: {bare}"
+
+
 def _tables(cls: type) -> set[type]:
     found = set()
     for sub in cls.__subclasses__():
