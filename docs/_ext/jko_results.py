@@ -80,6 +80,11 @@ PAGES: tuple[Page, ...] = (
         (
             Entry("bench_collision.md", data=("bench_collision.csv",)),
             Entry("bench_newton.csv", title="Newton against the conic reference and the SQP, per Fisher weight"),
+            Entry("bench_newton_growth.csv", title="Newton per solve against N"),
+            Entry("bench_newton_batch.csv", title="Batched Newton against one slice at a time"),
+            Entry("newton_single_path.md", data=("newton_certification.csv",)),
+            Entry("conic_defaults.md", data=("conic_defaults.csv",)),
+            Entry("extremes.md", data=("extremes.csv",)),
         ),
     ),
     Page(
@@ -99,6 +104,7 @@ PAGES: tuple[Page, ...] = (
                 figures=("work_precision_peer.png", "work_precision_peer_time_order.png"),
                 data=("work_precision_peer.csv", "work_precision_peer_time_order.csv"),
             ),
+            Entry("strang_self_convergence.md", data=("strang_self_convergence.csv",)),
         ),
     ),
     Page(
@@ -119,6 +125,7 @@ PAGES: tuple[Page, ...] = (
             ),
             Entry("cost_growth_exponents.csv", title="Cost growth: fitted exponents"),
             Entry("cost_growth_batch.csv", title="Cost growth: batched against one-at-a-time Newton"),
+            Entry("bench_crawl.md", data=("bench_crawl.csv",)),
         ),
     ),
     Page(
@@ -132,11 +139,12 @@ PAGES: tuple[Page, ...] = (
             Entry(
                 R + "tab_g2bu.md",
                 figures=(R + "tab_g2bu.png", R + "tab_g2bu_snapshots.png"),
-                data=(R + "tab_g2bu.csv",),
+                data=(R + "tab_g2bu.csv", R + "tab_g2bu_previous_code.csv"),
             ),
             Entry(R + "tab_g2bu_control.md", data=(R + "tab_g2bu_control.csv",)),
             Entry(R + "tab_bu_beta_scan.md", data=(R + "tab_bu_beta_scan.csv",)),
             Entry(R + "tab_bu_beta_scan_summary.csv", title="tab:bu against beta: summary"),
+            Entry(R + "tab_bu_traces.md", data=(R + "tab_bu_traces.csv",)),
         ),
     ),
     Page(
@@ -189,7 +197,11 @@ PAGES: tuple[Page, ...] = (
                     R + "inhom_gamma1p5_properties.png",
                     R + "inhom_gamma1p5_resolution.png",
                 ),
-                data=(R + "inhom_gamma1p5.csv", R + "inhom_gamma1p5_resolution.csv"),
+                data=(
+                    R + "inhom_gamma1p5.csv",
+                    R + "inhom_gamma1p5_resolution.csv",
+                    R + "inhom_gamma1p5_resolution_previous_code.csv",
+                ),
             ),
             Entry(
                 R + "inhom_gamma3.md",
@@ -250,8 +262,42 @@ PAGES: tuple[Page, ...] = (
             Entry("misuse_scene_cli.md", data=("misuse_scene_cli.csv",)),
         ),
     ),
+    Page(
+        "checks",
+        "Checks of the tests and of the result files",
+        "How many one-line mutations of the package the tests catch, how long regenerating the "
+        "numerical section takes, what changed in the reproductions across a round of changes, and "
+        "the numbers the READMEs quote, computed from the result files.",
+        (
+            Entry("mutation.md", data=("mutation.csv", "mutation_round2_first_run.csv")),
+            Entry(
+                "regenerate_timing.md",
+                data=("regenerate_timing.csv", "regenerate_timing_2026-12-02T0620.csv"),
+            ),
+            Entry(
+                "regenerate_timing_section.md",
+                data=(
+                    "regenerate_timing_section.csv",
+                    "regenerate_timing_section_2026-12-02T0549.csv",
+                    "regenerate_timing_section_2026-12-02T0753.csv",
+                ),
+            ),
+            Entry("ab_entry.csv", title="One reproduction entry timed on two commits, alternating"),
+            Entry("reproduce_unchanged.md"),
+            Entry(R + "summary.md"),
+        ),
+    ),
 )
 """Every results page and the files it renders, in the order of the results index."""
+
+
+UNSHOWN: dict[str, str] = {
+    R + "environment.json": "read for the provenance of the files beside it",
+    "regenerate_timing_2026-12-02T0620.md": "an earlier run of regenerate_timing.md (its CSV is listed)",
+    "regenerate_timing_section_2026-12-02T0549.md": "an earlier run of the section timing (its CSV is listed)",
+    "regenerate_timing_section_2026-12-02T0753.md": "an earlier run of the section timing (its CSV is listed)",
+}
+"""Files of ``studies/results`` and ``studies/results/reproduce`` no page renders, and why."""
 
 
 def sources(pages: tuple[Page, ...] = PAGES) -> list[str]:
@@ -262,9 +308,11 @@ def sources(pages: tuple[Page, ...] = PAGES) -> list[str]:
 # ---- provenance -----------------------------------------------------------------------------------
 
 _DATE = re.compile(r"\b20\d\d-\d\d-\d\d\b")
-_COMMIT = re.compile(r"\b(?:commit|code|git)\s+(?:git\s+)?[0-9a-f]{7,40}\b", re.I)
+_COMMIT = re.compile(r"\b(?:commit|code|git|tree):?\s+(?:git\s+|main at\s+)?[0-9a-f]{7,40}\b", re.I)
 _THREADS = re.compile(r"thread", re.I)
-_RECORDED = re.compile(r"\*Environment:|" + _DATE.pattern + "|" + _COMMIT.pattern, re.I)
+_THREAD_SETTING = re.compile(r"\b[A-Z_]*NUM_THREADS\b|\bBLAS\s+threads?\b|thread environment|slice threads", re.I)
+_RECORDED = re.compile("|".join([r"\*Environment:", _DATE.pattern, _COMMIT.pattern, _THREAD_SETTING.pattern]), re.I)
+_SENTENCE_END = re.compile(r"(?<=\.)\s+(?=[A-Z`*(])")
 PROVENANCE_COLUMNS = ("date", "finished", "commit", "threads", "provenance")
 """CSV columns that record when, with which code or which thread setting a row was computed."""
 
@@ -290,12 +338,26 @@ def _sentence(text: str, searched: str | None = None, **known: bool) -> str:
     return text + (f" It records no {' and no '.join(missing)}." if missing else "")
 
 
-def _report_provenance(lines: list[str]) -> int | None:
-    """Index of the report's provenance line: the first prose line naming a date, commit or environment."""
-    for i, line in enumerate(lines):
-        s = line.strip()
-        if s and not s.startswith(("#", "|")) and _RECORDED.search(s):
-            return i
+def _report_provenance(lines: list[str]) -> tuple[tuple[int, int], str] | None:
+    """Where a report records its provenance, and what it says.
+
+    The first prose paragraph (not a heading or table) naming a date, a commit, a thread
+    setting or the environment: its line span ``[start, stop)`` and the sentences of it that
+    name one; ``None`` if no paragraph does.
+    """
+    prose = [bool(s.strip()) and not s.startswith(("#", "|")) for s in lines]
+    start = 0
+    while start < len(lines):
+        if not prose[start]:
+            start += 1
+            continue
+        stop = start + 1
+        while stop < len(lines) and prose[stop]:
+            stop += 1
+        paragraph = " ".join(s.strip() for s in lines[start:stop])  # a phrase may wrap across lines
+        if _RECORDED.search(paragraph):
+            return (start, stop), " ".join(t for t in _SENTENCE_END.split(paragraph) if _RECORDED.search(t))
+        start = stop
     return None
 
 
@@ -327,8 +389,8 @@ def provenance(path: Path) -> str:
         return f"written {entry['written']}; {environment_line(entry['environment'])}"
     if path.suffix == ".md":
         lines = path.read_text().splitlines()
-        i = _report_provenance(lines)
-        return NOT_RECORDED if i is None else _sentence(lines[i].strip())
+        found = _report_provenance(lines)
+        return NOT_RECORDED if found is None else _sentence(found[1])
     if path.suffix == ".csv":
         import pandas as pd
 
@@ -402,8 +464,8 @@ def _repair_tables(lines: list[str]) -> list[str]:
     return out
 
 
-def _report(path: Path) -> tuple[str, list[str], int | None]:
-    """(title, body lines, index of the provenance line in the body) of a Markdown report.
+def _report(path: Path) -> tuple[str, list[str], tuple[tuple[int, int], str] | None]:
+    """(title, body lines, :func:`_report_provenance` of the body) of a Markdown report.
 
     The report's headings move under the section it gets on the page (``#`` becomes the section,
     ``##`` its ``###``...), each at most one level below the previous one (MyST warns on jumps).
@@ -462,13 +524,11 @@ def render_entry(entry: Entry, results: Path) -> list[str]:
     """The Markdown of one entry: heading, provenance, figures, data files, then the file itself."""
     path = results / entry.file
     if path.suffix == ".md":
-        title, body, prov = _report(path)
-        if (
-            prov is not None
-            and (prov == 0 or not body[prov - 1].strip())
-            and (prov + 1 == len(body) or not body[prov + 1].strip())
-        ):
-            del body[prov]  # a paragraph of its own: shown once, in the provenance block
+        title, body, found = _report(path)
+        if found is not None:
+            (start, stop), said = found
+            if said == " ".join(s.strip() for s in body[start:stop]):
+                del body[start:stop]  # a paragraph of provenance only: shown once, in the provenance block
     else:
         title, body = entry.title or path.name, []
         if path.suffix == ".csv":

@@ -155,6 +155,9 @@ def _write_results(folder: Path) -> Page:
         "| case | median |x - y| |\n|:--|--:|\n| a | 0.5 |\n"
     )
     (folder / "no_commit.md").write_text("# No commit\n\nmeasured 2031-05-06, one BLAS thread\n")
+    (folder / "mixed.md").write_text(
+        "# Mixed\n\nCases: one bump. Measured on one BLAS\nthread, 2031-02-03. More text.\n\n| x |\n|--:|\n| 1 |\n"
+    )
     (folder / "table.csv").write_text("what,value\nalpha,1.25\nbeta|gamma,2.5\n")
     (folder / "columns.csv").write_text("date,commit,threads,value\n2031-01-01 10:00,abc1234,1,3.5\n")
     (folder / "recorded.csv").write_text("value\n4.5\n")
@@ -172,6 +175,7 @@ def _write_results(folder: Path) -> Page:
             Entry("line_report.md"),
             Entry("bare_report.md", data=("table.csv",)),
             Entry("no_commit.md"),
+            Entry("mixed.md"),
             Entry("table.csv", title="A table"),
             Entry("columns.csv", title="Columns"),
             Entry("record.json", title="A record"),
@@ -202,6 +206,9 @@ def test_provenance_each_file_records_and_not_recorded_where_none(tmp_path):
     assert text.count(line) == 1  # moved into the provenance block, not repeated in the body
     assert _provenance(text, "bare_report.md").endswith(f": {results.NOT_RECORDED}")
     assert _provenance(text, "no_commit.md").endswith("It records no code commit.")
+    mixed = _provenance(text, "mixed.md")  # the sentences that record, the paragraph left whole
+    assert mixed.endswith(": Measured on one BLAS thread, 2031-02-03. It records no code commit.")
+    assert "Cases: one bump. Measured on one BLAS\nthread, 2031-02-03. More text." in text
     assert _provenance(text, "table.csv").endswith(f": {results.NOT_RECORDED}")
     cols = _provenance(text, "columns.csv")
     assert "`2031-01-01 10:00`" in cols and "`abc1234`" in cols and "It records no" not in cols
@@ -275,3 +282,13 @@ def test_a_missing_file_fails_naming_it_and_stale_files_go(tmp_path):
     (folder / "table.csv").unlink()
     with pytest.raises(FileNotFoundError, match=r"table\.csv"):
         results.write_pages(folder, out, pages=(page,))
+
+
+def test_every_result_file_is_on_a_page_or_set_aside_with_a_reason():
+    """A new result file shows up in the docs, or its omission is stated (``UNSHOWN``)."""
+    shown = set(results.sources())
+    files = {
+        p.relative_to(RESULTS).as_posix() for d in (RESULTS, RESULTS / "reproduce") for p in d.iterdir() if p.is_file()
+    }
+    assert not files - shown - set(results.UNSHOWN), sorted(files - shown - set(results.UNSHOWN))
+    assert set(results.UNSHOWN) <= files and not set(results.UNSHOWN) & shown
