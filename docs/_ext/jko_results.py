@@ -11,10 +11,11 @@ Nothing on these pages is typed: at ``builder-inited`` :func:`write_pages` rende
 * a data file (a CSV behind a report, too long to print) is listed with its size and a download link.
 
 Each file comes with the provenance it records itself (:func:`provenance`): the report's own
-environment/date/commit line, the ``environment.json`` entry :func:`jko_cvx.environment.record_csv`
-wrote beside it, the CSV's own ``date``/``commit``/``threads`` columns or the JSON record's
-``code`` entry.  A file that records none says so: "provenance not recorded in this file".
-A file named in :data:`PAGES` but missing from ``studies/results/`` fails the build.
+environment/date/commit/threads sentences, the ``environment.json`` entry
+:func:`jko_cvx.environment.record_csv` wrote beside it, the CSV's own ``date``/``commit``/``threads``
+columns or the JSON record's ``code`` entry, followed by what that record lacks.  A file that
+records none says so: "provenance not recorded in this file".  A file named in :data:`PAGES` but
+missing from ``studies/results/`` fails the build; :data:`UNSHOWN` names the files no page renders.
 """
 
 from __future__ import annotations
@@ -378,9 +379,11 @@ def _distinct(values: list[str], most: int = 4) -> str:
 def provenance(path: Path) -> str:
     """The provenance ``path`` records, as one Markdown sentence; :data:`NOT_RECORDED` when none.
 
-    Read from (the first that applies): the ``environment.json`` entry beside the file; a
-    report's own environment/date/commit line; a CSV's :data:`PROVENANCE_COLUMNS`; a JSON
-    record's ``code`` entry.
+    Read from (the first that applies): the ``environment.json`` entry beside the file; for a
+    report, the sentences of its first paragraph that name a date, a commit, a thread setting or
+    the environment (:func:`jko_cvx.environment.write_markdown` puts the environment line under
+    the title); a CSV's :data:`PROVENANCE_COLUMNS`; a JSON record's ``code`` entry.  What the
+    record does not name of the date, the commit and the thread setting is said after it.
     """
     from jko_cvx.environment import environment_line
 
@@ -496,7 +499,7 @@ def csv_table(path: Path) -> str:
 
     frame = pd.read_csv(path)
     frame.columns = [_cell(str(c)) for c in frame.columns]
-    return frame.map(_cell).to_markdown(index=False)
+    return frame.apply(lambda col: col.map(_cell)).to_markdown(index=False)
 
 
 def _figure(rel: str, results: Path) -> list[str]:
