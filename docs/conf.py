@@ -27,6 +27,7 @@ extensions = [
     "sphinx.ext.mathjax",
     "myst_nb",  # MyST Markdown, and the tutorials executed as notebooks
     "jko_references",
+    "jko_results",  # the results pages, rendered from studies/results at every build
 ]
 
 source_suffix = {".rst": "restructuredtext", ".md": "myst-nb"}

@@ -179,3 +179,18 @@ def test_statuses_page_names_every_status(built):
     text = _text(built / "reference" / "statuses.html")
     for s in Status:
         assert s.name in text and " ".join(s.value.split()) in text, s.name
+
+
+def test_results_pages_are_built_with_every_file(built):
+    """Each generated results page is in the site (the toctree of results/index), naming its files."""
+    import jko_results
+
+    index = _text(built / "results" / "index.html")
+    for page in jko_results.PAGES:
+        assert page.title in index, page.name
+        text = _text(built / "results" / "generated" / f"{page.name}.html")
+        missing = [rel for rel in page.files() if f"studies/results/{rel}" not in text]
+        assert not missing, (page.name, missing)
+        for entry in page.entries:
+            for fig in entry.figures:
+                assert (built / "_images" / fig.rsplit("/", 1)[-1]).is_file(), fig
