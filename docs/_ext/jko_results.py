@@ -268,7 +268,7 @@ PAGES: tuple[Page, ...] = (
         "Checks of the tests and of the result files",
         "How many one-line mutations of the package the tests catch, how long regenerating the "
         "numerical section takes, what changed in the reproductions across a round of changes, and "
-        "the numbers the READMEs quote, computed from the result files.",
+        "the numbers studies/README.md and the guides quote, computed from the result files.",
         (
             Entry("mutation.md", data=("mutation.csv", "mutation_round2_first_run.csv")),
             Entry(
