@@ -40,10 +40,12 @@ the reference to pin f to the tolerance: ``err_ref`` above it is outcome ``ill-c
 Outcome of a slice (``outcome`` column)
 ---------------------------------------
 * ``agree``: the reference is certified (status CONVERGED at its own ``kkt_tol``, 1e-6 for
-  conic and nlp unless ``reference_options`` set it: Clarabel at tol 1e-10 ends at KKT residuals
-  of 4e-9 to 8e-7 on tab_bu_g1 (61 points, perspective, beta = 1), above the engine's :data:`~jko_cvx.engine.loop.ACCEPT_KKT`, and its accuracy
-  in f is judged by ``err_ref`` below), the tested slice is one the engine accepts (:meth:`~jko_cvx.engine.loop.Stepper.accepted`, per slice) and both discrepancies
-  are within the tolerance;
+  conic and nlp unless ``reference_options`` set it: Clarabel at tol 1e-10 ends at KKT
+  residuals of 4e-9 to 8e-7 on tab_bu_g1 (61 points, perspective, beta = 1), above the engine's
+  :data:`~jko_cvx.engine.loop.ACCEPT_KKT`, and its accuracy in f is judged by ``err_ref``
+  below), the tested slice is one the engine accepts
+  (:meth:`~jko_cvx.engine.loop.Stepper.accepted`, per slice) and both discrepancies are within
+  the tolerance;
 * ``differ``: both certified, a discrepancy above the tolerance;
 * ``ill-conditioned``: the reference is certified but its own error estimate exceeds the
   tolerance -- unverified, whatever the discrepancy;
