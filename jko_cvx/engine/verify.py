@@ -628,16 +628,16 @@ def _write_report(result: Verification, path: Path, ledger: Ledger) -> None:
 
 
 def _plot(result: Verification, file: str) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
+    """verify.png, drawn on a pyplot-free Figure: the caller's backend (a notebook's inline one) is left alone."""
+    from matplotlib.figure import Figure
 
     t, s, tr = result.table, result.settings, result.trajectory
     if tr is None:
-        fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
+        fig = Figure(figsize=(7, 6))
+        ax1, ax2 = fig.subplots(2, 1, sharex=True)
     else:
-        fig, (ax1, ax2, ax3) = plt.subplots(3, 1, figsize=(7, 8.5), sharex=True)
+        fig = Figure(figsize=(7, 8.5))
+        ax1, ax2, ax3 = fig.subplots(3, 1, sharex=True)
         d, r = result.run.diagnostics, result.reference_run.diagnostics
         ax3.plot(d["t"], d["max_f"], "-", label=f"max f, {result.run.scene.collision.method}")
         ax3.plot(r["t"], r["max_f"], "--", label=f"max f, {s.reference}")
@@ -682,4 +682,3 @@ def _plot(result: Verification, file: str) -> None:
     ax1.set_title(f"{result.run.scene.name}: {result.run.scene.collision.method} against {s.reference}")
     fig.tight_layout()
     fig.savefig(file, format="png", dpi=100)
-    plt.close(fig)

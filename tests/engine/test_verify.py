@@ -340,3 +340,19 @@ def test_cli_trajectory_flag(tmp_path, capsys):
     (link / "reference").symlink_to(tmp_path / "g" / "reference")
     assert main(["verify", str(good), "--out", str(link), "--quiet", "--trajectory"]) == 2
     assert "symbolic link" in capsys.readouterr().err
+
+
+def test_writing_verify_png_leaves_the_callers_matplotlib_alone(tmp_path):
+    # verify.png is drawn on a pyplot-free Figure: a notebook's inline backend must survive a verification
+    import matplotlib
+    import matplotlib.pyplot as plt
+
+    before = matplotlib.get_backend()
+    try:
+        matplotlib.use("svg")  # a backend the caller chose, not the Agg verify draws with
+        open_figures = plt.get_fignums()
+        verify(_scene(**{"t_end": 0.02}), "conic", out=tmp_path / "v")
+        assert (tmp_path / "v" / "verify.png").stat().st_size > 0
+        assert matplotlib.get_backend() == "svg" and plt.get_fignums() == open_figures
+    finally:
+        matplotlib.use(before)
