@@ -102,6 +102,7 @@ from jko_cvx.engine.errors import RunDirError
 from jko_cvx.engine.loop import ACCEPT_KKT, simulate
 from jko_cvx.engine.run import Run
 from jko_cvx.engine.trackers import StepInfo, Tracker
+from jko_cvx.engine.verdict import StopReason
 from jko_cvx.scene.model import Scene
 
 __all__ = [
@@ -343,15 +344,23 @@ class Verification:
     trajectory: TrajectoryComparison | None = None
 
     @property
+    def _failure(self) -> str | None:
+        """The run's stop reason where a failed solve of the tested method ended it (else None)."""
+        v = self.run.verdict
+        return v.reason if v.stop is StopReason.SOLVER_FAILURE else None
+
+    @property
     def verified(self) -> bool:
-        """Every compared slice agrees and, with ``trajectory``, the two runs agree too."""
-        return verify_verdict(self.table)[0] and (self.trajectory is None or self.trajectory.agree)
+        """Every compared slice agrees, no failed solve ended the run and, with ``trajectory``, the two runs
+        agree too."""
+        ok = verify_verdict(self.table, failure=self._failure)[0]
+        return ok and (self.trajectory is None or self.trajectory.agree)
 
     @property
     def verdict(self) -> str:
         """:func:`verify_verdict`'s text; where nothing was compared, with the reason the run ended; then the
         trajectory part (:mod:`jko_cvx.engine._trajectory`)."""
-        text = verify_verdict(self.table, self.settings.reference)[1]
+        text = verify_verdict(self.table, self.settings.reference, self._failure)[1]
         text = text if len(self.table) else f"{text}; the run: {self.run.verdict.reason}"
         return text if self.trajectory is None else f"{text}; {self.trajectory.text}"
 
@@ -386,11 +395,18 @@ _OTHER_REFERENCE = {
 }
 
 
-def verify_verdict(table: pd.DataFrame, reference: str | None = None) -> tuple[bool, str]:
+def verify_verdict(table: pd.DataFrame, reference: str | None = None, failure: str | None = None) -> tuple[bool, str]:
     """``(verified, text)`` of a verification table (module docstring: verified when every compared slice agrees).
 
     With ``reference``, a verdict with slices the reference failed on says which reference to use instead.
+    ``failure`` is the run's stop reason where a failed solve of the tested method ended the run
+    (``stop.on_solver_failure``): that step is never committed, so it has no row, and the verdict is
+    "not verified" whatever the rows say.
     """
+    if failure is not None and len(table):
+        text = verify_verdict(table, reference)[1]
+        head = f"not verified: a failed solve of the tested method stopped the run ({failure})"
+        return False, f"{head}; before it: {text}"
     if len(table) == 0:
         return False, "unverified: no step was compared (the run took fewer steps than every)"
     bad = table[table["outcome"] != AGREE]
@@ -555,7 +571,8 @@ def load_verification(path: str | Path) -> pd.DataFrame:
             f"{path} --resume"
         )
     ledger.verify(path / "verdict.json")
-    steps = int(json.loads((path / "verdict.json").read_text())["steps"])
+    record = json.loads((path / "verdict.json").read_text())
+    steps = int(record["steps"])
     table = _read_table(path, ledger) if (path / "verify.csv").exists() else _frame([])
     missing = _missing_steps(table.to_dict("records"), settings["every"], steps)
     if missing:
@@ -564,7 +581,8 @@ def load_verification(path: str | Path) -> pd.DataFrame:
             f"{steps} steps compared every {settings['every']}: it was continued without verification"
         )
     table.attrs["settings"] = settings
-    table.attrs["verified"], table.attrs["verdict"] = verify_verdict(table, settings.get("reference"))
+    failure = record["reason"] if record.get("stop") == StopReason.SOLVER_FAILURE.name else None
+    table.attrs["verified"], table.attrs["verdict"] = verify_verdict(table, settings.get("reference"), failure)
     return table
 
 

@@ -133,6 +133,21 @@ def test_a_run_that_stops_before_any_comparison_is_unverified_and_says_why():
     assert "no step was compared" in ver.verdict and "MAX_ITERATIONS" in ver.verdict, ver.verdict
 
 
+def test_a_run_stopped_by_the_tested_methods_failure_is_not_verified(tmp_path):
+    # steps 1-2 solve and agree; the third solve fails (imposed) and, with stop.on_solver_failure, ends the run:
+    # the failed step is never committed, so the table holds only agreeing rows, yet the run did not get through
+    sc = _scene(**{"stop.on_solver_failure": True})
+    with failing(lambda attempt, accepted, dt: attempt == 2):
+        ver = verify(sc, "conic", out=tmp_path / "v")
+    assert ver.run.verdict.stop.name == "SOLVER_FAILURE" and ver.run.steps == 2
+    assert list(ver.table["outcome"]) == ["agree", "agree"]
+    assert not ver.verified and ver.verdict.startswith("not verified"), ver.verdict
+    assert "stopped the run" in ver.verdict and "MAX_ITERATIONS" in ver.verdict, ver.verdict
+    back = load_verification(tmp_path / "v")
+    assert back.attrs["verified"] is False and back.attrs["verdict"] == ver.verdict
+    assert ver.verdict in (tmp_path / "v" / "verify.md").read_text()
+
+
 @pytest.mark.parametrize(
     ("scene_changes", "kwargs", "error", "names"),
     [
