@@ -39,10 +39,13 @@ the reference to pin f to the tolerance: ``err_ref`` above it is outcome ``ill-c
 
 Outcome of a slice (``outcome`` column)
 ---------------------------------------
-* ``agree``: the reference is certified (status CONVERGED at its ``kkt_tol``, the engine's
-  :data:`~jko_cvx.engine.loop.ACCEPT_KKT` unless set), the tested slice is one the engine
-  accepts (:meth:`~jko_cvx.engine.loop.Stepper.accepted`, per slice) and both discrepancies
-  are within the tolerance;
+* ``agree``: the reference is certified (status CONVERGED at its own ``kkt_tol``, 1e-6 for
+  conic and nlp unless ``reference_options`` set it: Clarabel at tol 1e-10 ends at KKT
+  residuals of 4e-9 to 8e-7 on tab_bu_g1 (61 points, perspective, beta = 1), above the engine's
+  :data:`~jko_cvx.engine.loop.ACCEPT_KKT`, and its accuracy in f is judged by ``err_ref``
+  below), the tested slice is one the engine accepts
+  (:meth:`~jko_cvx.engine.loop.Stepper.accepted`, per slice) and both discrepancies are within
+  the tolerance;
 * ``differ``: both certified, a discrepancy above the tolerance;
 * ``ill-conditioned``: the reference is certified but its own error estimate exceeds the
   tolerance -- unverified, whatever the discrepancy;
@@ -99,6 +102,7 @@ from jko_cvx.engine.errors import RunDirError
 from jko_cvx.engine.loop import ACCEPT_KKT, simulate
 from jko_cvx.engine.run import Run
 from jko_cvx.engine.trackers import StepInfo, Tracker
+from jko_cvx.engine.verdict import StopReason
 from jko_cvx.scene.model import Scene
 
 __all__ = [
@@ -340,15 +344,23 @@ class Verification:
     trajectory: TrajectoryComparison | None = None
 
     @property
+    def _failure(self) -> str | None:
+        """The run's stop reason where a failed solve of the tested method ended it (else None)."""
+        v = self.run.verdict
+        return v.reason if v.stop is StopReason.SOLVER_FAILURE else None
+
+    @property
     def verified(self) -> bool:
-        """Every compared slice agrees and, with ``trajectory``, the two runs agree too."""
-        return verify_verdict(self.table)[0] and (self.trajectory is None or self.trajectory.agree)
+        """Every compared slice agrees, no failed solve ended the run and, with ``trajectory``, the two runs
+        agree too."""
+        ok = verify_verdict(self.table, failure=self._failure)[0]
+        return ok and (self.trajectory is None or self.trajectory.agree)
 
     @property
     def verdict(self) -> str:
         """:func:`verify_verdict`'s text; where nothing was compared, with the reason the run ended; then the
         trajectory part (:mod:`jko_cvx.engine._trajectory`)."""
-        text = verify_verdict(self.table, self.settings.reference)[1]
+        text = verify_verdict(self.table, self.settings.reference, self._failure)[1]
         text = text if len(self.table) else f"{text}; the run: {self.run.verdict.reason}"
         return text if self.trajectory is None else f"{text}; {self.trajectory.text}"
 
@@ -383,11 +395,18 @@ _OTHER_REFERENCE = {
 }
 
 
-def verify_verdict(table: pd.DataFrame, reference: str | None = None) -> tuple[bool, str]:
+def verify_verdict(table: pd.DataFrame, reference: str | None = None, failure: str | None = None) -> tuple[bool, str]:
     """``(verified, text)`` of a verification table (module docstring: verified when every compared slice agrees).
 
     With ``reference``, a verdict with slices the reference failed on says which reference to use instead.
+    ``failure`` is the run's stop reason where a failed solve of the tested method ended the run
+    (``stop.on_solver_failure``): that step is never committed, so it has no row, and the verdict is
+    "not verified" whatever the rows say.
     """
+    if failure is not None and len(table):
+        text = verify_verdict(table, reference)[1]
+        head = f"not verified: a failed solve of the tested method stopped the run ({failure})"
+        return False, f"{head}; before it: {text}"
     if len(table) == 0:
         return False, "unverified: no step was compared (the run took fewer steps than every)"
     bad = table[table["outcome"] != AGREE]
@@ -438,8 +457,8 @@ def verify(
     slices : "all" or int, default "all"
         The x-slices compared (an integer: that many, evenly spread; homogeneous scenes have one).
     reference_options : dict, optional
-        Options of the reference solver (default: its own, with ``kkt_tol`` = the engine's
-        :data:`~jko_cvx.engine.loop.ACCEPT_KKT`); its ``tol`` sets the tolerance.
+        Options of the reference solver (default: its own, ``kkt_tol`` = 1e-6 included); its
+        ``tol`` sets the tolerance.
     out, resume, overwrite, progress
         As for :func:`~jko_cvx.engine.loop.simulate`.
     trajectory : bool, default False
@@ -581,7 +600,8 @@ def load_verification(path: str | Path) -> pd.DataFrame:
             f"{path} --resume"
         )
     ledger.verify(path / "verdict.json")
-    steps = int(json.loads((path / "verdict.json").read_text())["steps"])
+    record = json.loads((path / "verdict.json").read_text())
+    steps = int(record["steps"])
     table = _read_table(path, ledger) if (path / "verify.csv").exists() else _frame([])
     missing = _missing_steps(table.to_dict("records"), settings["every"], steps)
     if missing:
@@ -590,7 +610,8 @@ def load_verification(path: str | Path) -> pd.DataFrame:
             f"{steps} steps compared every {settings['every']}: it was continued without verification"
         )
     table.attrs["settings"] = settings
-    table.attrs["verified"], table.attrs["verdict"] = verify_verdict(table, settings.get("reference"))
+    failure = record["reason"] if record.get("stop") == StopReason.SOLVER_FAILURE.name else None
+    table.attrs["verified"], table.attrs["verdict"] = verify_verdict(table, settings.get("reference"), failure)
     return table
 
 
@@ -654,16 +675,16 @@ def _write_report(result: Verification, path: Path, ledger: Ledger) -> None:
 
 
 def _plot(result: Verification, file: str) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
+    """verify.png, drawn on a pyplot-free Figure: the caller's backend (a notebook's inline one) is left alone."""
+    from matplotlib.figure import Figure
 
     t, s, tr = result.table, result.settings, result.trajectory
     if tr is None:
-        fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
+        fig = Figure(figsize=(7, 6))
+        ax1, ax2 = fig.subplots(2, 1, sharex=True)
     else:
-        fig, (ax1, ax2, ax3) = plt.subplots(3, 1, figsize=(7, 8.5), sharex=True)
+        fig = Figure(figsize=(7, 8.5))
+        ax1, ax2, ax3 = fig.subplots(3, 1, sharex=True)
         d, r = result.run.diagnostics, result.reference_run.diagnostics
         ax3.plot(d["t"], d["max_f"], "-", label=f"max f, {result.run.scene.collision.method}")
         ax3.plot(r["t"], r["max_f"], "--", label=f"max f, {s.reference}")
@@ -708,4 +729,3 @@ def _plot(result: Verification, file: str) -> None:
     ax1.set_title(f"{result.run.scene.name}: {result.run.scene.collision.method} against {s.reference}")
     fig.tight_layout()
     fig.savefig(file, format="png", dpi=100)
-    plt.close(fig)

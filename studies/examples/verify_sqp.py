@@ -23,7 +23,8 @@ the run (same stop, T_b = 0.71 on this coarse grid, max f within 6e-6; the fitte
 against the exact 0.5).  On ``inhom_gamma3_lambda4`` (21 x 17, t_end = 0.3) every compared step
 agrees to 2e-11, yet the trajectory part differs: SQP stops at t = 0.2 (a collision solve at
 MAX_ITERATIONS, read by the paper's rules as blow-up, T_b = 0.25) where nlp runs on to t_end --
-the failed step is never committed, so only the trajectory comparison can see it.
+the failed step is never committed, so it has no row: the verdict says that a failed solve stopped
+the run, and the trajectory comparison shows that the reference went on.
 
 The same from the command line, for one scene file::
 

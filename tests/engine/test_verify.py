@@ -133,6 +133,21 @@ def test_a_run_that_stops_before_any_comparison_is_unverified_and_says_why():
     assert "no step was compared" in ver.verdict and "MAX_ITERATIONS" in ver.verdict, ver.verdict
 
 
+def test_a_run_stopped_by_the_tested_methods_failure_is_not_verified(tmp_path):
+    # steps 1-2 solve and agree; the third solve fails (imposed) and, with stop.on_solver_failure, ends the run:
+    # the failed step is never committed, so the table holds only agreeing rows, yet the run did not get through
+    sc = _scene(**{"stop.on_solver_failure": True})
+    with failing(lambda attempt, accepted, dt: attempt == 2):
+        ver = verify(sc, "conic", out=tmp_path / "v")
+    assert ver.run.verdict.stop.name == "SOLVER_FAILURE" and ver.run.steps == 2
+    assert list(ver.table["outcome"]) == ["agree", "agree"]
+    assert not ver.verified and ver.verdict.startswith("not verified"), ver.verdict
+    assert "stopped the run" in ver.verdict and "MAX_ITERATIONS" in ver.verdict, ver.verdict
+    back = load_verification(tmp_path / "v")
+    assert back.attrs["verified"] is False and back.attrs["verdict"] == ver.verdict
+    assert ver.verdict in (tmp_path / "v" / "verify.md").read_text()
+
+
 @pytest.mark.parametrize(
     ("scene_changes", "kwargs", "error", "names"),
     [
@@ -340,3 +355,19 @@ def test_cli_trajectory_flag(tmp_path, capsys):
     (link / "reference").symlink_to(tmp_path / "g" / "reference")
     assert main(["verify", str(good), "--out", str(link), "--quiet", "--trajectory"]) == 2
     assert "symbolic link" in capsys.readouterr().err
+
+
+def test_writing_verify_png_leaves_the_callers_matplotlib_alone(tmp_path):
+    # verify.png is drawn on a pyplot-free Figure: a notebook's inline backend must survive a verification
+    import matplotlib
+    import matplotlib.pyplot as plt
+
+    before = matplotlib.get_backend()
+    try:
+        matplotlib.use("svg")  # a backend the caller chose, not the Agg verify draws with
+        open_figures = plt.get_fignums()
+        verify(_scene(**{"t_end": 0.02}), "conic", out=tmp_path / "v")
+        assert (tmp_path / "v" / "verify.png").stat().st_size > 0
+        assert matplotlib.get_backend() == "svg" and plt.get_fignums() == open_figures
+    finally:
+        matplotlib.use(before)
