@@ -8,8 +8,11 @@ Ctrl-C (SIGINT) or SIGTERM writes a checkpoint, prints the command that resumes 
 with status 130.  ``jko-cvx export RUN_DIR --netcdf FILE`` writes a run as netCDF.
 ``jko-cvx verify SCENE [--reference conic|nlp] [--every K] [--slices all|N] [--trajectory]`` runs a scene and
 re-solves every K-th step's collision problems with a reference (:mod:`jko_cvx.engine.verify`).
-``jko-cvx solve`` solves one collision step with every method; ``jko-cvx solvers`` lists the installed
-conic solvers; ``jko-cvx reproduce NAME [--quick]`` regenerates one of the paper's tables or figures
+``jko-cvx solve [--method M ...] [--fisher perspective|log]`` solves one collision step with every
+method (or the given ones); ``jko-cvx solvers`` lists the installed conic solvers;
+``jko-cvx scene template [--kind homogeneous|inhomogeneous]`` prints a commented scene template and
+``jko-cvx scene keys`` the scene key reference (:mod:`jko_cvx.scene.reference`);
+``jko-cvx reproduce NAME [--quick]`` regenerates one of the paper's tables or figures
 (:mod:`jko_cvx.studies.reproduce`).
 """
 
@@ -44,7 +47,6 @@ def _run_scene(scene_path: Path | None, out: Path | None, resume: bool, overwrit
     out = out if out is not None else Path("runs") / scene.name
     # what continues this run (after an interrupt) or redraws its figures (after a finished run)
     cmd = ["jko-cvx", "run", *([] if scene_path is None else [str(scene_path)]), "--out", str(out), "--resume"]
-    t0 = time.perf_counter()
     try:
         run = simulate(scene, out=out, resume=resume, overwrite=overwrite, progress=not quiet)
     except RunInterrupted as exc:
@@ -61,7 +63,6 @@ def _run_scene(scene_path: Path | None, out: Path | None, resume: bool, overwrit
             file=sys.stderr,
         )
         return 130
-    wall = time.perf_counter() - t0
     try:
         save_figures(run, out)
     except KeyboardInterrupt:  # the run itself is complete and on disk; only figures are missing
@@ -73,10 +74,7 @@ def _run_scene(scene_path: Path | None, out: Path | None, resume: bool, overwrit
         return 130
     print(f"jko-cvx {__version__}: {scene.name} -- {scene.description}")
     print(f"  {run.summary()}")
-    print(
-        f"  wall {wall:.2f} s (collision {run.seconds['collision']:.2f} s, transport {run.seconds['transport']:.2f} s, "
-        f"refinement {run.seconds['refine']:.2f} s); steps with a failed collision solve: {run.failed_steps}"
-    )
+    print(f"  {_seconds_line(run)}; steps with a failed collision solve: {run.failed_steps}")
     print(f"  {run.records_line()}")
     d = run.diagnostics
     if scene.gamma == 1.0 and scene.homogeneous and run.blowup:
@@ -85,6 +83,15 @@ def _run_scene(scene_path: Path | None, out: Path | None, resume: bool, overwrit
         )
     print(f"  wrote {out}/ (diagnostics.csv, snapshots/, checkpoint.npz, verdict.json, solution.png, records.png)")
     return 0
+
+
+def _seconds_line(run) -> str:
+    """The run's wall and solver seconds, over every leg of an interrupted and resumed run (as recorded in
+    verdict.json); a run directory written before the wall time was recorded has none."""
+    s = run.seconds
+    wall = f"wall {s['wall']:.2f} s" if "wall" in s else "wall not recorded"
+    return (f"{wall} (collision {s['collision']:.2f} s, transport {s['transport']:.2f} s, refinement "
+            f"{s['refine']:.2f} s; summed over the run's legs)")  # fmt: skip
 
 
 def _export(args) -> int:
@@ -99,17 +106,34 @@ def _export(args) -> int:
     return 0
 
 
-def _solve_one(args) -> int:
+def _builtin_problem(args) -> CollisionProblem:
+    """The built-in problem of ``solve`` / ``compare``: f* = exp(-2 v^2) on [-L, L] with the options' values."""
     grid = Grid.uniform(-args.L, args.L, args.n)
-    prob = CollisionProblem(grid, PowerKernel(args.gamma), np.exp(-2 * grid.points**2), args.dt, beta=args.beta)
-    print(prob)
-    from jko_cvx.collision.nlp import nlp_available
+    f0 = np.exp(-2 * grid.points**2)
+    return CollisionProblem(grid, PowerKernel(args.gamma), f0, args.dt, beta=args.beta, fisher=args.fisher)
 
-    methods = ["conic", "sqp", "newton"] + (["nlp"] if nlp_available() else [])
+
+def _solve_one(args) -> int:
+    from jko_cvx.collision.conic import ConicOptions
+    from jko_cvx.collision.nlp import INSTALL_HINT, nlp_available
+
+    prob = _builtin_problem(args)
+    asked = args.method is not None
+    installed = [m for m in _SOLVE_METHODS if m != "nlp" or nlp_available()]
+    methods = list(dict.fromkeys(args.method)) if asked else installed
+    if "nlp" in methods and not nlp_available():
+        raise ImportError(f"--method nlp needs IPOPT: {INSTALL_HINT}")
+    if "conic" in methods and prob.fisher == "log":
+        if asked:
+            ConicOptions.checked(prob)  # refused before any solve, naming the methods that pose the log form
+        methods.remove("conic")
+    print(prob)
     for method in methods:
         res = solve_collision(prob, method=method)
         print(f"  {res!r}\n    {res.message}")
-    if "nlp" not in methods:
+    if not asked and prob.fisher == "log":
+        print("  conic: not run (the log Fisher form is not conic-representable)")
+    if not asked and "nlp" not in methods:
         print('  nlp: not installed (pip install "jko_cvx[nlp]")')
     return 0
 
@@ -122,10 +146,9 @@ def _compare(args) -> int:
         prob = problem_from_scene(load_scene(args.scene), args.t)
         name = f"{args.scene.stem}_t{args.t:g}"
     else:
-        grid = Grid.uniform(-args.L, args.L, args.n)
-        f0 = np.exp(-2 * grid.points**2)
-        prob = CollisionProblem(grid, PowerKernel(args.gamma), f0, args.dt, beta=args.beta)
+        prob = _builtin_problem(args)
         name = f"builtin_gamma{args.gamma:g}_n{args.n}_dt{args.dt:g}_beta{args.beta:g}"
+        name += "_log" if args.fisher == "log" else ""
     print(prob)
     df = compare_solvers(prob, repeats=args.repeats)
     args.out.mkdir(parents=True, exist_ok=True)
@@ -227,11 +250,16 @@ def _weight(text: str) -> float:
 def _sweep_arguments(parser: argparse.ArgumentParser, out: str, executor: str, quick_help: str) -> None:
     """The options shared by ``reproduce`` and ``study``: quick form, output, where sweep points run."""
     parser.add_argument("--quick", action="store_true", help=quick_help)
-    parser.add_argument("--out", type=_directory, default=Path(out), help="output directory")
+    parser.add_argument("--out", type=_directory, default=Path(out), help="output directory (default %(default)s)")
     parser.add_argument(
-        "--executor", choices=("process", "serial", "dask"), default=executor, help="where sweep points run"
+        "--executor",
+        choices=("process", "serial", "dask"),
+        default=executor,
+        help="where sweep points run: %(choices)s (default %(default)s)",
     )
-    parser.add_argument("--scheduler", default=None, help="Dask scheduler address (tcp://host:port)")
+    parser.add_argument(
+        "--scheduler", default=None, help="Dask scheduler address tcp://host:port (default: a local Dask cluster)"
+    )
     parser.add_argument("--workers", type=_at_least(1), default=None, help="local workers (default: CPU count)")
 
 
@@ -276,8 +304,9 @@ def _verify_parser(sub) -> None:
     p.add_argument("scene", type=Path, help="scene TOML file, or the name of a shipped scene")
     p.add_argument("--reference", choices=("conic", "nlp"), default=None,
                    help="the reference solver (default: conic; nlp for collision.fisher = 'log')")  # fmt: skip
-    p.add_argument("--every", type=_at_least(1), default=1, help="compare every K-th step (default 1)")
-    p.add_argument("--slices", type=_slices, default="all", help="x-slices compared: all, or N evenly spread")
+    p.add_argument("--every", type=_at_least(1), default=1, help="compare every K-th step (default %(default)s)")
+    p.add_argument("--slices", type=_slices, default="all",
+                   help="x-slices compared: all, or N evenly spread (default %(default)s)")  # fmt: skip
     p.add_argument("--out", type=_directory, default=None, help="directory (default runs/<scene name>_verify)")
     p.add_argument("--trajectory", action="store_true",
                    help="also run the whole scene with the reference (into DIR/reference/) and compare T_b, the stop "
@@ -312,8 +341,8 @@ def _verify(args) -> int:
     print(f"jko-cvx {__version__} verify: {scene.name}, {scene.collision.method} against {ver.settings.reference}")
     print(f"  {ver.run.summary()}")
     print(f"  {ver.verdict}")
-    print(f"  wall {wall:.2f} s (the run's collision solves {ver.run.seconds['collision']:.2f} s, reference "
-          f"{ver.table['seconds_ref'].sum():.2f} s)")  # fmt: skip
+    print(f"  {_seconds_line(ver.run)}; reference solves {ver.table['seconds_ref'].sum():.2f} s (inside the run's "
+          f"wall); this command {wall:.2f} s")  # fmt: skip
     if ver.reference_run is not None:
         print(f"  reference run: {ver.reference_run.summary()}")
     print(f"  wrote {out}/ (verify.csv, verify.md, verify.png beside the run's files"
@@ -344,9 +373,10 @@ def build_parser() -> argparse.ArgumentParser:
         "scene",
         nargs="?",
         type=Path,
-        help="scene TOML file, or the name of a shipped scene (jko_cvx.scene.shipped_scene_names())",
+        help="scene TOML file, or the name of a shipped scene (jko_cvx.scene.shipped_scene_names()); default: "
+        "the built-in homogeneous gamma = 1 scene; jko-cvx scene template prints one to start from",
     )
-    p_run.add_argument("--out", type=_directory, default=None, help="run directory (default runs/<scene name>)")
+    p_run.add_argument("--out", type=_directory, default=None, help="run directory (default: runs/<scene name>)")
     again = p_run.add_mutually_exclusive_group()
     again.add_argument("--resume", action="store_true", help="continue an interrupted run from its checkpoint")
     again.add_argument("--overwrite", action="store_true", help="replace the run already in the run directory")
@@ -354,12 +384,18 @@ def build_parser() -> argparse.ArgumentParser:
     p_exp = sub.add_parser("export", help="write a run directory as a netCDF file (extra jko_cvx[netcdf])")
     p_exp.add_argument("run_dir", type=Path, help="run directory (jko-cvx run --out)")
     p_exp.add_argument("--netcdf", type=Path, required=True, help="the netCDF file to write")
-    p_solve = sub.add_parser("solve", help="one collision step with every method, side by side")
-    p_solve.add_argument("--gamma", type=_positive, default=1.0)
-    p_solve.add_argument("--n", type=_at_least(3), default=121)
-    p_solve.add_argument("--L", type=_positive, default=2.0)
-    p_solve.add_argument("--dt", type=_positive, default=0.01)
-    p_solve.add_argument("--beta", type=_weight, default=10.0)
+    p_solve = sub.add_parser(
+        "solve", help="one collision step (f* = exp(-2 v^2) on [-L, L]) with every method, side by side"
+    )
+    _problem_arguments(p_solve)
+    p_solve.add_argument(
+        "--method",
+        nargs="+",
+        choices=_SOLVE_METHODS,
+        default=None,
+        help="the methods to run, one or several of %(choices)s (default: every installed one; conic is left out "
+        "for --fisher log, which it cannot pose)",
+    )
     sub.add_parser("solvers", help="list the installed conic solvers")
     p_rep = sub.add_parser("reproduce", help="regenerate one of the paper's tables or figures beside its numbers")
     p_rep.add_argument(
@@ -376,7 +412,8 @@ def build_parser() -> argparse.ArgumentParser:
         type=_at_least(0),
         default=0,
         metavar="K",
-        help="recompute K randomly chosen cached points and compare them with the cache bit for bit",
+        help="recompute K randomly chosen cached points and compare them with the cache bit for bit "
+        "(default %(default)s: none)",
     )
     p_std = sub.add_parser("study", help="a solver study: work-precision (also vs the FV peer), cost growth, extremes")
     p_std.add_argument(
@@ -386,16 +423,53 @@ def build_parser() -> argparse.ArgumentParser:
     _sweep_arguments(p_std, "results/study", "serial", "a reduced version (about a minute)")
     p_cmp = sub.add_parser("compare", help="every solver and tolerance on one collision step: one table")
     p_cmp.add_argument("scene", nargs="?", type=Path, help="scene TOML (default: a built-in problem, see --gamma ...)")
-    p_cmp.add_argument("--t", type=float, default=0.0, help="take the step from the scene's state at this time")
-    p_cmp.add_argument("--gamma", type=_positive, default=1.0)
-    p_cmp.add_argument("--n", type=_at_least(3), default=121)
-    p_cmp.add_argument("--L", type=_positive, default=2.0)
-    p_cmp.add_argument("--dt", type=_positive, default=0.01)
-    p_cmp.add_argument("--beta", type=_weight, default=10.0)
-    p_cmp.add_argument("--repeats", type=_at_least(1), default=5)
-    p_cmp.add_argument("--out", type=_directory, default=Path("results/compare"), help="output directory")
+    p_cmp.add_argument("--t", type=float, default=0.0,
+                       help="with a scene: the step from its state at this time (default %(default)s)")  # fmt: skip
+    _problem_arguments(p_cmp, " (without a scene)")
+    p_cmp.add_argument("--repeats", type=_at_least(1), default=5,
+                       help="timed solves per setting, the median kept (default %(default)s)")  # fmt: skip
+    p_cmp.add_argument("--out", type=_directory, default=Path("results/compare"),
+                       help="output directory (default %(default)s)")  # fmt: skip
     _verify_parser(sub)
+    _scene_parser(sub)
     return parser
+
+
+_SOLVE_METHODS = ("conic", "sqp", "newton", "nlp")
+
+
+def _problem_arguments(p: argparse.ArgumentParser, where: str = "") -> None:
+    """The built-in collision problem of ``solve`` and ``compare``: f* = exp(-2 v^2) on [-L, L]."""
+    p.add_argument("--gamma", type=_positive, default=1.0,
+                   help=f"kernel exponent, W(v) = |v|^gamma / gamma{where} (default %(default)s)")  # fmt: skip
+    p.add_argument("--n", type=_at_least(3), default=121,
+                   help=f"velocity grid points, an integer >= 3{where} (default %(default)s)")  # fmt: skip
+    p.add_argument("--L", type=_positive, default=2.0,
+                   help=f"half-width of the velocity domain [-L, L]{where} (default %(default)s)")  # fmt: skip
+    p.add_argument("--dt", type=_positive, default=0.01, help=f"time step{where} (default %(default)s)")
+    p.add_argument("--beta", type=_weight, default=10.0,
+                   help=f"Fisher weight beta, > 0, inf for no Fisher term{where} (default %(default)s)")  # fmt: skip
+    p.add_argument("--fisher", choices=("perspective", "log"), default="perspective",
+                   help=f"form of the Fisher term: %(choices)s{where} (default %(default)s)")  # fmt: skip
+
+
+# ---- jko-cvx scene: the scene template and the key reference (jko_cvx.scene.reference) ----
+def _scene_parser(sub) -> None:
+    p = sub.add_parser("scene", help="print a commented scene template, or the scene key reference")
+    what = p.add_subparsers(dest="scene_command", required=True, metavar="{template,keys}",
+                            help="template: a scene to start from; keys: the key reference")  # fmt: skip
+    t = what.add_parser("template", help="a commented TOML scene (every key, type, range, default) jko-cvx run accepts")
+    t.add_argument("--kind", choices=("homogeneous", "inhomogeneous"), default="homogeneous",
+                   help="a homogeneous scene (no x-grid) or an inhomogeneous one: %(choices)s "
+                        "(default %(default)s)")  # fmt: skip
+    what.add_parser("keys", help="every scene key: type, allowed values, default and meaning")
+
+
+def _scene(args) -> int:
+    from jko_cvx.scene.reference import keys_text, scene_template
+
+    sys.stdout.write(scene_template(args.kind) if args.scene_command == "template" else keys_text())
+    return 0
 
 
 def _main(argv: list[str] | None) -> int:
@@ -415,6 +489,8 @@ def _main(argv: list[str] | None) -> int:
             return _compare(args)
         if args.command == "study":
             return _study(args)
+        if args.command == "scene":
+            return _scene(args)
         print("\n".join(conic_solvers()))
         return 0
     except EXPECTED_ERRORS as exc:

@@ -67,3 +67,171 @@ def test_run_command_refuses_to_resume_a_checkpoint_of_another_scene(tmp_path, c
     assert "initial.amplitudes: [2.5] -> [2.0]" in err and "t_end: 0.04 -> 0.06" in err
     assert (out / "checkpoint.npz").read_bytes() == before
     assert int(np.load(out / "checkpoint.npz")["step"]) == len(first.diagnostics) - 1
+
+
+# ---- what a newcomer reads first: the help of every option, the scene template and key reference ----
+
+
+def _subcommands(parser=None, prefix=""):
+    """``{"solve": parser, ..., "scene template": parser}``: every subcommand, nested ones included."""
+    import argparse
+
+    from jko_cvx.cli import build_parser
+
+    out = {}
+    for action in (parser or build_parser())._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                out[prefix + name] = sub
+                out.update(_subcommands(sub, f"{prefix}{name} "))
+    return out
+
+
+def test_every_option_of_every_subcommand_has_help_stating_its_default():
+    """Help on every option; where the option has a default (not a flag, not None), the help states it
+    (``%(default)s`` or in words: the formatted help must contain the default's text)."""
+    import argparse
+
+    missing, no_default = [], []
+    for name, parser in _subcommands().items():
+        for action in parser._actions:
+            if isinstance(action, argparse._HelpAction):
+                continue
+            label = f"jko-cvx {name} {'/'.join(action.option_strings) or action.dest}"
+            text = action.help % {**vars(action), "prog": parser.prog} if action.help else ""
+            if not text.strip():
+                missing.append(label)
+                continue
+            flag = isinstance(action, argparse._StoreTrueAction | argparse._StoreFalseAction)
+            if flag or action.default is None or action.required or not action.option_strings:
+                continue
+            if str(action.default) not in text and "default" not in text:
+                no_default.append(f"{label} (default {action.default!r})")
+            elif str(action.default) not in text:
+                no_default.append(f"{label} says 'default' but not {action.default!r}")
+    assert not missing, f"options without help: {missing}"
+    assert not no_default, f"options whose help does not state the default: {no_default}"
+
+
+def test_solve_and_compare_take_the_problem_options_method_and_fisher():
+    subs = _subcommands()
+    for name in ("solve", "compare"):
+        opts = {o for a in subs[name]._actions for o in a.option_strings}
+        assert {"--gamma", "--n", "--L", "--dt", "--beta", "--fisher"} <= opts, name
+    assert "--method" in {o for a in subs["solve"]._actions for o in a.option_strings}
+
+
+def test_solve_method_restricts_the_methods_and_fisher_sets_the_form(capsys):
+    assert main(["solve", "--n", "31", "--beta", "30", "--method", "newton", "sqp", "--fisher", "log"]) == 0
+    out = capsys.readouterr().out
+    assert "fisher='log'" in out.splitlines()[0]
+    for method in ("newton", "sqp"):
+        assert f"method='{method}', status=CONVERGED" in out
+    assert "method='conic'" not in out
+
+
+def test_solve_refuses_conic_on_the_log_form_naming_the_methods_that_pose_it(capsys):
+    assert main(["solve", "--n", "31", "--method", "conic", "--fisher", "log"]) == 2
+    err = capsys.readouterr().err
+    assert "nlp" in err and "newton" in err and "status=" not in err
+
+
+def test_scene_template_is_a_scene_run_accepts_as_written(tmp_path, capsys):
+    """The printed template (every key, commented) loads with load_scene and runs two steps."""
+    for kind in ("homogeneous", "inhomogeneous"):
+        assert main(["scene", "template", "--kind", kind]) == 0
+        text = capsys.readouterr().out
+        path = tmp_path / f"{kind}.toml"
+        path.write_text(text)
+        scene = load_scene(path)
+        assert scene.homogeneous is (kind == "homogeneous")
+        short = scene.replace({"t_end": 2 * scene.time.dt, "output.every": 1, "output.checkpoint_every": 1})
+        run = simulate(short, out=tmp_path / f"run_{kind}")
+        assert run.steps == 2 and run.verdict.certified
+
+
+def test_scene_template_comments_every_key_with_type_and_default(capsys):
+    """Every key of the reference is in the template under its own table, as ``key = value`` or commented
+    out (``# key = value``, where the default is absent), right after a comment naming its type, the
+    allowed values and the default."""
+    import re
+    import tomllib
+
+    from jko_cvx.scene.initial import INITIAL_KINDS
+    from jko_cvx.scene.model import scene_from_dict
+    from jko_cvx.scene.reference import scene_keys
+
+    def load_scene_text(lines):
+        return scene_from_dict(tomllib.loads("\n".join(lines)))
+
+    for kind in ("homogeneous", "inhomogeneous"):
+        assert main(["scene", "template", "--kind", kind]) == 0
+        lines = capsys.readouterr().out.splitlines()
+        found, table = set(), ""
+        for i, line in enumerate(lines):
+            head = re.fullmatch(r"(?:# )?\[([a-z.]+)\]", line)
+            if head:  # a table key: its section, under its meaning
+                table = head.group(1)
+                assert lines[i - 1].startswith("# ") and len(lines[i - 1]) > 4, f"no meaning above {line!r}"
+                found.add(table)
+                continue
+            m = re.match(r"(?:# )?([A-Za-z_0-9]+) = ", line)
+            if m and i > 0 and lines[i - 1].startswith("# type:"):
+                assert "allowed:" in lines[i - 1] and "default:" in lines[i - 1], lines[i - 1]
+                assert lines[i - 2].startswith("# ") and len(lines[i - 2]) > 4, f"no meaning above {line!r}"
+                found.add(f"{table}.{m.group(1)}" if table else m.group(1))
+        own = {f"initial.{name}" for name in INITIAL_KINDS[load_scene_text(lines).initial.kind].__dataclass_fields__}
+        other = {k for k in scene_keys() if k.startswith("initial.") and k != "initial.kind"} - own
+        missing = [k for k in scene_keys() if k not in found and k not in other]
+        assert not missing, f"{kind}: keys not in the template: {missing}"
+
+
+def test_scene_keys_prints_every_key_with_type_range_default_and_meaning(capsys):
+    from jko_cvx.scene.reference import key_entries, scene_keys
+
+    assert main(["scene", "keys"]) == 0
+    out = capsys.readouterr().out
+    entries = {e.key: e for e in key_entries()}
+    assert set(scene_keys()) <= set(entries)
+    rows = {ln.split()[0]: ln for ln in out.splitlines() if ln and not ln.startswith((" ", "-", "key"))}
+    for k, e in entries.items():
+        assert k in rows, k
+        assert e.meaning and e.meaning in out, k
+        assert e.type in rows[k] and e.default in rows[k], (k, rows[k])
+
+
+def test_a_resumed_run_reports_wall_time_over_both_legs(tmp_path, capsys, monkeypatch):
+    """Interrupted after a slow first leg (0.3 s per collision solve, imposed), then resumed: the wall
+    time printed is the run's over both legs, as for an uninterrupted run: at least the collision time
+    (which sums both legs), and the value verdict.json records."""
+    import time as _time
+
+    import jko_cvx.engine.loop as loop
+    from jko_cvx.engine.loop import Stepper
+
+    from .engine._inject import interrupted_commit
+
+    path = tmp_path / "cli_tiny.toml"
+    longer = SCENE.replace("t_end = 0.06", "t_end = 0.1")
+    path.write_text(longer.replace("[time]", "[output]\ncheckpoint_every = 1\n[time]"))
+    out = tmp_path / "run"
+    real_solve = loop.solve_collision
+
+    def slow(problem, **kw):
+        _time.sleep(0.3)
+        return real_solve(problem, **kw)
+
+    monkeypatch.setattr(loop, "solve_collision", slow)
+    monkeypatch.setattr(Stepper, "commit", interrupted_commit(3))
+    assert main(["run", str(path), "--out", str(out), "--quiet"]) == 130
+    monkeypatch.undo()
+    capsys.readouterr()
+    assert main(["run", str(path), "--out", str(out), "--quiet", "--resume"]) == 0
+    text = capsys.readouterr().out
+    import re
+
+    wall, coll = (float(x) for x in re.search(r"wall ([\d.]+) s \(collision ([\d.]+) s", text).groups())
+    seconds = json.loads((out / "verdict.json").read_text())["seconds"]
+    assert coll >= 0.55  # two committed solves of the first leg, 0.3 s each
+    assert wall >= coll, text
+    assert abs(wall - seconds["wall"]) < 0.01

@@ -55,7 +55,7 @@ from numpy.typing import NDArray
 from jko_cvx.collision._checks import check_options_dict
 from jko_cvx.collision.certify import certify
 from jko_cvx.collision.options import Options, Spec, option
-from jko_cvx.collision.problem import CollisionProblem
+from jko_cvx.collision.problem import LOG_FORM_METHODS, CollisionProblem, methods_text
 from jko_cvx.collision.result import CollisionResult, Status
 from jko_cvx.collision.sqp import explicit_step
 
@@ -203,8 +203,9 @@ class ConicOptions(Options):
             raise ValueError("method='conic' solves one problem at a time; pass problem.slice(i)")
         if problem.fisher == "log":
             raise ValueError(
-                'fisher="log" is not conic-representable; use fisher="perspective" for method="conic" '
-                '(or method="sqp"/"newton" for the log form)'
+                f'fisher="log" is not conic-representable: use method={methods_text(LOG_FORM_METHODS)} '
+                'for the log form (nlp: the independent CVXPY + IPOPT reference), or fisher="perspective" '
+                'with method="conic"'
             )
         return cls(**options)
 

@@ -82,10 +82,20 @@ from jko_cvx.grid import Grid
 from jko_cvx.kernels import EnergyOperator, PowerKernel
 from jko_cvx.mesh.moments import restore_moments
 
-__all__ = ["CollisionProblem", "FisherForm", "KKTResidual"]
+__all__ = ["LOG_FORM_METHODS", "MOMENTUM_METHODS", "CollisionProblem", "FisherForm", "KKTResidual", "methods_text"]
 
 FisherForm = Literal["log", "perspective"]
 _FISHER_FORMS = ("log", "perspective")
+LOG_FORM_METHODS = ("newton", "sqp", "nlp")
+"""The methods that pose ``fisher="log"`` (conic cannot: the log form is not conic-representable)."""
+MOMENTUM_METHODS = ("newton", "conic", "nlp")
+"""The methods with the momentum constraint ``conserve_momentum=True`` (the paper's SQP has none)."""
+
+
+def methods_text(methods: tuple[str, ...], quote: str = '"') -> str:
+    """``"newton", "sqp" or "nlp"``: the alternatives an error message names."""
+    names = [f"{quote}{m}{quote}" for m in methods]
+    return ", ".join(names[:-1]) + f" or {names[-1]}" if len(names) > 1 else names[0]
 
 
 @dataclass(frozen=True)

@@ -86,7 +86,7 @@ from jko_cvx.collision._checks import check_callable
 from jko_cvx.collision._linalg import divergence, divergence_adjoint, solve_sym_tridiagonal
 from jko_cvx.collision.certify import certify
 from jko_cvx.collision.options import Options, Spec, option
-from jko_cvx.collision.problem import CollisionProblem
+from jko_cvx.collision.problem import MOMENTUM_METHODS, CollisionProblem, methods_text
 from jko_cvx.collision.result import CollisionResult, Status
 from jko_cvx.collision.terms import FISHER_TERMS, wasserstein_derivatives
 
@@ -526,8 +526,9 @@ def _check_sqp_problem(problem: CollisionProblem) -> None:
     """``ValueError`` unless ``problem`` is one the paper's SQP solves."""
     if problem.conserve_momentum:
         raise ValueError(
-            "method='sqp' is the paper's Algorithm 1, which has no momentum constraint; "
-            "use method='newton' or 'conic' for conserve_momentum=True"
+            "method='sqp' is the paper's Algorithm 1, which has no momentum constraint; use method="
+            + methods_text(MOMENTUM_METHODS, "'")
+            + " for conserve_momentum=True"
         )
     if problem.batched:
         raise ValueError("method='sqp' solves one problem at a time; pass problem.slice(i)")

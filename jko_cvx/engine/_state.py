@@ -251,7 +251,8 @@ class RunState:
     """Everything the time loop carries from one step to the next.
 
     ``rows`` are the diagnostics records (one per accepted step, from step 0); ``seconds`` the
-    time spent so far in collision, transport and refinement (over every call that ran the loop);
+    time spent so far in collision, transport and refinement and the loop's ``wall`` time, up to the
+    last accepted step and summed over every call that ran the loop (``resume``);
     ``v_params`` / ``x_params`` the extents of the concentration sets the refined grids were
     built for (None on a fixed grid, or before the first refinement).
     """
@@ -265,7 +266,9 @@ class RunState:
     x_params: np.ndarray | None
     rows: list[dict[str, Any]]
     verdict: Verdict
-    seconds: dict[str, float] = field(default_factory=lambda: dict.fromkeys(("collision", "transport", "refine"), 0.0))
+    seconds: dict[str, float] = field(
+        default_factory=lambda: dict.fromkeys(("wall", "collision", "transport", "refine"), 0.0)
+    )
 
     def done(self, t_end: float) -> bool:
         """A blow-up rule fired, or ``t_end`` is reached (to rounding in t)."""

@@ -239,7 +239,35 @@ class Stepper:
         return StepInfo(out.dt, int(it.max()), int(np.sum(~np.atleast_1d(out.res.success))), out.retries)
 
 
-def _loop(scene: Scene, stepper: Stepper, state: RunState, trackers: list[Tracker], guard: InterruptGuard) -> None:
+class _Clock:
+    """The run's seconds as an uninterrupted run counts them, whatever legs it took (``--resume``).
+
+    ``wall`` is the time of the loop up to the last accepted step, summed over the legs (each leg from
+    its start); ``collision``, ``transport`` and ``refine`` are summed by the stepper.  Both are kept as
+    of the last accepted step (:meth:`accepted`): an interrupted step is discarded, so :meth:`rewind`
+    drops its seconds too, and the leg that solves it again counts them once.
+    """
+
+    def __init__(self, state: RunState) -> None:
+        state.seconds.setdefault("wall", 0.0)  # a checkpoint from before the run's wall was recorded: 0
+        self.state = state
+        self.start = time.perf_counter() - state.seconds["wall"]
+        self.kept = dict(state.seconds)
+
+    def accepted(self) -> None:
+        """After a committed step (and at the end): the seconds so far are the run's."""
+        self.state.seconds["wall"] = time.perf_counter() - self.start
+        self.kept = dict(self.state.seconds)
+
+    def rewind(self) -> None:
+        """Back to the seconds of the last accepted step (the state the checkpoint then holds)."""
+        self.state.seconds.clear()
+        self.state.seconds.update(self.kept)
+
+
+def _loop(
+    scene: Scene, stepper: Stepper, state: RunState, trackers: list[Tracker], guard: InterruptGuard, clock: _Clock
+) -> None:
     failure = SolverFailureRule(scene.stop.on_solver_failure)
     while not state.done(scene.t_end):
         out = stepper.solve(state)
@@ -258,6 +286,7 @@ def _loop(scene: Scene, stepper: Stepper, state: RunState, trackers: list[Tracke
             tr.solved(state, out.problem, out.res)
         with guard.deferred():
             info = stepper.commit(state, out)
+            clock.accepted()  # before the trackers: the checkpoint they write holds the seconds so far
             for tr in trackers:
                 tr.handle(state, info)
 
@@ -341,17 +370,20 @@ def simulate(
             at = trackers.index(snaps)
             trackers[at:at] = observers(rd)
         with InterruptGuard() if rd is not None else nullcontext(InterruptGuard()) as guard:
+            clock = _Clock(state)
             try:
                 with guard.deferred():
                     for tr in trackers:
                         tr.start(state)
-                _loop(scene, stepper, state, trackers, guard)
+                _loop(scene, stepper, state, trackers, guard, clock)
                 guard.hold()  # the loop has ended: a signal from here on is ignored
+                clock.accepted()
                 return _finish(scene, state, trackers, snaps, rd)
             except KeyboardInterrupt as exc:
                 if rd is None:
                     raise
                 guard.hold()
+                clock.rewind()  # the interrupted step is discarded, and its seconds with it
                 rd.save_state(state)
                 raise RunInterrupted(rd.path, state.step, state.t, getattr(exc, "signum", signal.SIGINT)) from None
 

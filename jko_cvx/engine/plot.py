@@ -1,7 +1,8 @@
 """Figures of a run (returned by ``simulate`` or read back with :func:`jko_cvx.load_run`).
 
-* :func:`plot_solution`: the final density (homogeneous: f(v) and a zoom at its maximum;
-  inhomogeneous: f(x, v) on the run's last grids);
+* :func:`plot_solution`: the final density beside the initial datum f0 (homogeneous: f(v) with f0(v),
+  and a zoom at its maximum; inhomogeneous: f(x, v) on the run's last grids, a labelled colorbar,
+  the contours of f0);
 * :func:`plot_records`: the blow-up records against t (min dv, min dx, max f; min spread_v
   where the scene stops on it) with the scene's thresholds (eps_v, eps_x, spread_v) as
   horizontal lines, the refinement switches (steps at which the mesh map changed the grid)
@@ -27,7 +28,7 @@ from jko_cvx.engine.verdict import StopReason, fit_rows
 if TYPE_CHECKING:
     from jko_cvx.engine.run import Run
 
-__all__ = ["exact_max_f", "plot_records", "plot_solution", "refinement_switches", "save_figures"]
+__all__ = ["exact_max_f", "initial_datum", "plot_records", "plot_solution", "refinement_switches", "save_figures"]
 
 
 def exact_max_f(run: Run) -> tuple[np.ndarray, np.ndarray, float] | None:
@@ -68,22 +69,43 @@ def _new_axes(ax, ncols: int = 1, figsize=(6, 4)):
     return plt.subplots(1, ncols, figsize=figsize)
 
 
+def initial_datum(run: Run):
+    """``(x grid or None, v grid, f0)``: the scene's initial datum on its uniform grids (before any refinement)."""
+    xg, vg = run.scene.xgrid(), run.scene.vgrid()
+    return xg, vg, run.scene.initial_density(xg, vg)
+
+
 def plot_solution(run: Run, ax=None):
-    """The final density; returns the figure (homogeneous runs use two axes: give a pair as ``ax``)."""
+    """The final density beside the initial datum f0; returns the figure.
+
+    Homogeneous runs use two axes (give a pair as ``ax``): f(t, v) and f0(v), and a zoom at the
+    maximum.  Inhomogeneous runs: f(t, x, v) in colour (the colorbar names it) under the contours
+    of f0(x, v).
+    """
+    xg0, vg0, f0 = initial_datum(run)
+    start = "initial datum f0 (t = 0)"
     if run.xgrid is None:
         fig, (a, b) = _new_axes(ax, 2, (10, 4))
         v = run.vgrid.points
-        a.plot(v, run.f, ".-", ms=2)
-        a.set_xlabel("v"), a.set_ylabel("f"), a.set_title(f"f at t = {run.t:.4g}")
+        a.plot(vg0.points, f0, "--", color="0.5", lw=1, label=start)
+        a.plot(v, run.f, ".-", ms=2, label=f"f at t = {run.t:.4g}")
+        a.set_xlabel("velocity v"), a.set_ylabel("density f(t, v)"), a.set_title(f"f at t = {run.t:.4g}")
+        a.legend(fontsize=7)
         k = int(np.argmax(run.f))
         sel = np.abs(v - v[k]) <= max(20 * run.vgrid.dv.min(), 1e-3)
-        b.plot(v[sel], run.f[sel], ".-", ms=3)
-        b.set_xlabel("v"), b.set_title("zoom at the maximum")
+        b.plot(v[sel], run.f[sel], ".-", ms=3, label=f"f at t = {run.t:.4g} (grid points)")
+        b.set_xlabel("velocity v"), b.set_ylabel("density f(t, v)"), b.set_title("zoom at the maximum")
+        b.legend(fontsize=7)
     else:
+        from matplotlib.lines import Line2D
+
         fig, a = _new_axes(ax)
         X, V = np.meshgrid(run.xgrid.points, run.vgrid.points, indexing="ij")
         pc = a.pcolormesh(X, V, run.f, shading="auto")
-        fig.colorbar(pc, ax=a)
+        fig.colorbar(pc, ax=a, label=f"density f(t = {run.t:.4g}, x, v)")
+        a.contour(xg0.points, vg0.points, f0.T, levels=4, colors="w", linewidths=0.7, linestyles="--")
+        a.legend(handles=[Line2D([], [], color="w", ls="--", lw=0.7, label=f"{start}: contours")], fontsize=7,
+                 facecolor="0.3", labelcolor="w")  # fmt: skip
         a.set_xlabel("x"), a.set_ylabel("v"), a.set_title(f"f(t = {run.t:.4g}, x, v)")
     fig.tight_layout()
     return fig
@@ -124,7 +146,10 @@ def plot_records(run: Run, ax=None):
         title = f"blow-up at T_b = {v.T_b:.4g}"
     else:
         title = "no blow-up" if v.stop is StopReason.T_END else v.reason
-    a.set_xlabel("t"), a.legend(fontsize=7)
+    spacing = "min dv, min dx" if run.xgrid is not None else "min dv"
+    quantities = f"{spacing} (smallest grid spacing); max f (largest density)"
+    quantities += "; min spread_v" if sc.stop.spread_v > 0 else ""
+    a.set_xlabel("time t"), a.set_ylabel(f"{quantities}, log scale", fontsize=8), a.legend(fontsize=7)
     a.set_title(f"{sc.name}: {title}")
     fig.tight_layout()
     return fig

@@ -37,9 +37,9 @@ class GaussiansInitial(Initial):
     kind: ClassVar[str] = "gaussians"
     phase_space: ClassVar[bool] = False
 
-    amplitudes: tuple[float, ...] = key(Rule("floats", lo=0.0, nonempty=True))
-    rates: tuple[float, ...] = key(Rule("floats", lo=0.0, lo_open=True, nonempty=True))
-    centres: tuple[float, ...] = key(Rule("floats", nonempty=True))
+    amplitudes: tuple[float, ...] = key(Rule("floats", lo=0.0, nonempty=True), doc="the amplitudes A_j")
+    rates: tuple[float, ...] = key(Rule("floats", lo=0.0, lo_open=True, nonempty=True), doc="the rates a_j")
+    centres: tuple[float, ...] = key(Rule("floats", nonempty=True), doc="the centres c_j")
 
     def check(self, where: str) -> None:
         if not len(self.amplitudes) == len(self.rates) == len(self.centres):
@@ -69,10 +69,10 @@ class TwoBumpInitial(Initial):
 
     kind: ClassVar[str] = "two_bump_phase"
 
-    a: float = key(POSITIVE)
-    b: float = key(POSITIVE)
-    c: float = key(REAL)
-    d: float = key(REAL)
+    a: float = key(POSITIVE, doc="eqn:f0: the rate a of the bumps in x")
+    b: float = key(POSITIVE, doc="eqn:f0: the rate b of the bumps in v")
+    c: float = key(REAL, doc="eqn:f0: the bumps sit at x = -c and x = c")
+    d: float = key(REAL, doc="eqn:f0: the bumps move with v = d and v = -d")
 
     def density(self, xgrid: PeriodicGrid | None, vgrid: Grid) -> NDArray[np.float64]:
         """``eqn:f0``: :math:`f_0 = e^{-a (x + c)^2} e^{-b (v - d)^2} + e^{-a (x - c)^2} e^{-b (v + d)^2}`, (Nx, Nv)."""
@@ -89,9 +89,9 @@ class Gamma2Initial(Initial):
 
     kind: ClassVar[str] = "gamma2"
 
-    a: float = key(POSITIVE)
-    b: float = key(REAL)
-    x1: float = key(POSITIVE)
+    a: float = key(POSITIVE, doc="eqn:ic_g2: the rate a of the Gaussian")
+    b: float = key(REAL, doc="eqn:ic_g2: the shear b (the Gaussian is in b x + v)")
+    x1: float = key(POSITIVE, doc="eqn:ic_g2: the cut-off |x| = x1")
 
     def density(self, xgrid: PeriodicGrid | None, vgrid: Grid) -> NDArray[np.float64]:
         """``eqn:ic_g2``: :math:`f_0 = e^{-a (b x + v)^2} / \\sqrt{2\\pi}` for :math:`|x| \\le x_1`, times

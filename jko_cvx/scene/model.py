@@ -21,7 +21,6 @@ from jko_cvx.scene.initial import INITIAL_KINDS, Initial
 from jko_cvx.scene.limits import Limits, check_limits
 from jko_cvx.scene.options import parse_options
 from jko_cvx.scene.schema import (
-    CONCENTRATION_SETS,
     CollisionTable,
     OutputTable,
     RefineAxisTable,
@@ -293,7 +292,7 @@ def _parse_refine(data: Any, has_x: bool) -> tuple[RefineTable, bool]:
         raise SceneError("refine.x.conserve_energy must be false: the kinetic energy is a moment in v (refine.v only)")
     auto = {axis: specs.pop(f"_{axis}_auto") for axis in ("v", "x") if f"_{axis}_auto" in specs}
     if "concentration_set" in data:
-        rule = Rule("str", choices=CONCENTRATION_SETS)
+        rule = RefineTable.__dataclass_fields__["concentration_set"].metadata["rule"]
         specs["concentration_set"] = rule.parse(data["concentration_set"], "refine.concentration_set")
         if specs["concentration_set"] == "quadrant" and not has_x:
             raise SceneError(

@@ -18,6 +18,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
+from jko_cvx.collision.problem import LOG_FORM_METHODS, MOMENTUM_METHODS, methods_text
 from jko_cvx.mesh.policy import CENTRES, CONCENTRATION_SETS, RefineSpec
 from jko_cvx.stepping import HALVE_ON, POLICIES
 
@@ -146,9 +147,11 @@ class Rule:
         return val
 
 
-def key(rule: Rule, default: Any = dataclasses.MISSING) -> Any:
-    """A dataclass field that carries its :class:`Rule` (no default: the key is required)."""
-    return dataclasses.field(default=default, metadata={"rule": rule})
+def key(rule: Rule, default: Any = dataclasses.MISSING, doc: str = "") -> Any:
+    """A dataclass field that carries its :class:`Rule` and its one-line meaning ``doc`` (no default:
+    the key is required); the key reference and the scene template (:mod:`jko_cvx.scene.reference`)
+    are generated from them."""
+    return dataclasses.field(default=default, metadata={"rule": rule, "doc": doc})
 
 
 def _dotted(where: str, name: str) -> str:
@@ -238,41 +241,73 @@ class Table:
 class VTable(Table):
     """``[v]``: the velocity grid [-L, L] with n points."""
 
-    L: float = key(_HALF_WIDTH)
-    n: int = key(_NPTS)
-    floor_every_step: bool = key(_BOOL, False)
+    L: float = key(_HALF_WIDTH, doc="half-width of the velocity domain [-L, L]")
+    n: int = key(_NPTS, doc="number of velocity grid points")
+    floor_every_step: bool = key(
+        _BOOL,
+        False,
+        doc="after every step that did not remap the v-grid, floor f at 1e-10 and restore each slice's mass and "
+        "momentum (eqn:mass_conserv_v), as the paper's every-step remap does",
+    )
 
 
 @dataclass(frozen=True)
 class XTable(Table):
     """``[x]``: the periodic space grid [-L, L) with n points; optional (homogeneous without it)."""
 
-    L: float = key(_HALF_WIDTH)
-    n: int = key(_NPTS)
-    conserve_moment: bool = key(_BOOL, True)
+    L: float = key(_HALF_WIDTH, doc="half-width of the periodic space domain [-L, L)")
+    n: int = key(_NPTS, doc="number of space grid points")
+    conserve_moment: bool = key(
+        _BOOL,
+        True,
+        doc="restore each v-line's first x-moment after transport and x-remap (false: the paper's mass-only "
+        "eqn:semi_update)",
+    )
 
 
 @dataclass(frozen=True)
 class TimeTable(Table):
     """``[time]``: the step policy, its (first / largest) step, the halving floor and what halves the step."""
 
-    dt: float = key(POSITIVE)
-    policy: str = key(Rule("str", choices=POLICIES), "fixed")
-    eps_t: float = key(POSITIVE, 1e-6)
-    order: int = key(Rule("int", choices=(1, 2)), 1)
-    halve_on: str = key(Rule("str", choices=HALVE_ON), "any_failure")
+    dt: float = key(POSITIVE, doc="the time step (fixed policy), the first step (halving) or the largest one (cfl)")
+    policy: str = key(
+        Rule("str", choices=POLICIES),
+        "fixed",
+        doc="step policy: fixed, halving (alg:MR_JKO_ver2 as written), halving_reset, or cfl (alg:SPMCSL-JKO)",
+    )
+    eps_t: float = key(POSITIVE, 1e-6, doc="halving policies only: the run ends after an accepted step <= eps_t")
+    order: int = key(
+        Rule("int", choices=(1, 2)),
+        1,
+        doc="order in time: 2 is the Richardson-extrapolated collision step (and Strang splitting in x)",
+    )
+    halve_on: str = key(
+        Rule("str", choices=HALVE_ON),
+        "any_failure",
+        doc="halving only: any_failure (any solve not accepted halves the step) or max_iterations (the paper: "
+        "only the exit flag e_f; other failures stop the run)",
+    )
 
 
 @dataclass(frozen=True)
 class RefineAxisTable(Table):
     """``[refine.v]`` / ``[refine.x]``: the mesh map (one or two bumps), delta0, delta, remesh tolerance."""
 
-    bumps: int = key(Rule("int", choices=(1, 2)), 1)
-    delta0: float = key(_FRAC, 0.5)
-    delta: float = key(_FRAC, 0.5)
-    tol: float = key(Rule(_FLOAT, lo=0.0, hi=1.0, hi_open=True), 0.0)
-    conserve_energy: bool = key(_BOOL, False)
-    centre: str = key(Rule("str", choices=("auto", *CENTRES)), "auto")
+    bumps: int = key(Rule("int", choices=(1, 2)), 1, doc="mesh map with one bump (mu1) or two (mu2)")
+    delta0: float = key(_FRAC, 0.5, doc="concentration set S = {f > delta0 max f} (sec:mr)")
+    delta: float = key(_FRAC, 0.5, doc="share of the grid points the map packs into S (sec:mr)")
+    tol: float = key(
+        Rule(_FLOAT, lo=0.0, hi=1.0, hi_open=True),
+        0.0,
+        doc="remesh tolerance: 0 remeshes every step (the paper); > 0 only when the set moved by tol x width",
+    )
+    conserve_energy: bool = key(_BOOL, False, doc="refine.v only: the v-remap also restores each slice's energy")
+    centre: str = key(
+        Rule("str", choices=("auto", *CENTRES)),
+        "auto",
+        doc="refine.v, one bump: origin (the paper's map at v = 0), follow (at the grid point of max f) or auto "
+        "(origin where max_x f0 is even in v, follow elsewhere)",
+    )
 
 
 @dataclass(frozen=True)
@@ -285,18 +320,37 @@ class RefineTable:
 
     v: RefineSpec | None = None
     x: RefineSpec | None = None
-    concentration_set: str = "projections"
+    concentration_set: str = key(
+        Rule("str", choices=CONCENTRATION_SETS),
+        "projections",
+        doc="inhomogeneous only: projections (the maps' sets from the post-collision f, max over x for v and over "
+        "v for x) or quadrant (alg:SPMCSL-JKO step 4: one set from f* on x > 0, v > 0)",
+    )
 
 
 @dataclass(frozen=True)
 class CollisionTable(Table):
     """``[collision]``: method, Fisher weight and form, momentum constraint; ``options`` checked separately."""
 
-    method: str = key(Rule("str", choices=("newton", "sqp", "conic", "nlp")), "newton")
-    beta: float = key(Rule(_FLOAT, lo=0.0, lo_open=True, inf=True), math.inf)
-    fisher: str = key(Rule("str", choices=("perspective", "log", "none")), "perspective")
-    conserve_momentum: bool | None = key(_BOOL, None)
-    options: Mapping[str, Any] | None = key(_TABLE, None)
+    method: str = key(
+        Rule("str", choices=("newton", "sqp", "conic", "nlp")),
+        "newton",
+        doc="collision solver: newton (batched), sqp (the paper's Algorithm 1), conic (CVXPY), nlp (CVXPY + IPOPT)",
+    )
+    beta: float = key(
+        Rule(_FLOAT, lo=0.0, lo_open=True, inf=True), math.inf, doc="Fisher weight beta (inf: no Fisher term)"
+    )
+    fisher: str = key(
+        Rule("str", choices=("perspective", "log", "none")),
+        "perspective",
+        doc="form of the Fisher term: perspective (conic-representable), log (the paper's), or none",
+    )
+    conserve_momentum: bool | None = key(
+        _BOOL, None, doc="per-slice momentum constraint (absent: true, false for method sqp)"
+    )
+    options: Mapping[str, Any] | None = key(
+        _TABLE, None, doc="solver options, an allow-list per method (the collision.options keys)"
+    )
 
     @property
     def problem_fisher(self) -> str | None:
@@ -306,12 +360,14 @@ class CollisionTable(Table):
     def check(self, where: str) -> None:
         if self.method == "conic" and self.fisher == "log":
             raise SceneError(
-                f'{where}.fisher = "log" is not conic-representable: use fisher = "perspective" with '
-                f'{where}.method = "conic" (or method "newton" / "sqp" for the log form)'
+                f'{where}.fisher = "log" is not conic-representable: use {where}.method = '
+                f"{methods_text(LOG_FORM_METHODS)} for the log form (nlp: the independent CVXPY + IPOPT "
+                f'reference), or fisher = "perspective" with method = "conic"'
             )
         if self.conserve_momentum and self.method == "sqp":
             raise SceneError(
-                f"{where}.conserve_momentum = true needs method 'newton' or 'conic' (sqp has no such constraint)"
+                f"{where}.conserve_momentum = true needs {where}.method = {methods_text(MOMENTUM_METHODS)} "
+                "(the paper's SQP has no momentum constraint)"
             )
 
 
@@ -319,35 +375,42 @@ class CollisionTable(Table):
 class StopTable(Table):
     """``[stop]``: blow-up thresholds on min dv, min dx and the density spread; stop on solver failure."""
 
-    eps_v: float = key(_NONNEG, 0.0)
-    eps_x: float = key(_NONNEG, 0.0)
-    spread_v: float = key(_NONNEG, 0.0)
-    on_solver_failure: bool = key(_BOOL, True)
+    eps_v: float = key(_NONNEG, 0.0, doc="blow-up threshold on min dv (0: never)")
+    eps_x: float = key(_NONNEG, 0.0, doc="blow-up threshold on min dx (0: never)")
+    spread_v: float = key(_NONNEG, 0.0, doc="> 0: also stop when min_spread_v (a density criterion) falls below it")
+    on_solver_failure: bool = key(
+        _BOOL,
+        True,
+        doc="stop (flag e_f) when a collision solve fails; false: carry the uncertified state on (the verdict "
+        "then claims no blow-up from those steps)",
+    )
 
 
 @dataclass(frozen=True)
 class OutputTable(Table):
     """``[output]``: snapshot every K steps and at given times; checkpoint every K steps."""
 
-    every: int = key(_EVERY, 10)
-    times: tuple[float, ...] = key(Rule("floats", lo=0.0), ())
-    checkpoint_every: int = key(_EVERY, 10)
+    every: int = key(_EVERY, 10, doc="snapshot every K steps")
+    times: tuple[float, ...] = key(
+        Rule("floats", lo=0.0), (), doc="also snapshot at the first step reaching each of these times"
+    )
+    checkpoint_every: int = key(_EVERY, 10, doc="write the checkpoint every K steps")
 
 
 @dataclass(frozen=True)
 class SceneTable(Table):
     """The top level: name, description, gamma, strength, t_end and the sections."""
 
-    gamma: float = key(POSITIVE)
-    t_end: float = key(POSITIVE)
-    v: Mapping[str, Any] = key(_TABLE)
-    initial: Mapping[str, Any] = key(_TABLE)
-    time: Mapping[str, Any] = key(_TABLE)
-    name: str = key(_NAME, "scene")
-    description: str = key(Rule("str"), "")
-    strength: float = key(POSITIVE, 1.0)
-    x: Mapping[str, Any] | None = key(_TABLE, None)
-    refine: Mapping[str, Any] | None = key(_TABLE, None)
-    collision: Mapping[str, Any] | None = key(_TABLE, None)
-    stop: Mapping[str, Any] | None = key(_TABLE, None)
-    output: Mapping[str, Any] | None = key(_TABLE, None)
+    gamma: float = key(POSITIVE, doc="exponent of the kernel W(v) = |v|^gamma / gamma")
+    t_end: float = key(POSITIVE, doc="final time of the run")
+    v: Mapping[str, Any] = key(_TABLE, doc="the velocity grid")
+    initial: Mapping[str, Any] = key(_TABLE, doc="the initial datum f0, from a parametric library")
+    time: Mapping[str, Any] = key(_TABLE, doc="the time-step policy")
+    name: str = key(_NAME, "scene", doc="the scene's name (the run directory runs/<name> by default)")
+    description: str = key(Rule("str"), "", doc="one line printed with the verdict")
+    strength: float = key(POSITIVE, 1.0, doc="collision strength: lambda/2 of eqn:gke; 1 for eqn:gke_hom")
+    x: Mapping[str, Any] | None = key(_TABLE, None, doc="the space grid (absent: a homogeneous scene)")
+    refine: Mapping[str, Any] | None = key(_TABLE, None, doc="mesh refinement (absent: fixed grids)")
+    collision: Mapping[str, Any] | None = key(_TABLE, None, doc="the collision step's solver and Fisher term")
+    stop: Mapping[str, Any] | None = key(_TABLE, None, doc="the blow-up and failure stopping rules")
+    output: Mapping[str, Any] | None = key(_TABLE, None, doc="snapshots and checkpoints")

@@ -40,3 +40,17 @@ def failing(rule: Callable[[int, int, float], bool]) -> Iterator[list[tuple[floa
 
     with mock.patch.object(loop, "solve_collision", solve):
         yield log
+
+
+def interrupted_commit(at: int) -> Callable:
+    """A ``Stepper.commit`` that raises KeyboardInterrupt (as SIGINT would) at its ``at``-th call (from 1),
+    before the step is committed; every other call commits.  Patch it in with ``monkeypatch.setattr``."""
+    calls, real = [0], loop.Stepper.commit
+
+    def commit(self, state, out):
+        calls[0] += 1
+        if calls[0] == at:
+            raise KeyboardInterrupt
+        return real(self, state, out)
+
+    return commit

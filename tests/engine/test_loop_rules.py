@@ -13,6 +13,7 @@ from jko_cvx.engine.loop import ACCEPT_KKT, Stepper, simulate
 from jko_cvx.engine.verdict import StopReason
 from jko_cvx.scene import scene_from_dict, with_overrides
 
+from ._inject import interrupted_commit
 from .test_rundir import SMALL
 
 C, M, N = Status.CONVERGED, Status.MAX_ITERATIONS, Status.NOT_CERTIFIED
@@ -71,15 +72,7 @@ def test_one_uncertified_slice_fails_the_whole_step(monkeypatch):
 def test_a_resumed_run_restores_every_field_snapshots_included(tmp_path, monkeypatch, at):
     scene = scene_from_dict(with_overrides(SMALL, {"t_end": 0.06, "output": {"every": 2, "checkpoint_every": 1}}))
     whole = simulate(scene)
-    calls, real = [0], Stepper.commit
-
-    def interrupted(self, state, out):
-        calls[0] += 1
-        if calls[0] == at:
-            raise KeyboardInterrupt
-        return real(self, state, out)
-
-    monkeypatch.setattr(Stepper, "commit", interrupted)
+    monkeypatch.setattr(Stepper, "commit", interrupted_commit(at))
     with pytest.raises(RunInterrupted):
         simulate(scene, out=tmp_path / "r")
     monkeypatch.undo()

@@ -98,3 +98,50 @@ def test_linearized_energy_is_labelled_as_such():
     # residual against the full problem says so
     assert lin.kkt_residual > full.kkt_residual
     assert np.abs(lin.f - full.f).max() < 1e-2 * F.max()
+
+
+# ---- an impossible pairing names the way out: the methods that do pose the problem ----
+
+
+def _names(msg: str, *methods: str) -> bool:
+    return all(f"'{m}'" in msg or f'"{m}"' in msg for m in methods)
+
+
+def test_conic_on_the_log_form_names_every_method_that_poses_it():
+    log_prob = CollisionProblem(G, K, F, 0.01, beta=10.0, fisher="log")
+    with pytest.raises(ValueError) as err:
+        solve_collision(log_prob, method="conic")
+    assert _names(str(err.value), "nlp", "newton", "sqp"), str(err.value)
+
+
+def test_sqp_with_the_momentum_constraint_names_every_method_that_has_it():
+    prob = CollisionProblem(G, K, F, 0.01, beta=10.0, conserve_momentum=True)
+    with pytest.raises(ValueError) as err:
+        solve_collision(prob, method="sqp")
+    assert _names(str(err.value), "newton", "conic", "nlp"), str(err.value)
+
+
+@pytest.mark.parametrize(
+    "collision, methods",
+    [
+        ({"method": "conic", "fisher": "log", "beta": 10.0}, ("nlp", "newton", "sqp")),
+        ({"method": "sqp", "conserve_momentum": True, "beta": 10.0}, ("newton", "conic", "nlp")),
+    ],
+)
+def test_a_scene_with_an_impossible_pairing_names_the_alternatives(collision, methods):
+    from jko_cvx.scene import SceneError, scene_from_dict
+
+    doc = {"gamma": 1.0, "t_end": 0.1, "v": {"L": 2.0, "n": 9}, "time": {"dt": 0.01}, "collision": collision,
+           "initial": {"kind": "gaussians", "amplitudes": [1.0], "rates": [2.0], "centres": [0.0]}}  # fmt: skip
+    with pytest.raises(SceneError) as err:
+        scene_from_dict(doc)
+    assert _names(str(err.value), *methods), str(err.value)
+
+
+def test_verify_with_the_conic_reference_on_the_log_form_names_nlp():
+    from jko_cvx.engine.verify import verify
+    from jko_cvx.scene.model import default_scene
+
+    with pytest.raises(ValueError) as err:
+        verify(default_scene(), "conic")
+    assert _names(str(err.value), "nlp"), str(err.value)

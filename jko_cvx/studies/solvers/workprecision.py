@@ -101,7 +101,8 @@ def work_precision_step(out: Path, quick: bool = False, repeats: int = 5, **_swe
     cols = ["problem", "family", "setting", "status", "certified", "median_s", "iterations", "kkt", "f_error"]
     df[cols].to_csv(out / "work_precision_step.csv", index=False)
     record_csv(out / "work_precision_step.csv")
-    _plot(df, "problem", "median_s", "f_error", out / "work_precision_step.png", "one collision step")
+    _plot(df, "problem", "median_s", "f_error", out / "work_precision_step.png", "one collision step",
+          "Newton at tol 1e-13 (compare_solvers' reference)")  # fmt: skip
     fronts = _front_table(df, "problem", "median_s", "f_error", targets=(1e-4, 1e-6, 1e-8))
     text = (
         "# Work-precision, one collision step\n\n"
@@ -197,7 +198,8 @@ def work_precision_run(out: Path, quick: bool = False, **sweep_opts: Any) -> pd.
     record_csv(out / f"{name}.csv")
     df["panel"] = [f"gamma={g:g}" for g in df.gamma]
     ok = df[np.isfinite(df.error)]
-    _plot(ok[ok.sweep != "bias"], "panel", "seconds", "error", out / f"{name}.png", "whole run, L1 error vs exact: ")
+    _plot(ok[ok.sweep != "bias"], "panel", "seconds", "error", out / f"{name}.png", "whole run:",
+          "the exact solution (gamma = 1: Burgers characteristics; gamma = 2: the linear contraction)")  # fmt: skip
     bias = _bias_table(df[df.sweep == "bias"])
     _plot_bias(df[df.sweep == "bias"], out / f"{name}_bias.png")
     failed = df[~np.isfinite(df.error)]
@@ -273,11 +275,16 @@ def _describe(row: pd.Series) -> str:
     return f"N={int(row.n)}, dt={row['dt']:g}, tol={row.tol:g}"
 
 
-def _plot(df: pd.DataFrame, panel: str, tcol: str, ecol: str, path: Path, title: str) -> None:
-    """Log-log error against time: every point (hollow: not certified), each family's Pareto front as a line."""
+def _plot(df: pd.DataFrame, panel: str, tcol: str, ecol: str, path: Path, title: str, reference: str):
+    """Log-log error against time, one panel per ``panel`` value; returns the (saved, closed) figure.
+
+    Every setting is a marker, filled when certified and hollow when not, and each family's Pareto
+    front a line; the legend names each, and the title and error axis name ``reference``, the
+    solution the errors are measured against.
+    """
     plt = pyplot()
     panels = sorted(df[panel].unique())
-    fig, axes = plt.subplots(1, len(panels), figsize=(6 * len(panels), 4.3), squeeze=False)
+    fig, axes = plt.subplots(1, len(panels), figsize=(6 * len(panels), 4.6), squeeze=False)
     families = sorted(df.family.unique())
     for ax, p in zip(axes[0], panels, strict=True):
         block = df[df[panel] == p]
@@ -287,14 +294,19 @@ def _plot(df: pd.DataFrame, panel: str, tcol: str, ecol: str, path: Path, title:
                 continue
             t, e = b[tcol].to_numpy(float), np.maximum(b[ecol].to_numpy(float), 1e-16)
             cert = b["certified"].to_numpy(bool) if "certified" in b else np.ones(len(b), bool)
-            ax.loglog(t[cert], e[cert], "o", color=f"C{i}", alpha=0.35, ms=4)
-            ax.loglog(t[~cert], e[~cert], "o", mfc="none", color=f"C{i}", alpha=0.6, ms=5)
+            if cert.any():
+                ax.loglog(t[cert], e[cert], "o", color=f"C{i}", alpha=0.35, ms=4, label=f"{fam}: certified setting")
+            if (~cert).any():
+                ax.loglog(t[~cert], e[~cert], "o", mfc="none", color=f"C{i}", alpha=0.6, ms=5,
+                          label=f"{fam}: not certified (hollow)")  # fmt: skip
             ft, fe = pareto_front(t, e)
-            ax.loglog(ft, fe, "-o", color=f"C{i}", ms=3, label=fam)
+            ax.loglog(ft, fe, "-o", color=f"C{i}", ms=3, label=f"{fam}: Pareto front")
         ax.set_xlabel("wall time per solve [s]" if tcol == "median_s" else "wall time per run [s]")
-        ax.set_ylabel("max-norm error in f / max f" if ecol == "f_error" else "relative L1 error vs exact")
-        ax.set_title(f"{title} {p}", fontsize=9)
+        what = "max-norm error in f / max f" if ecol == "f_error" else "relative L1 error"
+        ax.set_ylabel(f"{what} against the reference", fontsize=8)
+        ax.set_title(f"{title} {p}\nreference: {reference}", fontsize=8)
     finish_figure(fig, axes[0], path)
+    return fig
 
 
 def _plot_bias(df: pd.DataFrame, path: Path) -> None:

@@ -1,0 +1,100 @@
+"""Figures a reader understands without the code: every axis labelled, the initial datum drawn and named
+in the legend, a labelled colorbar, the work-precision figure naming its reference and every marker.
+
+The figure objects are inspected (labels, legend entries, the data of the drawn lines), not pixels.
+"""
+
+import numpy as np
+import pytest
+
+from jko_cvx.engine.loop import simulate
+from jko_cvx.engine.plot import plot_records, plot_solution
+from jko_cvx.scene import scene_from_dict
+
+plt = pytest.importorskip("matplotlib.pyplot")
+
+HOM = {
+    "name": "fig_hom",
+    "gamma": 1.0,
+    "t_end": 0.04,
+    "v": {"L": 2.0, "n": 41},
+    "initial": {"kind": "gaussians", "amplitudes": [1.0], "rates": [2.0], "centres": [0.0]},
+    "time": {"dt": 0.01},
+    "refine": {"v": {}},
+    "stop": {"eps_v": 1e-4},
+}
+INHOM = {**HOM, "name": "fig_inhom", "gamma": 3.0, "strength": 2.0, "x": {"L": 1.0, "n": 8}, "v": {"L": 2.0, "n": 21},
+         "initial": {"kind": "two_bump_phase", "a": 6.0, "b": 6.0, "c": 0.5, "d": 0.5}, "refine": {}}  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def runs():
+    return {k: simulate(scene_from_dict(d)) for k, d in (("hom", HOM), ("inhom", INHOM))}
+
+
+def _labels(fig) -> list[str]:
+    """The entries of the figure's legends, as a reader sees them."""
+    return [t.get_text() for ax in fig.axes if ax.get_legend() is not None for t in ax.get_legend().get_texts()]
+
+
+@pytest.mark.parametrize("kind", ["hom", "inhom"])
+def test_every_records_panel_names_its_quantities(runs, kind):
+    fig = plot_records(runs[kind])
+    for ax in fig.axes:
+        assert ax.get_xlabel().strip() and ax.get_ylabel().strip(), (ax.get_xlabel(), ax.get_ylabel())
+        assert "t" in ax.get_xlabel()
+    ylabel = " ".join(ax.get_ylabel() for ax in fig.axes)
+    assert "dv" in ylabel and "max f" in ylabel and ("dx" in ylabel) is (kind == "inhom")
+    plt.close(fig)
+
+
+def test_homogeneous_solution_draws_the_initial_datum_in_the_legend(runs):
+    run = runs["hom"]
+    fig = plot_solution(run)
+    for ax in fig.axes:
+        assert ax.get_xlabel().strip() and ax.get_ylabel().strip()
+    main = fig.axes[0]
+    lines = {ln.get_label(): ln for ln in main.get_lines()}
+    (f0_label,) = [lab for lab in lines if lab.startswith("initial datum")]
+    assert any(lab.startswith("f at t =") for lab in lines)
+    v, f0 = lines[f0_label].get_data()
+    np.testing.assert_allclose(f0, np.exp(-2 * np.asarray(v) ** 2), rtol=1e-12)  # g1 = exp(-2 v^2), independently
+    assert f0_label in _labels(fig)
+    plt.close(fig)
+
+
+def test_inhomogeneous_solution_has_a_labelled_colorbar_and_the_initial_datum(runs):
+    fig = plot_solution(runs["inhom"])
+    main, bar = fig.axes[0], fig.axes[1]
+    assert main.get_xlabel() == "x" and main.get_ylabel() == "v"
+    assert "f" in bar.get_ylabel(), "the colorbar names the quantity"
+    assert any(lab.startswith("initial datum") for lab in _labels(fig))
+    plt.close(fig)
+
+
+def test_work_precision_figure_names_its_reference_and_every_marker(tmp_path):
+    from jko_cvx import CollisionProblem, Grid, PowerKernel
+    from jko_cvx.studies.compare import Configuration, compare_solvers
+    from jko_cvx.studies.solvers.workprecision import _plot
+
+    grid = Grid.uniform(-2.0, 2.0, 21)
+    prob = CollisionProblem(grid, PowerKernel(1.0), np.exp(-2 * grid.points**2), 0.01, beta=10.0)
+    configs = [Configuration("newton", "newton", f"tol={t:g}", {"tol": t}) for t in (1e-4, 1e-8)]
+    configs += [Configuration("sqp:banded", "sqp", "max_iter=2", {"max_iter": 2})]  # not certified: hollow
+    df = compare_solvers(prob, configs, repeats=1)
+    df.insert(0, "problem", "gamma=1")
+    assert not df.certified.all() and df.certified.any()
+    fig = _plot(df, "problem", "median_s", "f_error", tmp_path / "wp.png", "one collision step",
+                reference=df.attrs["reference"])  # fmt: skip
+    assert (tmp_path / "wp.png").stat().st_size > 0
+    ax = fig.axes[0]
+    assert "reference" in (ax.get_title() + ax.get_ylabel()).lower() and "newton" in ax.get_title() + ax.get_ylabel()
+    labels = ax.get_legend_handles_labels()[1]
+    assert ax.get_legend() is not None and len(ax.get_legend().get_texts()) == len(labels)
+    assert any("certified" in lab and "not" not in lab for lab in labels)
+    assert any("not certified" in lab for lab in labels)
+    assert all(any(fam in lab for lab in labels) for fam in ("newton", "sqp:banded"))
+    # every drawn marker set is in the legend: no line or marker artist without a label
+    unlabelled = [ln for ln in ax.get_lines() if ln.get_label().startswith("_") and len(ln.get_xdata())]
+    assert not unlabelled, [ln.get_label() for ln in unlabelled]
+    plt.close(fig)
