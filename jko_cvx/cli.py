@@ -19,11 +19,14 @@ method (or the given ones); ``jko-cvx solvers`` lists the installed conic solver
 from __future__ import annotations
 
 import argparse
+import re
 import shlex
 import signal
 import sys
 import time
+import tomllib
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -37,16 +40,73 @@ from jko_cvx.kernels import PowerKernel
 EXPECTED_ERRORS = (ValueError, TypeError, OSError, ImportError)
 
 
-def _run_scene(scene_path: Path | None, out: Path | None, resume: bool, overwrite: bool, quiet: bool) -> int:
+_DOTTED_KEY = re.compile(r"[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)*")
+_BARE_WORD = re.compile(r"[A-Za-z_][A-Za-z0-9_.+-]*")
+
+
+def _setting(text: str) -> tuple[str, Any, str]:
+    """``--set KEY=VALUE``: a dotted scene key and its value, parsed as a TOML value (data, never
+    evaluated); a bare word that is not TOML (``conic``) is a string.  Returns (key, value, text)."""
+    key, eq, raw = text.partition("=")
+    key, raw = key.strip(), raw.strip()
+    if not eq or not _DOTTED_KEY.fullmatch(key) or not raw:
+        raise argparse.ArgumentTypeError(f"must be KEY=VALUE with a dotted scene key (v.n=61), got {text!r}")
+    try:
+        value = tomllib.loads(f"value = {raw}")["value"]
+    except tomllib.TOMLDecodeError:
+        if not _BARE_WORD.fullmatch(raw):
+            raise argparse.ArgumentTypeError(
+                f"{key}: the value must be a TOML value (a number, true/false, inf, a quoted string, a [list]), "
+                f"got {raw!r}"
+            ) from None
+        value = raw
+    return key, value, text
+
+
+def _overrides(settings: list[tuple[str, Any, str]] | None) -> dict[str, Any]:
+    """The ``--set`` options as the dotted-key overrides of a scene (a key given twice is refused)."""
+    out: dict[str, Any] = {}
+    for key, value, _ in settings or ():
+        if key in out:
+            raise ValueError(f"--set {key} is given twice")
+        out[key] = value
+    return out
+
+
+def _load(scene_path: Path | None, settings) -> Any:
+    """The scene a command runs: a file or a shipped scene by name (the default scene without one),
+    with the ``--set`` overrides applied before validation."""
+    from jko_cvx.scene.model import default_scene, load_scene, scene_from_dict, with_overrides
+
+    overrides = _overrides(settings)
+    if scene_path is not None:
+        return load_scene(scene_path, overrides)
+    return scene_from_dict(with_overrides(default_scene().to_dict(), overrides)) if overrides else default_scene()
+
+
+def _set_args(settings) -> list[str]:
+    """The ``--set`` options as they were given, for a printed resume command."""
+    return [arg for _, _, text in settings or () for arg in ("--set", text)]
+
+
+def _set_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--set", dest="settings", action="append", type=_setting, metavar="KEY=VALUE",
+                   help="override a scene key, e.g. --set v.n=61 --set collision.method=sqp (a TOML value; repeat "
+                        "for more keys; default: none)")  # fmt: skip
+
+
+def _run_scene(
+    scene_path: Path | None, out: Path | None, resume: bool, overwrite: bool, quiet: bool, settings=None
+) -> int:
     from jko_cvx.engine._interrupts import RunInterrupted
     from jko_cvx.engine.loop import simulate
     from jko_cvx.engine.plot import save_figures
-    from jko_cvx.scene.model import default_scene, load_scene
 
-    scene = default_scene() if scene_path is None else load_scene(scene_path)
+    scene = _load(scene_path, settings)
     out = out if out is not None else Path("runs") / scene.name
     # what continues this run (after an interrupt) or redraws its figures (after a finished run)
-    cmd = ["jko-cvx", "run", *([] if scene_path is None else [str(scene_path)]), "--out", str(out), "--resume"]
+    cmd = ["jko-cvx", "run", *([] if scene_path is None else [str(scene_path)]), *_set_args(settings)]
+    cmd += ["--out", str(out), "--resume"]
     try:
         run = simulate(scene, out=out, resume=resume, overwrite=overwrite, progress=not quiet)
     except RunInterrupted as exc:
@@ -139,11 +199,12 @@ def _solve_one(args) -> int:
 
 
 def _compare(args) -> int:
-    from jko_cvx.scene.model import load_scene
     from jko_cvx.studies.compare import compare_solvers, problem_from_scene
 
+    if args.settings and args.scene is None:
+        raise ValueError("--set overrides a scene's keys: give a scene (the built-in problem takes --gamma, --n, ...)")
     if args.scene is not None:
-        prob = problem_from_scene(load_scene(args.scene), args.t)
+        prob = problem_from_scene(_load(args.scene, args.settings), args.t)
         name = f"{args.scene.stem}_t{args.t:g}"
     else:
         prob = _builtin_problem(args)
@@ -315,23 +376,23 @@ def _verify_parser(sub) -> None:
     again.add_argument("--resume", action="store_true", help="continue an interrupted verification")
     again.add_argument("--overwrite", action="store_true", help="replace what the directory holds")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    _set_option(p)
 
 
 def _verify(args) -> int:
     """Exit status 0 when verified, 1 when not (the verdict says where and why), 130 when interrupted."""
     from jko_cvx.engine._interrupts import RunInterrupted
     from jko_cvx.engine.verify import verify
-    from jko_cvx.scene.model import load_scene
 
-    scene = load_scene(args.scene)
+    scene = _load(args.scene, args.settings)
     out = args.out if args.out is not None else Path("runs") / f"{scene.name}_verify"
     t0 = time.perf_counter()
     try:
         ver = verify(scene, args.reference, every=args.every, slices=args.slices, out=out, resume=args.resume,
                      overwrite=args.overwrite, progress=not args.quiet, trajectory=args.trajectory)  # fmt: skip
     except RunInterrupted as exc:
-        cmd = ["jko-cvx", "verify", str(args.scene), "--out", str(out), "--resume", "--every", str(args.every),
-               "--slices", str(args.slices)]  # fmt: skip
+        cmd = ["jko-cvx", "verify", str(args.scene), *_set_args(args.settings), "--out", str(out), "--resume",
+               "--every", str(args.every), "--slices", str(args.slices)]  # fmt: skip
         cmd += [] if args.reference is None else ["--reference", args.reference]
         cmd += ["--trajectory"] if args.trajectory else []
         print(f"\njko-cvx: interrupted ({signal.Signals(exc.signum).name}) at step {exc.step}, t = {exc.t:.6g}; "
@@ -381,6 +442,7 @@ def build_parser() -> argparse.ArgumentParser:
     again.add_argument("--resume", action="store_true", help="continue an interrupted run from its checkpoint")
     again.add_argument("--overwrite", action="store_true", help="replace the run already in the run directory")
     p_run.add_argument("--quiet", action="store_true", help="no progress bar")
+    _set_option(p_run)
     p_exp = sub.add_parser("export", help="write a run directory as a netCDF file (extra jko_cvx[netcdf])")
     p_exp.add_argument("run_dir", type=Path, help="run directory (jko-cvx run --out)")
     p_exp.add_argument("--netcdf", type=Path, required=True, help="the netCDF file to write")
@@ -426,6 +488,7 @@ def build_parser() -> argparse.ArgumentParser:
     p_cmp.add_argument("--t", type=float, default=0.0,
                        help="with a scene: the step from its state at this time (default %(default)s)")  # fmt: skip
     _problem_arguments(p_cmp, " (without a scene)")
+    _set_option(p_cmp)
     p_cmp.add_argument("--repeats", type=_at_least(1), default=5,
                        help="timed solves per setting, the median kept (default %(default)s)")  # fmt: skip
     p_cmp.add_argument("--out", type=_directory, default=Path("results/compare"),
@@ -478,7 +541,7 @@ def _main(argv: list[str] | None) -> int:
         if args.command == "verify":
             return _verify(args)
         if args.command == "run":
-            return _run_scene(args.scene, args.out, args.resume, args.overwrite, args.quiet)
+            return _run_scene(args.scene, args.out, args.resume, args.overwrite, args.quiet, args.settings)
         if args.command == "export":
             return _export(args)
         if args.command == "solve":

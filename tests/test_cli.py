@@ -235,3 +235,64 @@ def test_a_resumed_run_reports_wall_time_over_both_legs(tmp_path, capsys, monkey
     assert coll >= 0.55  # two committed solves of the first leg, 0.3 s each
     assert wall >= coll, text
     assert abs(wall - seconds["wall"]) < 0.01
+
+
+# ---- --set KEY=VALUE: scene keys overridden from the command line, validated as in a file ----
+
+
+def test_set_overrides_scene_keys_as_a_file_would(tmp_path, capsys):
+    path = tmp_path / "cli_tiny.toml"
+    path.write_text(SCENE)
+    out = tmp_path / "run"
+    argv = ["run", str(path), "--set", "v.n=21", "--set", "t_end=0.04", "--set", "collision.method=sqp",
+            "--set", "collision.conserve_momentum=false", "--out", str(out), "--quiet"]  # fmt: skip
+    assert main(argv) == 0
+    edited = SCENE.replace("n = 31", "n = 21").replace("t_end = 0.06", "t_end = 0.04")
+    edited = edited.replace('method = "newton"', 'method = "sqp"\nconserve_momentum = false')
+    other = tmp_path / "edited.toml"
+    other.write_text(edited)
+    direct = simulate(load_scene(other))
+    assert json.loads((out / "scene.json").read_text()) == load_scene(other).to_dict()
+    assert np.array_equal(np.load(out / "checkpoint.npz")["f"], direct.f)
+    # the same overrides resume the run; without them the scene differs and the resume is refused
+    assert main([*argv[:-3], "--out", str(out), "--quiet", "--resume"]) == 0
+    assert main(["run", str(path), "--out", str(out), "--quiet", "--resume"]) == 2
+    assert "v.n: 21 -> 31" in capsys.readouterr().err
+
+
+def test_set_on_the_default_scene_and_a_shipped_one(tmp_path):
+    from jko_cvx.cli import _load, _setting
+
+    sets = [_setting("v.n=61"), _setting("stop.eps_v=1e-3"), _setting("collision.beta=inf")]
+    scene = _load(None, sets)
+    assert (scene.v.n, scene.stop.eps_v, scene.collision.beta) == (61, 1e-3, float("inf"))
+    assert _load(None, None) == _load(None, [])
+    shipped = _load("tab_bu_g1", [_setting("initial.centres=[0.3]"), _setting('refine.v.centre="follow"')])
+    assert shipped.initial.centres == (0.3,) and shipped.refine.v.centre == "follow"
+
+
+def test_bad_set_values_are_refused_naming_the_key_before_anything_is_written(tmp_path, capsys):
+    out = tmp_path / "run"
+    cases = {
+        "v.nn=41": "did you mean 'v.n'?",  # a misspelt key, as in a file
+        "v.n=4 1": "v.n: the value must be a TOML value",  # not a value
+        "v.n=41.5": "v.n must be of type int",  # the schema's types
+        "gamma=-1": "gamma must be a finite number > 0",  # and ranges
+        "=3": "must be KEY=VALUE",
+        "v.n": "must be KEY=VALUE",
+        "v..n=3": "must be KEY=VALUE",
+    }
+    def exit_code(argv):  # argparse's own refusals exit (status 2) instead of returning
+        try:
+            return main(argv)
+        except SystemExit as exc:
+            return exc.code
+
+    for arg, message in cases.items():
+        assert exit_code(["run", "--set", arg, "--out", str(out), "--quiet"]) == 2, arg
+        assert message in capsys.readouterr().err, arg
+        assert not out.exists(), arg
+    assert main(["run", "--set", "v.n=41", "--set", "v.n=61", "--out", str(out), "--quiet"]) == 2
+    assert "--set v.n is given twice" in capsys.readouterr().err and not out.exists()
+    assert main(["compare", "--set", "v.n=41"]) == 2
+    assert "give a scene" in capsys.readouterr().err
