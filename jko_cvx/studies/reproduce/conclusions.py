@@ -108,14 +108,22 @@ def _adaptive(root: Path) -> dict[str, Any]:
     default = p[(p.delta0 == 0.5) & (p.max_iter == p.max_iter.max())].iloc[0]
     small = p[(p.delta0 == 0.5) & (p.max_iter < p.max_iter.max())].sort_values("max_iter", ascending=False)
     s = small.iloc[0] if len(small) else by.iloc[0]
+    g = _read(root, "gk1_records.csv")
+    rerun = g[(g.policy == "halving") & (g.halve_on == "max_iterations")]
+    figure = "".join(
+        f"; gk1_records reruns I_max = {r.max_iter:g} beside ours (gk1_adpt_tau.png): first halving at "
+        f"t = {r.first_halving_t:.3g}, T_b = {r.T_end:.4g}"
+        for _, r in rerun.iterrows()
+    )
     return {
         "claim": "fig:gk1_adpt_tau: the adaptive step decays significantly as t approaches the blow-up time",
         "paper": "dt halved repeatedly before T = 0.5 (g1, dt0 = 0.01)",
         "ours": (
             f"I_max = {default.max_iter:g} (shipped): first halving at t = {default['first halving t']:.3g}, after T; "
             f"I_max = {s.max_iter:g}: first halving at t = {s['first halving t']:.3g}, T_b = {s.T_b:.4g}"
+            + figure
         ),
-        "evidence": "paper_variants.csv",
+        "evidence": "paper_variants.csv; gk1_records.csv; gk1_adpt_tau.png",
         "verdict": "not settled",
         "why": "whether the step decays before T depends on the SQP's I_max, which the paper does not state",
     }
@@ -383,6 +391,7 @@ CONCLUSIONS: tuple[Callable[[Path], dict[str, Any]], ...] = (
 
 EVIDENCE = (
     "discrimination.csv", "tab_bu.csv", "tab_bu_beta_scan_summary.csv", "tab_bu_tb2.csv", "paper_variants.csv",
+    "gk1_records.csv",
     "gk1_final.csv", "ibu.csv", "inhom_gamma3.csv", "inhom_gamma1p5.csv", "inhom_gamma1p5_events.csv",
     "property_budget_summary.csv",
     "tab_g2bu.csv", "tab_g2bu_control.csv", "explicit.csv",
