@@ -192,6 +192,35 @@ def _scale_step(d) -> tuple[str, ...]:
     )
 
 
+def _span(values, fmt: str) -> str:
+    """ "lo-hi" of the values as printed, one value where they print alike."""
+    lo, hi = f"{values.min():{fmt}}", f"{values.max():{fmt}}"
+    return lo if lo == hi else f"{lo}-{hi}"
+
+
+def _g1p5_events(d) -> tuple[str, ...]:
+    """The gamma = 3/2 events (``inhom_gamma1p5_events.csv``): mapped runs followed past the collapse, and the
+    uniform references."""
+    run = d[d.followed.astype(bool) & d["t below"].notna()]
+    mapped = run[run.grid.str.endswith("mapped")]
+    by = {c: mapped[mapped.case == c] for c in ("before", "after")}
+    uni = {c: run[run.grid.str.endswith("uniform") & (run.case == c)].iloc[0] for c in ("before", "after")}
+    back = mapped["t back above"].notna()
+    return (
+        str(int(back.sum())),
+        str(len(mapped)),
+        *(_span(by[c]["t below"], ".3g") for c in by),
+        *(_span(by[c]["min sigma_v"], ".2g") for c in by),
+        *(_span(by[c]["t back above"], ".3g") for c in by),
+        *(_span(by[c]["end / min"], ".2g") for c in by),
+        f"{uni['after']['t back above']:.3g}",
+        f"{uni['before']['min sigma_v']:.2g}",
+        f"{uni['before']['t(min sigma_v)']:.3g}",
+        f"{uni['before']['sigma_v (end)']:.2g}",
+        f"{uni['before']['t (end)']:.3g}",
+    )
+
+
 CLAIMS: tuple[Claim, ...] = (
     # tab:bu
     Claim(
@@ -342,6 +371,28 @@ CLAIMS: tuple[Claim, ...] = (
         "`halving_reset`",
         "gk1_records.csv, halving and halving_reset rows",
     ),
+    Claim(
+        "gk1_records.adpt_tau",
+        "gk1_records.csv",
+        lambda d: (
+            lambda ours, paper: (
+                str(int(ours.max_iter)),
+                f"{ours.first_halving_t:.2f}",
+                str(int(paper.max_iter)),
+                f"{paper.first_halving_t:.2f}",
+                str(int(paper.retries)),
+                str(int(paper.steps_below_dt0)),
+                f"{paper.T_end:.4f}",
+            )
+        )(
+            d[(d.policy == "halving") & (d.data == "g1") & (d.delta0 == 0.5) & (d.halve_on == "any_failure")].iloc[0],
+            d[(d.policy == "halving") & (d.halve_on == "max_iterations")].iloc[0],
+        ),
+        "with ours (I_max = {}) the delta0 = 0.5 step first halves at t = {}, after T; with I_max = {} and the "
+        "paper's halving rule it halves from t = {} on ({} failed attempts, {} steps below dt0) and the run ends "
+        "on eps_t at T_b = {}",
+        "gk1_records.csv, g1 delta0 = 0.5 halving rows (halve_on any_failure / max_iterations)",
+    ),
     # gamma = 3
     Claim(
         "inhom_gamma3.drift",
@@ -435,6 +486,34 @@ CLAIMS: tuple[Claim, ...] = (
         "f log f decreases in {} and {} steps of the gamma = 3 run (collision {}, x-remap {}, transport {})",
         "property_budget_summary.csv",
     ),
+    Claim(
+        "property_budget.gamma1p5",
+        "property_budget_summary.csv",
+        lambda d, b: (
+            str(len(b[(b.case == "gamma1.5 lambda10 61x61") & (b.v_remap == "paper")])),
+            f"{d[(d.case == 'gamma1.5 lambda10 61x61') & (d.v_remap == 'paper')].t_end.iloc[0]:g}",
+            *(
+                str(int(d[(d.case == "gamma1.5 lambda10 61x61") & (d.v_remap == r)][f"{q}: wrong-way steps"].iloc[0]))
+                for q in ("moment3", "moment4", "entropy")
+                for r in ("paper", "energy")
+            ),
+            *(
+                f"{d[(d.case == 'gamma1.5 lambda10 61x61') & (d.v_remap == 'paper')][k].iloc[0]:.2g}"
+                for k in (
+                    "moment2: v-remap wrong-way sum",
+                    "entropy: v-remap wrong-way sum",
+                    "entropy: x-remap sum",
+                    "moment2: collision wrong-way sum",
+                    "entropy: collision wrong-way sum",
+                )
+            ),
+        ),
+        "in its {} steps to t = {} the third moment moves the wrong way in {} steps with the paper's remap and {} "
+        "with the energy-restoring one, the fourth in {} and {}, f log f in {} and {}; the v-remap's wrong-way "
+        "share is +{} for the second moment and {} for f log f, the x-remap's {}, the collision's {} and {}",
+        "gamma = 3/2 rows of property_budget_summary.csv; steps: rows of property_budget.csv",
+        also=("property_budget.csv",),
+    ),
     # Fisher weight against the data's width (the solver guide's guidance row)
     Claim(
         "fisher_width",
@@ -444,6 +523,17 @@ CLAIMS: tuple[Claim, ...] = (
         "the error by {} at w = 0.125",
         "log form; error / error(beta = inf) <= 1.06",
         SOLVERS_PAGE,
+    ),
+    Claim(
+        "inhom_gamma1p5.events",
+        "inhom_gamma1p5_events.csv",
+        lambda d: _g1p5_events(d),
+        "on every mapped grid that collapses and is followed past it ({} of {} runs) sigma_v falls below 0.05 at "
+        "t = {} (lambda = 10) and {} (lambda = 5), reaches a recorded minimum of {} and {}, and is back above 0.05 "
+        "by t = {} and {}, at T_b or before it; at T_b it is {} and {} times that minimum.  The uniform lambda = 5 "
+        "reference is back above 0.05 by t = {}; the uniform lambda = 10 one falls to {} at t = {} and is rising "
+        "at its end ({} at t = {}), still below the threshold",
+        "inhom_gamma1p5_events.csv: followed runs below 0.05, per case and grid kind",
     ),
     Claim(
         "inhom_gamma1p5.grids",

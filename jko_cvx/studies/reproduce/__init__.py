@@ -18,6 +18,7 @@ from jko_cvx.studies.reproduce.fisher_width import reproduce_fisher_width
 from jko_cvx.studies.reproduce.g2bu import reproduce_tab_g2bu
 from jko_cvx.studies.reproduce.g2bu_control import reproduce_tab_g2bu_control
 from jko_cvx.studies.reproduce.gamma1p5 import reproduce_inhom_gamma1p5
+from jko_cvx.studies.reproduce.gamma1p5_events import reproduce_inhom_gamma1p5_events
 from jko_cvx.studies.reproduce.gk1_final import reproduce_gk1_final
 from jko_cvx.studies.reproduce.gk2_bu import reproduce_gk2_bu
 from jko_cvx.studies.reproduce.gk3_panels import reproduce_gk3_panels
@@ -39,6 +40,7 @@ REPRODUCTIONS = {
     "explicit": reproduce_explicit,
     "mesh_maps": reproduce_mesh_maps,
     "inhom_gamma1p5": reproduce_inhom_gamma1p5,
+    "inhom_gamma1p5_events": reproduce_inhom_gamma1p5_events,
     "tab_g2bu": reproduce_tab_g2bu,
     "tab_g2bu_control": reproduce_tab_g2bu_control,
     "tab_bu_traces": reproduce_tab_bu_traces,
@@ -76,6 +78,7 @@ __all__ = [
     "reproduce_ibu",
     "reproduce_ibu_panels",
     "reproduce_inhom_gamma1p5",
+    "reproduce_inhom_gamma1p5_events",
     "reproduce_inhom_gamma3",
     "reproduce_mesh_maps",
     "reproduce_property_budget",

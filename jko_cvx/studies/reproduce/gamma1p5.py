@@ -35,12 +35,23 @@ from jko_cvx.grid import Grid, PeriodicGrid
 from jko_cvx.scene.model import Scene, shipped_scene
 from jko_cvx.studies.sweep import run_sweep
 
-__all__ = ["gamma1p5_run", "gamma1p5_scene", "gamma1p5_uniform", "reproduce_inhom_gamma1p5"]
+__all__ = [
+    "COLLAPSE_SPREAD",
+    "MEETING_TIME",
+    "SPREAD_TIMES",
+    "gamma1p5_run",
+    "gamma1p5_scene",
+    "gamma1p5_uniform",
+    "reproduce_inhom_gamma1p5",
+    "spread_event",
+]
 
 _SHIPPED = {case: shipped_scene(f"inhom_gamma1p5_{case}") for case in ("before", "after")}
 _CASES = {case: (2 * s.strength, s.initial.b, s.t_end) for case, s in _SHIPPED.items()}  # lambda, b, t_end
 _C, _D = _SHIPPED["before"].initial.c, _SHIPPED["before"].initial.d  # 2.5, 2.5 in both cases
 _L = _SHIPPED["before"].x.L  # both half-widths (5)
+MEETING_TIME = _C / _D
+"""c/d: the bumps' centres meet at x = 0 at t = 1 under free transport."""
 _PAPER = {"before": "blow-up in v before the bumps meet", "after": "blow-up in v after the bumps pass x = 0"}
 PAPER_TIMES = {"before": (0.04, 0.1, 0.2, 0.3, 0.4), "after": (0.1, 0.4, 0.8, 1.2, 1.3)}
 """Snapshot times of ``fig:gk1p5_C5`` and ``fig:gk1p5_C2p5``."""
@@ -63,7 +74,8 @@ _SERIES = (
     "max_rho",
     "min_spread_v",
 )
-_SPREAD_TIMES = (0.2, 0.4, 0.6)
+SPREAD_TIMES = (0.2, 0.4, 0.6)
+"""The times the resolution table samples sigma_v at (besides the threshold crossing and the end)."""
 COLLAPSE_SPREAD = 0.05
 """The density criterion: the first time sigma_v (``min_spread_v``) falls below this, a sixth
 of lambda = 10's initial 0.29 and an eighth of lambda = 5's 0.41 (``stop.spread_v`` of a scene)."""
@@ -154,6 +166,72 @@ def _first_below(t: list[float], y: list[float], level: float) -> float:
     return float(t[below[0]]) if below.size else float("nan")
 
 
+def spread_event(
+    t: list[float],
+    sigma: list[float],
+    level: float = COLLAPSE_SPREAD,
+    t_below: float = float("nan"),
+    t_back: float = float("nan"),
+    followed: bool = True,
+) -> dict[str, Any]:
+    """Blow-up or collapse: the event of one run, named from its record of sigma_v against t.
+
+    Parameters
+    ----------
+    t, sigma
+        The recorded times (increasing) and sigma_v there: a run's whole record, or samples of it.
+    level
+        The threshold (:data:`COLLAPSE_SPREAD`).
+    t_below, t_back
+        The first time sigma_v < level and the first later time sigma_v >= level, where the
+        caller knows them better than the samples (nan: read off the samples).
+    followed
+        False for a run stopped at the threshold: nothing is known after ``t_below``.
+
+    Returns
+    -------
+    dict
+        ``t below``, ``min sigma_v`` and ``t(min sigma_v)`` (over the record), ``t back above``,
+        ``t (end)``, ``sigma_v (end)``, ``end / min`` (the growth after the minimum),
+        ``followed``, ``event`` and the record (``sample t``, ``sample sigma_v``).  The event is
+        ``"no collapse by t = T"``, ``"collapse at t = t_c, reversed by t = t_r"`` (sigma_v came back
+        above the threshold: not a blow-up), ``"collapse at t = t_c, not reversed by t = T"`` or
+        ``"collapse at t = t_c, not followed past it"``.
+    """
+    tt, ss = np.asarray(t, dtype=float), np.asarray(sigma, dtype=float)
+    if tt.size == 0 or tt.shape != ss.shape or np.any(np.diff(tt) < 0):
+        raise ValueError(f"t and sigma must be records of one length, t increasing; got {tt.size} and {ss.size}")
+    if np.isnan(t_below):
+        t_below = _first_below(tt.tolist(), ss.tolist(), level)
+    k = int(np.nanargmin(ss))
+    if not np.isnan(t_below) and followed and np.isnan(t_back):
+        back = np.flatnonzero((tt > t_below) & (ss >= level))
+        t_back = float(tt[back[0]]) if back.size else float("nan")
+    if np.isnan(t_below):
+        event = f"no collapse by t = {tt[-1]:.3g}"
+    elif not followed:
+        event = f"collapse at t = {t_below:.3g}, not followed past it"
+    elif not np.isnan(t_back):
+        event = f"collapse at t = {t_below:.3g}, reversed by t = {t_back:.3g}"
+    else:
+        event = f"collapse at t = {t_below:.3g}, not reversed by t = {tt[-1]:.3g}"
+        if tt[-1] > tt[k]:
+            event += f" (rising: {ss[-1] / ss[k]:.2g} x its minimum at t = {tt[k]:.3g})"
+    return {
+        "t below": t_below,
+        "min sigma_v": float(ss[k]),
+        "t(min sigma_v)": float(tt[k]),
+        "t back above": t_back,
+        "t (end)": float(tt[-1]),
+        "sigma_v (end)": float(ss[-1]),
+        "end / min": float(ss[-1] / ss[k]) if ss[k] > 0 else float("nan"),
+        "followed": bool(followed),
+        "event": event,
+        "sample t": tt.tolist(),
+        "sample sigma_v": ss.tolist(),
+    }
+
+
 def _centre_error(snapshots: list[dict[str, Any]]) -> float:
     """Largest |x-bar - (-c + d t)| of the right-moving (v > 0) half over the snapshots with t <= _SEPARATE.
 
@@ -173,6 +251,8 @@ def _centre_error(snapshots: list[dict[str, Any]]) -> float:
 
 def _summary(r: pd.Series, uniform: bool = False) -> dict[str, Any]:
     """One table row for one run (a mapped or a uniform sweep point); 'end' is its last record, T_b on blow-up."""
+    # a run stopped on the density criterion (the quick form) is not followed past the threshold
+    event = spread_event(r.t, r.min_spread_v, followed=not r.reason.startswith("min spread_v"))
     return {
         "case": r.case,
         "lambda": _CASES[r.case][0],
@@ -183,8 +263,14 @@ def _summary(r: pd.Series, uniform: bool = False) -> dict[str, Any]:
         "max f (end)": r.max_f[-1],
         "max rho (end)": r.max_rho[-1],
         "sigma_v (end)": r.min_spread_v[-1],
-        **{f"sigma_v(t={tk:g})": _at(r.t, r.min_spread_v, tk) for tk in _SPREAD_TIMES},
+        **{f"sigma_v(t={tk:g})": _at(r.t, r.min_spread_v, tk) for tk in SPREAD_TIMES},
         f"t(sigma_v < {COLLAPSE_SPREAD:g})": _first_below(r.t, r.min_spread_v, COLLAPSE_SPREAD),
+        # the whole record's minimum, return above the threshold and end (gamma1p5_events reads them)
+        "min sigma_v": event["min sigma_v"],
+        "t(min sigma_v)": event["t(min sigma_v)"],
+        f"t(sigma_v back >= {COLLAPSE_SPREAD:g})": event["t back above"],
+        "t (end)": event["t (end)"],
+        "event": event["event"],
         f"x-bar error (t <= {_SEPARATE:g})": float("nan") if uniform else _centre_error(r.snapshots),
         "min dv (end)": r.min_dv[-1],
         "mass drift": float(np.abs(np.asarray(r.mass) - r.mass[0]).max() / r.mass[0]),
@@ -198,7 +284,8 @@ def reproduce_inhom_gamma1p5(out: Path, quick: bool = False, **sweep_opts: Any) 
     Writes ``inhom_gamma1p5.{csv,md,png}`` (the 121 x 121 runs against the paper, with the
     snapshots and records of ``fig:gk1p5_C5`` / ``fig:gk1p5_C2p5``),
     ``inhom_gamma1p5_resolution.{csv,png}`` (every grid, min dv and sigma_v against t) and
-    ``inhom_gamma1p5_properties.png`` (rows 3-4 of ``fig:gk3_properties``).  ``quick``:
+    ``inhom_gamma1p5_properties.{png,csv}`` (rows 3-4 of ``fig:gk3_properties``, and their start,
+    extremes, end and wrong-way steps per quantity).  ``quick``:
     41 x 41 and 61 x 61, stopped also at the density collapse (``gamma1p5_run``), uniform
     reference 41 x 81 to t = 0.4.
     """
@@ -216,7 +303,7 @@ def reproduce_inhom_gamma1p5(out: Path, quick: bool = False, **sweep_opts: Any) 
     upoints = [{"case": c, "n_x": uniform[0], "n_v": uniform[1], "t_end": uniform[2]} for c in _CASES]
     refs = run_sweep(gamma1p5_uniform, upoints, out / "cache" / "inhom_gamma1p5_uniform", desc="uniform", **sweep_opts)
     wall = time.perf_counter() - t0
-    meet = _C / _D
+    meet = MEETING_TIME
 
     rows = [_summary(r) for _, r in runs.iterrows()] + [_summary(r, uniform=True) for _, r in refs.iterrows()]
     resolution = pd.DataFrame(rows)
@@ -271,6 +358,9 @@ def reproduce_inhom_gamma1p5(out: Path, quick: bool = False, **sweep_opts: Any) 
     _figure(main, out / "inhom_gamma1p5.png", meet)
     _resolution_figure(runs, refs, out / "inhom_gamma1p5_resolution.png", meet)
     _properties_figure(main, out / "inhom_gamma1p5_properties.png")
+    properties = _properties_table(main)
+    properties.to_csv(out / "inhom_gamma1p5_properties.csv", index=False)
+    record_csv(out / "inhom_gamma1p5_properties.csv")
     return main
 
 
@@ -319,6 +409,7 @@ def _resolution_figure(runs: pd.DataFrame, refs: pd.DataFrame, path: Path, meet:
             row[1].semilogy(r.t, r.min_spread_v, color=f"C{i}", label=f"{r.n} x {r.n}")
         for _, r in refs[refs.case == case].iterrows():
             row[1].semilogy(r.t, r.min_spread_v, "k--", label=f"{r.n_x} x {r.n_v} uniform")
+        row[1].axhline(COLLAPSE_SPREAD, color="0.4", lw=1, label=f"threshold {COLLAPSE_SPREAD:g}")
         for ax, what in zip(row, ("min dv", "sigma_v (min over populated x)"), strict=True):
             ax.axvline(meet, color="k", ls=":", lw=1)
             ax.set_title(f"{case}, lambda = {_CASES[case][0]:g}: {what}", fontsize=9)
@@ -328,6 +419,39 @@ def _resolution_figure(runs: pd.DataFrame, refs: pd.DataFrame, path: Path, meet:
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+_RIGHT_WAY = {"moment2": -1, "moment3": -1, "moment4": -1, "entropy": 1}
+"""The direction prop:properties gives each quantity: the moments dissipate, the integral of f log f rises."""
+
+
+def _properties_table(main: pd.DataFrame) -> pd.DataFrame:
+    """The panels of ``fig:gk3_properties`` (gamma = 3/2 rows) in numbers: per run and quantity, its start,
+    extremes and their times, end, and the steps on which it moves against :data:`_RIGHT_WAY`."""
+    rows = []
+    for _, r in main.iterrows():
+        t = np.asarray(r.t)
+        for name, sign in _RIGHT_WAY.items():
+            y = np.asarray(r[name])
+            lo, hi = int(np.argmin(y)), int(np.argmax(y))
+            rows.append(
+                {
+                    "case": r.case,
+                    "lambda": _CASES[r.case][0],
+                    "n": r.n,
+                    "quantity": name,
+                    "start": y[0],
+                    "min": y[lo],
+                    "t(min)": t[lo],
+                    "max": y[hi],
+                    "t(max)": t[hi],
+                    "end": y[-1],
+                    "t (end)": t[-1],
+                    "wrong-way steps": int((sign * np.diff(y) < 0).sum()),
+                    "steps": len(y) - 1,
+                }
+            )
+    return pd.DataFrame(rows)
 
 
 def _properties_figure(main: pd.DataFrame, path: Path) -> None:

@@ -7,6 +7,12 @@
   step is carried forward and the run ends once it is <= eps_t) with the paper's SQP, whose
   failures near blow-up are what halve the step.  The full form also runs g1, delta0 = 0.5
   with the ``halving_reset`` variant (every step restarts at dt0), for comparison.
+* ``fig:gk1_adpt_tau`` beside the paper's effect (``gk1_adpt_tau.png``): whether the step
+  halves before T = 0.5 depends on the SQP's iteration budget I_max, which the paper does not
+  state.  With the package's I_max = 20000 the first halving comes after T; g1, delta0 = 0.5
+  is also run with :data:`PAPER_HALVING` (I_max = 2000 and the paper's rule that only the
+  exit flag halves the step), where it halves from t ~ 0.46 and ends on eps_t near T
+  (``studies/paper_variants.py``, ``paper_variants.md``); the figure shows both, labelled.
 """
 
 from __future__ import annotations
@@ -17,12 +23,20 @@ from typing import Any
 
 import pandas as pd
 
+from jko_cvx.collision.sqp import SqpOptions
 from jko_cvx.engine.loop import simulate
 from jko_cvx.environment import record_csv, write_markdown
 from jko_cvx.studies.reproduce.blowup_tables import blowup_scene
 from jko_cvx.studies.sweep import run_sweep
 
-__all__ = ["record_run", "record_scene", "reproduce_gk1_records"]
+__all__ = ["PAPER_HALVING", "QUICK_HALVING", "record_run", "record_scene", "reproduce_gk1_records"]
+
+PAPER_HALVING = {"halve_on": "max_iterations", "max_iter": 2000}
+"""The SQP budget and halving rule under which g1's step halves before T (``paper_variants.md``)."""
+QUICK_HALVING = {"halve_on": "max_iterations", "max_iter": 200}
+"""The quick form's variant: a smaller budget, the same effect (first halving before T) in a few seconds."""
+DEFAULT_MAX_ITER = SqpOptions.__dataclass_fields__["max_iter"].default
+"""The SQP's I_max when a scene does not set it."""
 
 
 def record_scene(
@@ -109,6 +123,7 @@ def reproduce_gk1_records(out: Path, quick: bool = False, **sweep_opts) -> pd.Da
     points = [{"data": "g1", "delta0": d0, "policy": "fixed", "t_end": 0.6} for d0 in (0.05, 0.1, 0.5, 0.8)]
     if quick:
         points.append({"data": "g1", "delta0": 0.5, "policy": "halving", "t_end": 0.6})
+        points.append({"data": "g1", "delta0": 0.5, "policy": "halving", "t_end": 0.6, **QUICK_HALVING})
     else:
         # delta0 = 0.05 to t = 0.6 only: as written, the halved step is never grown again, and after
         # t ~ 0.6 the SQP converges at dt ~ 2e-5 without failing, so the run crawls (~2 s a step;
@@ -119,11 +134,19 @@ def reproduce_gk1_records(out: Path, quick: bool = False, **sweep_opts) -> pd.Da
         ]
         points.append({"data": "g4", "delta0": 0.5, "policy": "halving", "t_end": 0.7})
         points.append({"data": "g1", "delta0": 0.5, "policy": "halving_reset", "t_end": 0.7})
+        points.append({"data": "g1", "delta0": 0.5, "policy": "halving", "t_end": 0.7, **PAPER_HALVING})
     t0 = time.perf_counter()
     df = run_sweep(record_run, points, out / "cache" / "gk1_records", desc="gk1_records", **sweep_opts)
     wall = time.perf_counter() - t0
+    adaptive = df.policy != "fixed"
+    # the package's rule and budget where a point does not set them (the fixed-dt runs use Newton: none)
+    for key, default in (("halve_on", "any_failure"), ("max_iter", DEFAULT_MAX_ITER)):
+        column = df[key] if key in df else pd.Series([None] * len(df), index=df.index)
+        df[key] = column.where(~adaptive | column.notna(), default).where(adaptive, None)
     _figure(df, out / "gk1_records.png")
-    summary = df[["data", "delta0", "policy", "t_end", "verdict", "seconds"]].copy()
+    _adpt_tau_figure(df, out / "gk1_adpt_tau.png")
+    summary = df[["data", "delta0", "policy", "t_end", "halve_on", "max_iter", "verdict", "seconds"]].copy()
+    summary["max_iter"] = summary.max_iter.astype("Int64")
     summary["min_dv_at_end"] = [r[-1] for r in df.min_dv]
     summary["smallest_dt"] = [min(x for x in r if x > 0) for r in df["dt"]]
     summary["steps_below_dt0"] = [sum(1 for x in r[1:-1] if x < 0.0099) for r in df["dt"]]  # last step lands on t_end
@@ -168,6 +191,35 @@ def _figure(df: pd.DataFrame, path: Path) -> None:
         a.axvline(0.5, color="k", lw=0.8)
         a.set_xlabel("t")
         a.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def _adpt_tau_figure(df: pd.DataFrame, path: Path) -> None:
+    """``fig:gk1_adpt_tau``: dt against t for g1 (delta0 = 0.05 left, 0.5 right), each SQP budget labelled."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    runs = df[(df.policy == "halving") & (df.data == "g1")]
+    panels = [d0 for d0 in (0.05, 0.5) if (runs.delta0 == d0).any()]  # the quick form runs delta0 = 0.5 only
+    fig, axes = plt.subplots(1, len(panels), figsize=(6.5 * len(panels), 5.2), squeeze=False)
+    for ax, d0 in zip(axes[0], panels, strict=True):
+        for _, r in runs[runs.delta0 == d0].iterrows():
+            ours = r.max_iter == DEFAULT_MAX_ITER and r.halve_on == "any_failure"
+            halved = next((t - x for t, x in zip(r.t[1:], r["dt"][1:], strict=True) if x < 0.0099), float("nan"))
+            who = "ours" if ours else "the paper's halving"
+            label = f"I_max = {int(r.max_iter)}, halve_on = {r.halve_on} ({who}): first halving t = {halved:.3g}"
+            label += f", {r.verdict}"
+            ax.semilogy(r.t[1:], r["dt"][1:], ".-", ms=2, label=label)
+        ax.axvline(0.5, color="k", lw=0.8, label="exact T = 0.5")
+        ax.set_title(f"fig:gk1_adpt_tau: g1, N_v = 121, delta = 0.5, delta0 = {d0:g}", fontsize=9)
+        ax.set_xlabel("t")
+        ax.set_ylabel("adaptive dt")
+        ax.grid(True, which="both", alpha=0.2)
+        ax.legend(fontsize=6.5, loc="upper center", bbox_to_anchor=(0.5, -0.14))
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)

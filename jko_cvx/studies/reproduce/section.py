@@ -76,7 +76,8 @@ SECTION = (
 first, the entries of a few seconds last), then the entries that read others' files (an entry starts after
 the one before it has, so these come last).  ``grid_convergence``
 (the study the paper lacks, 41 minutes on its own) is not part of the section: run it by name; nor is
-``conclusions``, which reads its files and those of the paper-variants study script."""
+``conclusions``, which reads its files and those of the paper-variants study script, nor
+``inhom_gamma1p5_events``, which reads its files and those of ``inhom_gamma1p5``."""
 
 NEEDS: dict[str, tuple[str, ...]] = {
     "g2bu_loglog": ("tab_g2bu",),  # reads tab_g2bu.csv

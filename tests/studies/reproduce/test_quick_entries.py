@@ -112,6 +112,12 @@ def test_quick_gk1_records_halve_the_step_only_with_the_papers_sqp(tmp_path):
     assert (fixed.min_dv_at_end < 5e-4).all()  # refinement follows the collapse
     adaptive = summary[summary.policy == "halving"].iloc[0]
     assert adaptive.steps_below_dt0 > 0 and adaptive.smallest_dt < 0.01
+    # fig:gk1_adpt_tau beside the paper's effect: the step halves before the exact T = 0.5 with a small
+    # SQP budget under the paper's rule (the quick form's QUICK_HALVING), after T with ours (I_max = 20000)
+    ours = summary[(summary.policy == "halving") & (summary.max_iter == 20000)].iloc[0]
+    paper = summary[(summary.policy == "halving") & (summary.halve_on == "max_iterations")].iloc[0]
+    assert paper.max_iter < ours.max_iter and paper.first_halving_t < 0.5 < ours.first_halving_t
+    assert (tmp_path / "gk1_adpt_tau.png").is_file()
 
 
 def test_explicit_ode1_matches_the_closed_forms_and_the_threshold(tmp_path):
@@ -180,6 +186,16 @@ def test_quick_gamma1p5_blows_up_in_v(tmp_path):
         assert ratio.between(0.65, 1.5).all(), (case, ratio.tolist())
         # exact: x-bar = -c + d t; the paper's mass-only transport and remap were 0.1 off by t = 0.2
         assert (mapped["x-bar error (t <= 0.7)"] < 0.02).all(), (case, mapped["x-bar error (t <= 0.7)"].tolist())
+    # each run's event, from its whole record: the quick mapped runs stop at the collapse, so are not followed
+    assert (grids["min sigma_v"] <= grids["sigma_v (end)"]).all()
+    stopped = grids.reason.str.startswith("min spread_v")
+    assert stopped.any() and grids[stopped].event.str.endswith("not followed past it").all()
+    assert np.allclose(grids.loc[stopped, "t (end)"], grids.loc[stopped, "t(sigma_v < 0.05)"])
+    # the gamma = 3/2 property panels in numbers: one row per run and quantity, extremes bracketing the record
+    props = pd.read_csv(tmp_path / "inhom_gamma1p5_properties.csv")
+    assert sorted(set(props.quantity)) == ["entropy", "moment2", "moment3", "moment4"] and len(props) == 4 * len(df)
+    assert (props["min"] <= props.start).all() and (props.start <= props["max"]).all()
+    assert props.end.between(props["min"], props["max"]).all() and (props["wrong-way steps"] <= props.steps).all()
 
 
 def test_g2bu_scene_is_the_shipped_one():
