@@ -17,6 +17,24 @@ Dask is optional (``pip install "jko_cvx[dask]"``).  Results do not depend on wh
 ran: the point functions are deterministic, and the test suite checks that serial, process
 pool and Dask runs give identical tables.
 
+A script that starts local worker processes needs the ``if __name__ == "__main__":`` guard.
+A local Dask cluster starts its workers with the ``spawn`` method (the Dask setting
+``distributed.worker.multiprocessing-method``), and so does a process pool where ``spawn`` or
+``forkserver`` is the start method (macOS, Windows; Linux from Python 3.14): each worker
+imports the main script again, so a call at its top level would start the sweep again in
+every worker.  :func:`run_sweep` refuses such a call before any work, with a
+``RuntimeError`` naming the script's line (:func:`check_main_guard`)::
+
+    from jko_cvx.studies.sweep import run_sweep
+
+    def main():
+        run_sweep(func, points, "cache", executor="dask", workers=2)
+
+    if __name__ == "__main__":  # the workers import this file without running main()
+        main()
+
+Interactive sessions, notebooks and ``python -c`` have no main script to import again.
+
 The cache cannot serve stale results.  A point's key (:func:`point_key`) covers the point,
 the function's qualified name, the source of the module that defines it, the package
 version and a hash of every ``.py`` file of the package: after any change of code, old
@@ -36,10 +54,12 @@ keys that differ, and nothing is served.
 
 from __future__ import annotations
 
+import ast
 import functools
 import hashlib
 import inspect
 import json
+import multiprocessing
 import os
 import random
 import re
@@ -61,6 +81,7 @@ __all__ = [
     "CacheAuditError",
     "StaleCacheWarning",
     "cached_entries",
+    "check_main_guard",
     "code_identity",
     "holding",
     "point_key",
@@ -328,7 +349,9 @@ def run_sweep(
     cache_dir : str or Path
         Directory of per-point result files (created if missing).
     executor : {"process", "serial", "dask"} or Executor, default "process"
-        Where the missing points run (see the module docstring).
+        Where the missing points run (see the module docstring).  ``"dask"`` (and
+        ``"process"`` under the ``spawn`` or ``forkserver`` start method) called from a script
+        needs the script's ``if __name__ == "__main__":`` guard (:func:`check_main_guard`).
     scheduler : str, optional
         Address of a Dask scheduler; overrides ``executor``.
     workers : int, optional
@@ -352,6 +375,13 @@ def run_sweep(
     pandas.DataFrame
         The point's parameters followed by its results, plus ``cached`` (True where the
         result was read from the cache rather than computed in this call).
+
+    Raises
+    ------
+    RuntimeError
+        Local worker processes would import the main script again and rerun this call (no
+        ``if __name__ == "__main__":`` guard around it; see :func:`check_main_guard`);
+        raised before any point runs or any file is written.
     """
     if not callable(func):
         raise TypeError(f"func must be callable, got {type(func).__name__}")
@@ -366,6 +396,8 @@ def run_sweep(
         raise ValueError(f"audit must be an integer >= 0 (cached points to recompute), got {audit!r}")
     if audit_seed is not None and (isinstance(audit_seed, bool) or not isinstance(audit_seed, int)):
         raise TypeError(f"audit_seed must be None or an integer, got {audit_seed!r}")
+    if scheduler is None and isinstance(executor, str):
+        check_main_guard(executor)
     keys = [point_key(func, p) for p in points]
     cache = Path(cache_dir)
     cache.mkdir(parents=True, exist_ok=True)
@@ -472,3 +504,110 @@ def _open_executor(stack: ExitStack, executor, scheduler: str | None, workers: i
     if isinstance(executor, Executor):
         return executor
     raise ValueError(f"executor must be 'process', 'serial', 'dask' or an Executor, got {executor!r}")
+
+
+def _start_method(executor: str) -> str | None:
+    """How the local workers of ``executor`` are started (None: no local worker processes)."""
+    if executor == "dask":
+        try:
+            import dask
+            import distributed  # noqa: F401  (registers the distributed.* configuration defaults)
+        except ImportError:  # run_sweep names the missing extra when it opens the cluster
+            return None
+
+        return str(dask.config.get("distributed.worker.multiprocessing-method"))
+    if executor == "process":  # the context a ProcessPoolExecutor takes, without fixing it
+        return multiprocessing.get_start_method(allow_none=True) or multiprocessing.get_all_start_methods()[0]
+    return None
+
+
+def _reimported_main() -> str | None:
+    """The file a ``spawn`` / ``forkserver`` worker imports again as the main module, or None.
+
+    As :mod:`multiprocessing` decides: none for an interactive session, a notebook or
+    ``python -c`` (no ``__main__.__file__``) or for ``python -m pkg`` (a ``__main__`` module).
+    """
+    main = sys.modules.get("__main__")
+    path = getattr(main, "__file__", None)
+    spec = getattr(main, "__spec__", None)
+    if path is None or (spec is not None and spec.name.rpartition(".")[2] == "__main__"):
+        return None
+    return os.path.realpath(path)
+
+
+def _is_main_test(node: ast.AST) -> bool:
+    """Whether an ``if`` test contains ``__name__ == "__main__"`` (either order)."""
+    for cmp in ast.walk(node):
+        if isinstance(cmp, ast.Compare) and len(cmp.ops) == 1 and isinstance(cmp.ops[0], ast.Eq):
+            sides = [cmp.left, *cmp.comparators]
+            names = {s.id for s in sides if isinstance(s, ast.Name)}
+            consts = {s.value for s in sides if isinstance(s, ast.Constant)}
+            if names == {"__name__"} and consts == {"__main__"}:
+                return True
+    return False
+
+
+def _guarded_lines(source: str) -> list[tuple[int, int]]:
+    """Line ranges of the bodies of ``if __name__ == "__main__":`` blocks outside any function or class."""
+    ranges = []
+
+    def visit(nodes) -> None:
+        for node in nodes:
+            if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef | ast.ClassDef):
+                continue
+            if isinstance(node, ast.If) and _is_main_test(node.test):
+                ranges.append((node.lineno, node.end_lineno or node.lineno))
+                continue
+            for field in ("body", "orelse", "finalbody", "handlers"):
+                visit(getattr(node, field, []))
+
+    visit(ast.parse(source).body)
+    return ranges
+
+
+def check_main_guard(executor: str) -> None:
+    """Refuse to start local worker processes from a main script's unguarded top-level code.
+
+    A local Dask cluster (``executor="dask"``) starts its workers with the ``spawn`` method,
+    a process pool with the platform's start method (``fork`` on Linux up to Python 3.13,
+    ``spawn`` on macOS and Windows, ``forkserver`` on Linux from 3.14).  Under ``spawn`` and
+    ``forkserver`` every worker imports the main script again, as ``__mp_main__``, running
+    its top-level code: a sweep called there, outside an ``if __name__ == "__main__":`` block,
+    would start again in each worker, which fails while bootstrapping and takes the cluster
+    down with a page of tracebacks.  This finds the main script's top-level line on the call
+    stack and raises before any work when it lies outside such a block.
+
+    Raises
+    ------
+    RuntimeError
+        Naming the script and line and the way out: the ``if __name__ == "__main__":``
+        guard, or ``scheduler=`` (a running cluster) or ``executor="serial"``.
+    """
+    method = _start_method(executor)
+    main = _reimported_main() if method in ("spawn", "forkserver") else None
+    if main is None:
+        return
+    frame = inspect.currentframe()
+    while frame is not None:
+        code = frame.f_code
+        if code.co_name == "<module>" and frame.f_globals.get("__name__") == "__main__":
+            if os.path.realpath(code.co_filename) == main:
+                break
+        frame = frame.f_back
+    if frame is None:
+        return
+    line = frame.f_lineno
+    try:
+        source = Path(main).read_text()
+        guarded = _guarded_lines(source)
+    except (OSError, UnicodeDecodeError, SyntaxError, ValueError):
+        return  # a main script that cannot be read back: nothing to judge it by
+    if any(lo <= line <= hi for lo, hi in guarded):
+        return
+    raise RuntimeError(
+        f'executor="{executor}" starts local worker processes with the {method!r} method, and each imports the '
+        f"main script {main} again, running its top-level code: line {line}, outside an "
+        f'`if __name__ == "__main__":` block, would start this sweep again in every worker.  Put the script\'s '
+        f'top-level code under `if __name__ == "__main__":` (or run the sweep with scheduler= the address of a '
+        f'running Dask cluster, or executor="serial")'
+    )

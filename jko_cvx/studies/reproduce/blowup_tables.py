@@ -333,13 +333,12 @@ def _write(df: pd.DataFrame, out: Path, name: str) -> None:
 
 
 def _figure(df: pd.DataFrame, path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    # a Figure of its own, not pyplot's: the caller's backend (a notebook's inline one) is left as it was
+    from matplotlib.figure import Figure
 
     datas = list(dict.fromkeys(df.data))
-    fig, axes = plt.subplots(1, len(datas), figsize=(4.2 * len(datas), 3.6), squeeze=False)
+    fig = Figure(figsize=(4.2 * len(datas), 3.6))
+    axes = fig.subplots(1, len(datas), squeeze=False)
     for ax, data in zip(axes[0], datas, strict=True):
         block = df[df.data == data]
         for i, (eps, rows) in enumerate(block.groupby("eps_v", sort=False)):
@@ -354,7 +353,6 @@ def _figure(df: pd.DataFrame, path: Path) -> None:
     axes[0][0].legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
-    plt.close(fig)
 
 
 def reproduce_tab_bu(out: Path, quick: bool = False, **sweep_opts) -> pd.DataFrame:

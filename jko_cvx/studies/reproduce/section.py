@@ -41,7 +41,7 @@ import pandas as pd
 
 from jko_cvx.environment import record_csv, write_markdown
 from jko_cvx.studies.reproduce import REPRODUCTIONS
-from jko_cvx.studies.sweep import code_provenance, holding, shared_points
+from jko_cvx.studies.sweep import check_main_guard, code_provenance, holding, shared_points
 from jko_cvx.threads import THREADS_ENV
 
 __all__ = ["NEEDS", "SECTION", "reproduce_section"]
@@ -185,6 +185,8 @@ def reproduce_section(
         raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
     if isinstance(executor, str) and executor not in ("process", "serial", "dask"):
         raise ValueError(f"executor must be 'process', 'serial', 'dask' or an Executor, got {executor!r}")
+    if scheduler is None and isinstance(executor, str):
+        check_main_guard(executor)  # its pool is started here, not by run_sweep
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     t0, cpu0 = time.perf_counter(), _cpu_seconds()
