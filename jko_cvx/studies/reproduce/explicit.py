@@ -124,10 +124,9 @@ def reproduce_explicit(out: Path, quick: bool = False, **_sweep_opts: Any) -> pd
 
 
 def _figure(df: pd.DataFrame, path: Path) -> None:
-    import matplotlib
+    from jko_cvx.studies.solvers.figures import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
     for i, (lam, b) in enumerate(df.groupby("lambda")):

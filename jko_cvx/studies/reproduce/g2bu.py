@@ -210,10 +210,9 @@ def _zoomed(ax, snap: dict, title: str) -> None:
 
 def _snapshot_figure(df: pd.DataFrame, path: Path) -> None:
     """``fig:gk2_bu``, ``fig:gk2_bu_2``: every lambda at T_b; ``fig:gk2_evo_example``: lambda = 310 in time."""
-    import matplotlib
+    from jko_cvx.studies.solvers.figures import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     evolution = [s for snaps in df.snapshots for s in snaps]
     k = max(len(df), len(evolution))
@@ -238,10 +237,9 @@ def _at_end(r: np.ndarray) -> float:
 
 
 def _figure(df: pd.DataFrame, path: Path) -> None:
-    import matplotlib
+    from jko_cvx.studies.solvers.figures import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     fine = df[df.n_v > df.n_v.min()]
     df = df[df.n_v == df.n_v.min()].reset_index(drop=True)

@@ -365,12 +365,9 @@ def reproduce_inhom_gamma1p5(out: Path, quick: bool = False, **sweep_opts: Any) 
 
 
 def _plt():
-    import matplotlib
+    from jko_cvx.studies.solvers.figures import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
+    return pyplot()
 
 
 def _figure(main: pd.DataFrame, path: Path, meet: float) -> None:

@@ -110,10 +110,9 @@ def reproduce_ibu(out: Path, quick: bool = False, **sweep_opts: Any) -> pd.DataF
 
 
 def _figure(df: pd.DataFrame, run: dict[str, Any], path: Path) -> None:
-    import matplotlib
+    from jko_cvx.studies.solvers.figures import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     fig, ax = plt.subplots(1, 3, figsize=(13, 3.6))
     last = run["snapshots"][-1]

@@ -117,10 +117,9 @@ def reproduce_inhom_gamma3(out: Path, quick: bool = False, **sweep_opts) -> pd.D
 
 
 def _figures(df: pd.DataFrame, out: Path) -> None:
-    import matplotlib
+    from jko_cvx.studies.solvers.figures import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     k = len(df)
     fig, ax = plt.subplots(2, k, figsize=(3.6 * k, 6.4), squeeze=False)

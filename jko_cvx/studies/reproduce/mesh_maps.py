@@ -35,10 +35,9 @@ def _cases() -> list[tuple[str, Grid, np.ndarray, type, str]]:
 
 def reproduce_mesh_maps(out: Path, quick: bool = False, **_sweep_opts: Any) -> pd.DataFrame:
     """Draw both figures and write ``mesh_maps.{csv,md}`` (``quick`` is the same: it takes a second)."""
-    import matplotlib
+    from jko_cvx.studies.solvers.figures import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)

@@ -167,10 +167,9 @@ def reproduce_gk1_records(out: Path, quick: bool = False, **sweep_opts) -> pd.Da
 
 
 def _figure(df: pd.DataFrame, path: Path) -> None:
-    import matplotlib
+    from jko_cvx.studies.solvers.figures import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     fixed = df[df.policy == "fixed"]
     adaptive = df[df.policy.isin(("halving", "halving_reset"))]
@@ -198,10 +197,9 @@ def _figure(df: pd.DataFrame, path: Path) -> None:
 
 def _adpt_tau_figure(df: pd.DataFrame, path: Path) -> None:
     """``fig:gk1_adpt_tau``: dt against t for g1 (delta0 = 0.05 left, 0.5 right), each SQP budget labelled."""
-    import matplotlib
+    from jko_cvx.studies.solvers.figures import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     runs = df[(df.policy == "halving") & (df.data == "g1")]
     panels = [d0 for d0 in (0.05, 0.5) if (runs.delta0 == d0).any()]  # the quick form runs delta0 = 0.5 only

@@ -217,10 +217,9 @@ def cost_growth(out: Path, quick: bool = False, repeats: int = 5, **_sweep_opts:
 
 
 def _plot(step: pd.DataFrame, batch: pd.DataFrame, tstep: pd.DataFrame, path: Path) -> None:
-    import matplotlib
+    from jko_cvx.studies.solvers.figures import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     fig, axes = plt.subplots(1, 3, figsize=(16, 4.3))
     ax = axes[0]

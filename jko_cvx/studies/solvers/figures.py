@@ -1,4 +1,4 @@
-"""Shared figure helpers of the studies: headless pyplot, Pareto fronts, the common axes finish."""
+"""Shared figure helpers of the studies: pyplot-free figures, Pareto fronts, the common axes finish."""
 
 from __future__ import annotations
 
@@ -21,14 +21,37 @@ def pareto_front(t: np.ndarray, e: np.ndarray) -> tuple[list[float], list[float]
     return front_t, front_e
 
 
-def pyplot():
-    """matplotlib.pyplot on the file-only Agg backend (studies run headless)."""
-    import matplotlib
+class _Headless:
+    """The slice of pyplot the studies draw with (``subplots``, ``figure``, ``close``, ``cm``), on
+    pyplot-free :class:`matplotlib.figure.Figure` objects: no backend is chosen or changed (a
+    notebook's inline backend survives a study) and no figure stays in pyplot's registry."""
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    @staticmethod
+    def figure(**fig_kw):
+        from matplotlib.figure import Figure
 
-    return plt
+        return Figure(**fig_kw)
+
+    @classmethod
+    def subplots(cls, nrows: int = 1, ncols: int = 1, **kw):
+        fig_kw = {k: kw.pop(k) for k in ("figsize", "dpi", "layout", "constrained_layout") if k in kw}
+        fig = cls.figure(**fig_kw)
+        return fig, fig.subplots(nrows, ncols, **kw)
+
+    @staticmethod
+    def close(fig=None) -> None:
+        """Nothing to release: the figure was never registered with pyplot."""
+
+    @property
+    def cm(self):
+        import matplotlib.cm
+
+        return matplotlib.cm
+
+
+def pyplot() -> _Headless:
+    """What the studies use of matplotlib.pyplot, without pyplot: figures are written to files only."""
+    return _Headless()
 
 
 def finish_figure(fig, axes, path: Path) -> None:

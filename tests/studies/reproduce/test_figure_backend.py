@@ -25,3 +25,27 @@ def test_the_tab_bu_figure_keeps_the_callers_backend(tmp_path, svg_backend):
     blowup_tables._figure(df, path)
     assert matplotlib.get_backend() == "svg"
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_the_studies_figures_are_pyplot_free(tmp_path, svg_backend):
+    import matplotlib.pyplot as plt
+
+    from jko_cvx.studies.solvers.figures import finish_figure, pyplot
+
+    before = plt.get_fignums()
+    headless = pyplot()
+    fig, axes = headless.subplots(1, 2, figsize=(4, 2), squeeze=False)
+    axes[0, 0].plot([0, 1], [0, 1], label="a", color=headless.cm.tab20(0))
+    finish_figure(fig, axes.ravel(), tmp_path / "f.png")
+    assert matplotlib.get_backend() == "svg" and plt.get_fignums() == before
+    assert (tmp_path / "f.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_no_module_of_the_package_switches_the_backend():
+    from pathlib import Path
+
+    import jko_cvx
+
+    root = Path(jko_cvx.__file__).parent
+    offenders = [str(p.relative_to(root)) for p in root.rglob("*.py") if "matplotlib.use(" in p.read_text()]
+    assert not offenders, offenders
