@@ -561,8 +561,10 @@ def load_verification(path: str | Path) -> pd.DataFrame:
 
     Checked: the directory's lock-free files against the ledger (``metadata.json``), the
     settings (``verify.json``), the run has ended (``verdict.json``), and the table holds one
-    row per compared slice of every K-th step the run took.  ``attrs`` holds ``settings``,
-    ``verified`` and ``verdict``.
+    row per compared slice of every K-th step the run took; with ``trajectory``, the comparison of
+    the tested and the reference run is recomputed from the two runs as loaded and must equal
+    ``trajectory.csv``.  ``attrs`` holds ``settings``, ``verified`` and ``verdict`` (the
+    trajectory part included) and, with ``trajectory``, the ``trajectory`` table.
 
     Raises
     ------
@@ -611,8 +613,31 @@ def load_verification(path: str | Path) -> pd.DataFrame:
         )
     table.attrs["settings"] = settings
     failure = record["reason"] if record.get("stop") == StopReason.SOLVER_FAILURE.name else None
-    table.attrs["verified"], table.attrs["verdict"] = verify_verdict(table, settings.get("reference"), failure)
+    verified, verdict = verify_verdict(table, settings.get("reference"), failure)
+    if settings.get("trajectory"):
+        tr = _load_trajectory(path, ledger, settings["tolerance"])
+        table.attrs["trajectory"] = tr.table
+        verified, verdict = verified and tr.agree, f"{verdict}; {tr.text}"
+    table.attrs["verified"], table.attrs["verdict"] = verified, verdict
     return table
+
+
+def _load_trajectory(path: Path, ledger: Ledger, tolerance: float) -> TrajectoryComparison:
+    """The trajectory part of a verification, recomputed from the two runs as loaded (each checked by
+    :func:`~jko_cvx.engine.run.load_run`) and required to equal the ``trajectory.csv`` it wrote."""
+    from jko_cvx.engine.run import load_run
+
+    file = path / "trajectory.csv"
+    if not file.exists() or not (path / REFERENCE_DIR / "verdict.json").exists():
+        raise RunDirError(
+            f"the verification in {path} compares trajectories but its reference run ({path / REFERENCE_DIR}) or "
+            f"{file.name} is missing: resume it with jko-cvx verify SCENE --out {path} --resume --trajectory"
+        )
+    ledger.verify(file)
+    tr = compare_trajectories(load_run(path), load_run(path / REFERENCE_DIR), tolerance)
+    if file.read_text() != tr.table.to_csv(index=False):
+        raise RunDirError(f"{file} is not the comparison of the two runs in {path}: it was written by other code")
+    return tr
 
 
 def _write_report(result: Verification, path: Path, ledger: Ledger) -> None:

@@ -307,6 +307,20 @@ def test_a_loose_method_parts_in_max_f_and_is_flagged():
     assert gap.iloc[3] < 1e-5 < gap.iloc[4], list(gap)
 
 
+def test_load_verification_reads_the_trajectory_part_of_the_verdict(tmp_path):
+    """A verification whose runs part in max f reads back as not verified, with the trajectory table."""
+    sc = _scene(**{"collision.options": {"tol": 0.1}})
+    out = tmp_path / "v"
+    ver = verify(sc, "conic", reference_options={"tol": 1e-12}, trajectory=True, out=out)
+    loaded = load_verification(out)
+    assert loaded.attrs["verdict"] == ver.verdict and "trajectory differs" in loaded.attrs["verdict"]
+    assert loaded.attrs["verified"] is False
+    pd.testing.assert_frame_equal(loaded.attrs["trajectory"], ver.trajectory.table, check_exact=True)
+    (out / "reference" / "verdict.json").unlink()  # a reference run gone is refused, not read as agreement
+    with pytest.raises(RunDirError, match="reference run"):
+        load_verification(out)
+
+
 def test_trajectories_matched_at_common_times_only():
     from jko_cvx.engine._trajectory import compare_trajectories
 
