@@ -171,7 +171,11 @@ PAGES: tuple[Page, ...] = (
                 figures=(R + "fig_explicit2_right.png",),
                 data=(R + "explicit2_sketch.csv", R + "explicit2_sketch_curves.csv"),
             ),
-            Entry(R + "gk1_records.md", figures=(R + "gk1_records.png",), data=(R + "gk1_records.csv",)),
+            Entry(
+                R + "gk1_records.md",
+                figures=(R + "gk1_records.png", R + "gk1_adpt_tau.png"),
+                data=(R + "gk1_records.csv",),
+            ),
             Entry(R + "gk1_final.md", figures=(R + "gk1_final.png",), data=(R + "gk1_final.csv",)),
             Entry(
                 R + "g2bu_records.md",
@@ -205,6 +209,11 @@ PAGES: tuple[Page, ...] = (
                 ),
             ),
             Entry(
+                R + "inhom_gamma1p5_events.md",
+                figures=(R + "inhom_gamma1p5_events.png",),
+                data=(R + "inhom_gamma1p5_events.csv",),
+            ),
+            Entry(
                 R + "inhom_gamma3.md",
                 figures=(R + "inhom_gamma3.png", R + "inhom_gamma3_properties.png", R + "inhom_gamma3_snapshots.png"),
                 data=(R + "inhom_gamma3.csv",),
@@ -232,6 +241,7 @@ PAGES: tuple[Page, ...] = (
             Entry("grid_convergence_failure.json", title="The 481 x 481 run that stops at the density's collapse"),
             Entry("grid_convergence_failure_no_floor.json", title="The same run without the floor every step"),
             Entry("grid_convergence_failure_before_fix.json", title="The same run before the fix"),
+            Entry("g3_dt_probe.md", data=("g3_dt_probe.csv",)),
         ),
     ),
     Page(
