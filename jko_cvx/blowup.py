@@ -309,7 +309,11 @@ def fit_blowup(
     start, stop = win
     n = stop - start
     if n < min_points:
-        return _undetermined(f"too few records on the final approach ({n} < {min_points}){cut}{early}", win)
+        return _undetermined(
+            f"too few records on the final approach (max f above {growth:g} x its first value, up to where its "
+            f"growth rate falls): {n} < {min_points}{cut}{early}",
+            win,
+        )
     tw, y = t[start:stop], np.log(m[start:stop])
     H = float(tw[-1] - t[0]) if horizon is None else float(horizon)
     T_max = tw[-1] + H

@@ -19,6 +19,7 @@ method (or the given ones); ``jko-cvx solvers`` lists the installed conic solver
 from __future__ import annotations
 
 import argparse
+import os
 import re
 import shlex
 import signal
@@ -415,6 +416,12 @@ def main(argv: list[str] | None = None) -> int:
     """The ``jko-cvx`` command: 0 on success, 2 on bad input, 130 when interrupted (SIGINT)."""
     try:
         return _main(argv)
+    except BrokenPipeError:  # the reader went away (jko-cvx scene keys | head): nothing left to tell it
+        try:  # so that the interpreter's final flush of stdout does not fail again
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        except (OSError, ValueError, AttributeError):  # stdout without a file descriptor
+            pass
+        return 141  # 128 + SIGPIPE, as a shell reports a command killed by a closed pipe
     except KeyboardInterrupt:  # SIGINT outside a run's own handling: while loading, in a study, a table
         print(
             "\njko-cvx: interrupted; run the same command again (reproductions and studies reuse the points "
@@ -556,6 +563,8 @@ def _main(argv: list[str] | None) -> int:
             return _scene(args)
         print("\n".join(conic_solvers()))
         return 0
+    except BrokenPipeError:  # an OSError, but not bad input: main() ends quietly
+        raise
     except EXPECTED_ERRORS as exc:
         print(f"jko-cvx: error: {_one_line(exc)}", file=sys.stderr)
         return 2

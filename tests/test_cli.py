@@ -296,3 +296,21 @@ def test_bad_set_values_are_refused_naming_the_key_before_anything_is_written(tm
     assert "--set v.n is given twice" in capsys.readouterr().err and not out.exists()
     assert main(["compare", "--set", "v.n=41"]) == 2
     assert "give a scene" in capsys.readouterr().err
+
+
+def test_a_closed_pipe_ends_the_command_quietly(monkeypatch, capsys):
+    import jko_cvx.cli as cli
+
+    def reader_gone(argv):
+        raise BrokenPipeError(32, "Broken pipe")  # what print() raises once `| head` has exited
+
+    monkeypatch.setattr(cli, "_main", reader_gone)
+    assert cli.main(["scene", "keys"]) == 141
+    assert capsys.readouterr().err == ""
+
+
+def test_a_misspelt_shipped_scene_name_is_answered_with_the_close_ones(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    assert main(["run", "inhom_gamma3_lambda44", "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "did you mean the shipped scene 'inhom_gamma3_lambda4'" in err and not (tmp_path / "runs").exists()

@@ -5,6 +5,8 @@
   generator ``jko-cvx scene keys`` and ``jko-cvx scene template`` share);
 * ``.. cli-reference::`` -- every subcommand and option of :func:`jko_cvx.cli.build_parser`;
 * ``.. status-table::`` -- every member of :class:`jko_cvx.collision.result.Status` and its message;
+* ``.. stop-reason-table::`` -- every :class:`jko_cvx.engine.verdict.StopReason` (why a run stopped);
+* ``.. verify-outcome-table::`` -- every outcome of a slice compared by :func:`jko_cvx.verify`;
 * ``docs/reference/api.rst`` -- written before autosummary runs, one entry per name of
   ``jko_cvx.__all__``.
 """
@@ -79,6 +81,20 @@ def status_table_rst() -> list[str]:
     return _list_table(["status", "success", "meaning"], rows, "20 10 70")
 
 
+def stop_reason_table_rst() -> list[str]:
+    from jko_cvx.engine.verdict import StopReason
+
+    rows = [[f"``{r.name}``", "yes" if r.blowup else "no", r.value] for r in StopReason]
+    return _list_table(["stop", "flags blow-up", "rule"], rows, "20 15 65")
+
+
+def verify_outcome_table_rst() -> list[str]:
+    from jko_cvx.engine.verify import OUTCOMES
+
+    rows = [[f"``{name}``", meaning] for name, meaning in OUTCOMES.items()]
+    return _list_table(["outcome", "meaning"], rows, "20 80")
+
+
 # ---- the directives --------------------------------------------------------------------------------
 
 
@@ -103,6 +119,14 @@ class CliReference(_Generated):
 
 class StatusTable(_Generated):
     generate = staticmethod(status_table_rst)
+
+
+class StopReasonTable(_Generated):
+    generate = staticmethod(stop_reason_table_rst)
+
+
+class VerifyOutcomeTable(_Generated):
+    generate = staticmethod(verify_outcome_table_rst)
 
 
 # ---- the API page ----------------------------------------------------------------------------------
@@ -137,5 +161,7 @@ def setup(app: Sphinx) -> dict[str, Any]:
     app.add_directive("scene-reference", SceneReference)
     app.add_directive("cli-reference", CliReference)
     app.add_directive("status-table", StatusTable)
+    app.add_directive("stop-reason-table", StopReasonTable)
+    app.add_directive("verify-outcome-table", VerifyOutcomeTable)
     app.connect("config-inited", write_api_page)  # before the source files are found and autosummary runs
     return {"parallel_read_safe": True, "parallel_write_safe": True}

@@ -130,6 +130,18 @@ TIMES = ("seconds", "seconds_ref")
 """The columns a resumed verification does not reproduce bit for bit (wall times)."""
 AGREE, DIFFER, METHOD_FAILED, REFERENCE_FAILED = "agree", "differ", "method failed", "reference failed"
 ILL_CONDITIONED = "ill-conditioned"
+#: Each outcome of a compared slice (the ``outcome`` column of ``verify.csv``) and what it means.
+OUTCOMES: dict[str, str] = {
+    AGREE: "the reference is certified, the tested slice is one the engine accepts, and both discrepancies "
+    "(max |f - f_ref| / max f_ref and the relative difference in J) are within the tolerance",
+    DIFFER: "both are certified and a discrepancy is above the tolerance: the verification fails here",
+    ILL_CONDITIONED: "the reference is certified but its own error estimate in f exceeds the tolerance: the step is "
+    "too ill-conditioned for the reference to pin f down; unverified, whatever the discrepancy",
+    METHOD_FAILED: "the reference is certified, the tested slice is not (the run carried it on only under "
+    "stop.on_solver_failure = false)",
+    REFERENCE_FAILED: "the reference is not certified: the slice is unverified, never counted as agreement "
+    "(the verdict names the reference to use instead)",
+}
 
 
 def default_reference(scene: Scene) -> str:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import difflib
 import math
 import tomllib
 from collections.abc import Mapping
@@ -378,7 +379,11 @@ def _read_toml(path: Path) -> dict[str, Any]:
         with path.open("rb") as fh:
             raw = fh.read(MAX_SCENE_BYTES + 1)
     except FileNotFoundError:
-        hint = f" (shipped scenes: {', '.join(shipped_scene_names())})" if path.suffix != ".toml" else ""
+        names = shipped_scene_names()
+        close = difflib.get_close_matches(path.name, names, n=4)
+        hint = "" if path.suffix == ".toml" else f" (shipped scenes: {', '.join(names)})"
+        if close and path.suffix != ".toml":
+            hint = f" (did you mean the shipped scene {' or '.join(map(repr, close))}?)"
         raise SceneError(f"scene file not found: {str(path)!r}{hint}") from None
     except OSError as exc:
         raise SceneError(f"cannot read scene file {str(path)!r}: {exc.strerror or exc}") from None
@@ -469,7 +474,9 @@ def shipped_scene(name: str, overrides: Mapping[str, Any] | None = None, limits:
     """
     names = shipped_scene_names()
     if name not in names:
-        raise SceneError(f"no shipped scene {name!r}; shipped: {names}")
+        close = difflib.get_close_matches(str(name), names, n=4)
+        hint = f" (did you mean {' or '.join(map(repr, close))}?)" if close else ""
+        raise SceneError(f"no shipped scene {name!r}{hint}; shipped: {names}")
     data = tomllib.loads((_SHIPPED / f"{name}.toml").read_text(encoding="utf-8"))
     return scene_from_dict(with_overrides(data, overrides), limits)
 

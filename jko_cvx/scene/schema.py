@@ -381,8 +381,8 @@ class StopTable(Table):
     on_solver_failure: bool = key(
         _BOOL,
         True,
-        doc="stop (flag e_f) when a collision solve fails; false: carry the uncertified state on (the verdict "
-        "then claims no blow-up from those steps)",
+        doc="stop (flag e_f, a blow-up by the paper's criterion) when a collision solve fails; false: carry the "
+        "uncertified state on (the verdict is then marked not certified and the fit uses the records before it)",
     )
 
 

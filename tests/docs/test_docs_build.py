@@ -181,6 +181,21 @@ def test_statuses_page_names_every_status(built):
         assert s.name in text and " ".join(s.value.split()) in text, s.name
 
 
+def test_statuses_page_names_every_stop_reason_and_verification_outcome(built):
+    from jko_cvx.engine import verify as verify_module
+    from jko_cvx.engine.verdict import StopReason
+
+    text = _text(built / "reference" / "statuses.html")
+    for r in StopReason:
+        assert r.name in text and r.value in text, r.name
+    # every outcome constant the module defines has a meaning, and the page shows it
+    constants = {v for k, v in vars(verify_module).items() if k.isupper() and isinstance(v, str) and v.islower()}
+    assert set(verify_module.OUTCOMES) >= {"agree", "differ", "ill-conditioned", "method failed", "reference failed"}
+    assert constants <= set(verify_module.OUTCOMES) | {"reference"}, constants - set(verify_module.OUTCOMES)
+    for name, meaning in verify_module.OUTCOMES.items():
+        assert name in text and " ".join(meaning.split()) in text, name
+
+
 def test_results_pages_are_built_with_every_file(built):
     """Each generated results page is in the site (the toctree of results/index), naming its files."""
     import jko_results

@@ -11,8 +11,8 @@
   halves before T = 0.5 depends on the SQP's iteration budget I_max, which the paper does not
   state.  With the package's I_max = 20000 the first halving comes after T; g1, delta0 = 0.5
   is also run with :data:`PAPER_HALVING` (I_max = 2000 and the paper's rule that only the
-  exit flag halves the step), where it halves from t ~ 0.46 and ends on eps_t near T
-  (``studies/paper_variants.py``, ``paper_variants.md``); the figure shows both, labelled.
+  exit flag halves the step), where it halves from t ~ 0.46 and ends on eps_t near T (the
+  paper-variants study measures the same budget); the figure shows both, labelled.
 """
 
 from __future__ import annotations
