@@ -1533,7 +1533,7 @@ _MISUSE_ROWS = 49  # rows of misuse_scene_cli.csv; _misuse_row refuses a file wi
 
 
 def _misuse_row(d: pd.DataFrame, i: int) -> tuple[str, ...]:
-    """Row ``i`` of the bad-input guide's misuse table: class, input, the outcome before, the message now.
+    """Row ``i`` of the bad-input guide's misuse table: class, input and the message.
 
     Pipes are escaped for Markdown; a message longer than 170 characters is cut at 167 and
     marked with an ellipsis.
@@ -1543,8 +1543,7 @@ def _misuse_row(d: pd.DataFrame, i: int) -> tuple[str, ...]:
     r = d.iloc[i]
     msg = str(r["message (now)"]).removeprefix("jko-cvx: error: ")
     msg = msg if len(msg) <= 170 else msg[:167] + "..."
-    before = "clear" if bool(r["clear (before)"]) else str(r["outcome (before)"])
-    return tuple(str(x).replace("|", "\\|") for x in (r["class"], r["input"], before, msg))
+    return tuple(str(x).replace("|", "\\|") for x in (r["class"], r["input"], msg))
 
 
 def _misuse_claims() -> tuple[Claim, ...]:
@@ -1553,8 +1552,8 @@ def _misuse_claims() -> tuple[Claim, ...]:
             f"misuse.row{i}",
             "../misuse_scene_cli.csv",
             lambda d, i=i: _misuse_row(d, i),
-            "| {} | `{}` | {} | {} |",
-            f"row {i} of misuse_scene_cli.csv: class, input, before, message now",
+            "| {} | `{}` | {} |",
+            f"row {i} of misuse_scene_cli.csv: class, input, message now",
             BAD_INPUT_PAGE,
         )
         for i in range(_MISUSE_ROWS)

@@ -304,6 +304,7 @@ PAGES: tuple[Page, ...] = (
 
 UNSHOWN: dict[str, str] = {
     R + "environment.json": "read for the provenance of the files beside it",
+    "environment.json": "read for the provenance of the files beside it",
     "regenerate_timing_2026-12-02T0620.md": "an earlier run of regenerate_timing.md (its CSV is listed)",
     "regenerate_timing_section_2026-12-02T0549.md": "an earlier run of the section timing (its CSV is listed)",
     "regenerate_timing_section_2026-12-02T0753.md": "an earlier run of the section timing (its CSV is listed)",
