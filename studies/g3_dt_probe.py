@@ -3,7 +3,7 @@
 ``python studies/g3_dt_probe.py [--cases lam:n:dt ...]`` runs the shipped ``inhom_gamma3_lambda{4,10}``
 scenes (121 x 121 in the paper; here N x N with N = 61 and 121) to their ``t_end`` with the step dt
 halved from the shipped 0.05, everything else as shipped, and writes
-``studies/results/g3_dt_probe.{csv,md}``: per run the peak of max f and its time, max f at the end,
+``studies/results/reproduce/g3_dt_probe.{csv,md}``: per run the peak of max f and its time, max f at the end,
 the smallest x and v spacings of the mapped grids, the verdict and the seconds.  A point already in
 the CSV (same lambda, N, dt, and the same package commit) is not run again, so the probe can be
 extended case by case.
@@ -25,7 +25,7 @@ from jko_cvx.engine.loop import simulate
 from jko_cvx.environment import environment, environment_line, record_csv, write_markdown
 from jko_cvx.scene.model import shipped_scene
 
-OUT = Path(__file__).parent / "results"
+OUT = Path(__file__).parent / "results" / "reproduce"  # evidence of the conclusions table
 CSV = OUT / "g3_dt_probe.csv"
 DEFAULT_CASES = tuple(
     [(4.0, 61, dt) for dt in (0.05, 0.025, 0.0125, 0.00625)]

@@ -241,7 +241,7 @@ PAGES: tuple[Page, ...] = (
             Entry("grid_convergence_failure.json", title="The 481 x 481 run that stops at the density's collapse"),
             Entry("grid_convergence_failure_no_floor.json", title="The same run without the floor every step"),
             Entry("grid_convergence_failure_before_fix.json", title="The same run before the fix"),
-            Entry("g3_dt_probe.md", data=("g3_dt_probe.csv",)),
+            Entry(R + "g3_dt_probe.md", data=(R + "g3_dt_probe.csv",)),
         ),
     ),
     Page(
@@ -304,7 +304,6 @@ PAGES: tuple[Page, ...] = (
 
 UNSHOWN: dict[str, str] = {
     R + "environment.json": "read for the provenance of the files beside it",
-    "environment.json": "read for the provenance of the files beside it",
     "regenerate_timing_2026-12-02T0620.md": "an earlier run of regenerate_timing.md (its CSV is listed)",
     "regenerate_timing_section_2026-12-02T0549.md": "an earlier run of the section timing (its CSV is listed)",
     "regenerate_timing_section_2026-12-02T0753.md": "an earlier run of the section timing (its CSV is listed)",

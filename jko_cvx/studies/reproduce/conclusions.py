@@ -167,19 +167,32 @@ def _ibu(root: Path) -> dict[str, Any]:
 def _gamma3(root: Path) -> dict[str, Any]:
     d = _read(root, "inhom_gamma3.csv")
     flagged = int(d["blow-up flagged"].astype(str).str.lower().eq("true").sum())
+    probe = _read(root, "g3_dt_probe.csv")
+    rise = []
+    for (lam, n), g in probe.groupby(["lambda", "n"]):
+        g = g.sort_values("dt", ascending=False)
+        if len(g) > 1:
+            rise.append(
+                f"lambda = {lam:g}, {n}^2: peak max f {g.max_f_peak.iloc[0]:.3g} at dt = {g.dt.iloc[0]:g} -> "
+                f"{g.max_f_peak.iloc[-1]:.3g} at dt = {g.dt.iloc[-1]:g}, min dx {g.min_dx.iloc[-1]:.2g}"
+            )
+    fired = probe[probe.blowup.astype(str).str.lower().eq("true")]
     return {
         "claim": "sec:sp_inhom_gamma_3: no blow-up for gamma = 3 inhomogeneous (lambda = 2 to 10)",
         "paper": "the experiments firmly support no blow-up for gamma = 3",
         "ours": (
-            f"{flagged} of {len(d)} runs flagged (lambda {d['lambda'].min():g}-{d['lambda'].max():g}, "
-            f"N = {d.N.iloc[0]}); max f {d['max f (peak)'].min():.3g}-{d['max f (peak)'].max():.3g}; "
-            f"min dx >= {d['min dx (min)'].min():.2g}"
+            f"{flagged} of {len(d)} runs flagged at the shipped dt = 0.05 (lambda {d['lambda'].min():g}-"
+            f"{d['lambda'].max():g}, N = {d.N.iloc[0]}); max f {d['max f (peak)'].min():.3g}-"
+            f"{d['max f (peak)'].max():.3g}; min dx >= {d['min dx (min)'].min():.2g}.  With dt halved: "
+            + "; ".join(rise)
+            + f"; eps_x = 1e-5 reached in {len(fired)} of {len(probe)} probe runs"
         ),
-        "evidence": "inhom_gamma3.csv",
+        "evidence": "inhom_gamma3.csv; g3_dt_probe.csv",
         "verdict": "not settled",
         "why": (
-            "one grid and one dt: no grid or dt study exists for gamma = 3 inhomogeneous, eps = 1e-5 is never "
-            "approached, and the watched max f changes about 20x between dt = 0.05 and 0.025 (unshipped runs)"
+            "the watched quantities do not converge in dt: the peak of max f keeps growing as dt is halved "
+            "(g3_dt_probe.md), so the shipped dt = 0.05 does not resolve the concentration the verdict rests on, "
+            "and whether eps_x = 1e-5 is reached depends on dt and the grid; no grid study refines beyond 121^2"
         ),
     }
 
@@ -392,7 +405,8 @@ CONCLUSIONS: tuple[Callable[[Path], dict[str, Any]], ...] = (
 EVIDENCE = (
     "discrimination.csv", "tab_bu.csv", "tab_bu_beta_scan_summary.csv", "tab_bu_tb2.csv", "paper_variants.csv",
     "gk1_records.csv",
-    "gk1_final.csv", "ibu.csv", "inhom_gamma3.csv", "inhom_gamma1p5.csv", "inhom_gamma1p5_events.csv",
+    "gk1_final.csv", "ibu.csv", "inhom_gamma3.csv", "g3_dt_probe.csv", "inhom_gamma1p5.csv",
+    "inhom_gamma1p5_events.csv",
     "property_budget_summary.csv",
     "tab_g2bu.csv", "tab_g2bu_control.csv", "explicit.csv",
 )  # fmt: skip
