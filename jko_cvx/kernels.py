@@ -124,6 +124,27 @@ class EnergySplit:
             return 0.0
         return float(np.linalg.eigvalsh(self.P_plus @ self.P_plus.T).max())
 
+    def truncated(self, h: NDArray[np.float64], below: float) -> tuple[NDArray[np.float64], float]:
+        """The convex part's leading factor and a diagonal majorant of the rest: ``(P_top, rho_tail)``.
+
+        With :math:`\\tilde K_+ = H V \\Lambda V^\\top H` (``H = diag(h)``, the eigenpairs of the
+        centred kernel, :meth:`DenseEnergy.split`), ``P_top`` keeps the rows with
+        :math:`\\lambda_i > \\text{below}\\cdot\\lambda_{max}` and ``rho_tail`` is the largest dropped
+        :math:`\\lambda_i` (0 if none), so that
+
+        .. math::  C = P_{top}^\\top P_{top} + \\rho_{tail} H^2 \\succeq \\tilde K_+,\\qquad
+                   \\delta^\\top (C - \\tilde K_+)\\delta = \\sum_{i \\notin top} (\\rho_{tail} - \\lambda_i)
+                   (v_i^\\top H\\delta)^2 + \\rho_{tail} |(I - VV^\\top) H\\delta|^2 \\ge 0:
+
+        a convex part of rank ``len(P_top)`` plus a diagonal, and ``C - K~`` is convex on mass-free
+        directions.  ``h`` is the grid's cell widths (the rows are :math:`\\sqrt{\\lambda_i} v_i^\\top H`).
+        """
+        if self.P_plus.shape[0] == 0:
+            return self.P_plus, 0.0
+        lam = np.sum((self.P_plus / h) ** 2, axis=1)
+        keep = lam > below * lam.max()
+        return self.P_plus[keep], float(lam[~keep].max()) if not keep.all() else 0.0
+
     def concave_matvec(self, delta: NDArray[np.float64]) -> NDArray[np.float64]:
         """:math:`\\tilde K_- \\delta` (last axis)."""
         return (delta @ self.P_minus.T) @ self.P_minus

@@ -7,18 +7,20 @@ this process (``time.process_time``: the machine is shared, so wall time says mo
 neighbours than about the code), side by side in one run:
 
 Part A -- one conic solve at gamma = 3, N = 121, 241, 481: f* = exp(-2 v^2) on [-2, 2],
-dt = 0.01, perspective Fisher beta = 10.  ``first``: the first solve at this N in the process
-(the split and CVXPY's DPP compile of the model included); ``split``: the operator and its split
-alone, from an empty cache; then alternating repeats on new grid objects with equal points,
+dt = 0.01, perspective Fisher beta = 10, with the default ``dc_split = "eigen"`` and with
+``"truncated"`` (the leading eigenvalues exactly, a diagonal majorant of the rest).  ``first``:
+the first solve at this N in the process (the split and CVXPY's DPP compile of the model
+included); ``split``: the operator and its split alone, from an empty cache; then alternating
+repeats on new grid objects with equal points,
 ``cached`` (the split from the cache) and ``uncached`` (the cache emptied before each, so the
 split is recomputed as a per-grid-object cache did every step); medians, and the growth exponent
 from N = 121 to the largest N (the issue's target: at most 1.5).
 
 Part B -- ``verify`` of ``inhom_gamma3_lambda4`` at 61 x 61 with the perspective form, beta =
-30, against conic, every step, against the scene's own run (the issue's target: at most 10x):
-medians of ``--repeats`` runs each after one warm-up of both (the warm-up pays CVXPY's import
-and the model compiles, reported apart), then one verification under cProfile with its time
-split by where it goes.
+30, against conic (both splits), every step, against the scene's own run (the issue's target:
+at most 10x): medians of ``--repeats`` - 1 runs each after one warm-up of both (the warm-up pays
+CVXPY's import and the model compiles, reported apart), then one verification under cProfile
+with its time split by where it goes.
 
 Run: ``OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 python studies/bench_conic_split.py`` (about
 3 minutes on 2 shared cores; ``--sizes 61 121`` for a quick look).  Writes
@@ -64,26 +66,32 @@ def _problem(n: int) -> CollisionProblem:
     return CollisionProblem(g, PowerKernel(3.0), np.exp(-2 * g.points**2), 0.01, beta=10.0, fisher="perspective")
 
 
+SPLITS = ("eigen", "truncated")
+
+
 def conic_solves(sizes: list[int], repeats: int) -> pd.DataFrame:
     rows = []
-    for n in sizes:
+    for split_name, n in ((s, n) for s in SPLITS for n in sizes):
+        def one(n: int = n, split_name: str = split_name) -> object:
+            return solve_collision(_problem(n), method="conic", dc_split=split_name)
+
         clear_operator_cache()
         clear_model_cache()
-        first, res = cpu(lambda n=n: solve_collision(_problem(n), method="conic"))
+        first, res = cpu(one)
         compile_s = res.info["compile_seconds"]
         clear_operator_cache()
         split, _ = cpu(lambda n=n: _problem(n).energy.split())
         cached, uncached, out = [], [], {}
         for _ in range(repeats):  # alternate, so both see the same neighbours
-            t, out["cached"] = cpu(lambda n=n: solve_collision(_problem(n), method="conic"))
+            t, out["cached"] = cpu(one)
             cached.append(t)
             clear_operator_cache()
-            t, out["uncached"] = cpu(lambda n=n: solve_collision(_problem(n), method="conic"))
+            t, out["uncached"] = cpu(one)
             uncached.append(t)
         a, b = out["cached"], out["uncached"]
         same = a.status is b.status and np.array_equal(a.f, b.f) and np.array_equal(a.m, b.m)
         rows.append({
-            "N": n, "first_s": first, "compile_wall_s": compile_s, "split_s": split,
+            "dc_split": split_name, "N": n, "first_s": first, "compile_wall_s": compile_s, "split_s": split,
             "cached_s": statistics.median(cached), "uncached_s": statistics.median(uncached),
             "solver_s": out["cached"].info["solver_seconds"], "passes": out["cached"].info["passes"],
             "ipm_iterations": out["cached"].iterations, "status": out["cached"].status.name,
@@ -93,8 +101,8 @@ def conic_solves(sizes: list[int], repeats: int) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def exponent(df: pd.DataFrame, column: str) -> float:
-    d = df[df.N >= 121]
+def exponent(df: pd.DataFrame, column: str, split: str) -> float:
+    d = df[(df.N >= 121) & (df.dc_split == split)]
     return float(np.polyfit(np.log(d.N), np.log(d[column]), 1)[0]) if len(d) >= 2 else float("nan")
 
 
@@ -127,19 +135,34 @@ def verify_overhead(t_end: float, repeats: int) -> tuple[pd.DataFrame, dict[str,
     scene = shipped_scene("inhom_gamma3_lambda4").replace({
         "v.n": 61, "x.n": 61, "collision.fisher": "perspective", "collision.beta": 30.0, "t_end": t_end,
     })  # fmt: skip
-    cold_verify, _ = cpu(lambda: verify(scene, "conic", every=1))
+    rows = []
+    for split_name in SPLITS:
+        rows.append(_verify_row(scene, t_end, repeats, split_name))
+    prof = cProfile.Profile()
+    t0 = time.process_time()
+    prof.enable()
+    verify(scene, "conic", every=1)
+    prof.disable()
+    profiled = time.process_time() - t0
+    return pd.DataFrame(rows), buckets(pstats.Stats(prof)), profiled
+
+
+def _verify_row(scene: object, t_end: float, repeats: int, split_name: str) -> dict[str, object]:
+    ref_opts = {"dc_split": split_name}
+    cold_verify, _ = cpu(lambda: verify(scene, "conic", every=1, reference_options=ref_opts))
     cold_run, _ = cpu(lambda: simulate(scene))
     runs, vers, ver = [], [], None
     for _ in range(repeats):
         t, run = cpu(lambda: simulate(scene))
         runs.append(t)
         clear_operator_cache()
-        t, ver = cpu(lambda: verify(scene, "conic", every=1))
+        t, ver = cpu(lambda: verify(scene, "conic", every=1, reference_options=ref_opts))
         vers.append(t)
     operators = operator_cache_info()["entries"]
     table = ver.table
     row = {
-        "scene": "inhom_gamma3_lambda4 61x61 perspective beta=30", "t_end": t_end, "steps": run.steps,
+        "scene": "inhom_gamma3_lambda4 61x61 perspective beta=30", "dc_split": split_name, "t_end": t_end,
+        "steps": run.steps,
         "slice_solves": len(table), "run_s": statistics.median(runs), "verify_s": statistics.median(vers),
         "ratio": statistics.median(vers) / statistics.median(runs), "cold_verify_s": cold_verify,
         "cold_run_s": cold_run, "operators_built": operators,
@@ -148,13 +171,7 @@ def verify_overhead(t_end: float, repeats: int) -> tuple[pd.DataFrame, dict[str,
         "verdict": ver.verdict,
     }  # fmt: skip
     print(row, flush=True)
-    prof = cProfile.Profile()
-    t0 = time.process_time()
-    prof.enable()
-    verify(scene, "conic", every=1)
-    prof.disable()
-    profiled = time.process_time() - t0
-    return pd.DataFrame([row]), buckets(pstats.Stats(prof)), profiled
+    return row
 
 
 def main() -> None:
@@ -171,7 +188,6 @@ def main() -> None:
     cs.to_csv(csv_a, index=False)
     ov.to_csv(csv_b, index=False)
     record_csv(csv_a, csv_b)
-    r = ov.iloc[0]
     md = [
         "# The conic reference with the DC split computed once per grid (`studies/bench_conic_split.py`)",
         "",
@@ -182,18 +198,20 @@ def main() -> None:
         "",
         cs.to_markdown(index=False, floatfmt=".3g"),
         "",
-        f"Growth exponent N = 121 .. {max(args.sizes)}: repeated solves {exponent(cs, 'cached_s'):.2f} "
-        f"(split from the cache), {exponent(cs, 'uncached_s'):.2f} (split recomputed); the split alone "
-        f"{exponent(cs, 'split_s'):.2f}; first solves {exponent(cs, 'first_s'):.2f} (target: at most 1.5).",
+        *[f"- growth exponent N = 121 .. {max(args.sizes)}, dc_split = {s}: repeated solves "
+          f"{exponent(cs, 'cached_s', s):.2f} (split from the cache), {exponent(cs, 'uncached_s', s):.2f} "
+          f"(split recomputed); the split alone {exponent(cs, 'split_s', s):.2f}; first solves "
+          f"{exponent(cs, 'first_s', s):.2f} (target: at most 1.5)" for s in SPLITS],
         "",
         f"## verify --reference conic --every 1 against the scene's own run (median of {max(1, args.repeats - 1)})",
         "",
         ov.drop(columns=["verdict"]).to_markdown(index=False, floatfmt=".3g"),
         "",
-        f"- verdict: {r.verdict}",
-        f"- energy operators (and DC splits) built during one verification: {r.operators_built}",
+        *[f"- dc_split = {r.dc_split}: {r.verdict}" for r in ov.itertuples()],
+        "- energy operators (and DC splits) built during one verification: "
+        + ", ".join(str(x) for x in ov.operators_built),
         "",
-        f"### Where one verification's time goes (cProfile, {profiled:.3g} CPU s profiled)",
+        f"### Where one verification's time goes (default eigen split; cProfile, {profiled:.3g} CPU s profiled)",
         "",
         "Cumulative CPU seconds of each function; nested rows are inside their callers.",
         "",
