@@ -65,8 +65,10 @@ _ENERGY_MODES = ("dc", "linearized")
 _FISHER_CONES = ("auto", "centred", "raw")
 _DC_SPLITS = ("eigen", "diagonal", "truncated")
 # "truncated": eigenvalues of the convex part below this fraction of the largest go to the
-# diagonal majorant (their largest times |h delta|^2) instead of the dense block.
-_TRUNCATE_BELOW = 1e-4
+# diagonal majorant (their largest times |h delta|^2) instead of the dense block.  1e-4 (rank
+# 14 at gamma = 3) slowed the convex-concave loop where the energy is strong (strength 50,
+# dt = 0.05: 50 passes, not settled, against eigen's 30); 1e-5 (rank 26) takes eigen's passes.
+_TRUNCATE_BELOW = 1e-5
 # "auto" centres the Fisher cone when the step is this small against the data.
 _CENTRE_BELOW = 1e-4
 # Default bound on one conic solve, all convex-concave passes together (seconds).  SCS
@@ -608,9 +610,9 @@ def solve_conic(
         positive part :math:`\\tilde K_+` (fewest passes, a dense block of rank about N in every
         solve: the interior-point factorisations cost O(N^3)), the majorant
         :math:`\\lambda_{max}(\\tilde K_+)\\|\\delta\\|^2` (cheap solves, many passes), or the
-        eigenvalues above 1e-4 of the largest exactly and a diagonal majorant of the rest
-        (:meth:`~jko_cvx.kernels.EnergySplit.truncated`; rank 14 for gamma = 3 at N = 61 to 961,
-        the passes of ``"eigen"`` on smooth data, 10-17x faster at N = 121-481); all the same
+        eigenvalues above 1e-5 of the largest exactly and a diagonal majorant of the rest
+        (:meth:`~jko_cvx.kernels.EnergySplit.truncated`; rank 26 for gamma = 3 at N = 121 to
+        961, about the passes of ``"eigen"``, about 10x faster at N = 481); all the same
         for :math:`\\gamma \\le 2`, where :math:`\\tilde K_+ = 0`.  The split is computed once per
         grid and gamma (:meth:`~jko_cvx.PowerKernel.energy_operator`).
     fisher_cone : {"auto", "centred", "raw"}, default "auto"
