@@ -25,8 +25,10 @@ an exact rank-3 form that is used instead of a dense matrix.
 
 from __future__ import annotations
 
+import functools
 import math
-import weakref
+import threading
+from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
@@ -35,7 +37,15 @@ from numpy.typing import ArrayLike, NDArray
 from jko_cvx._numbers import real_scalar
 from jko_cvx.grid import Grid
 
-__all__ = ["DenseEnergy", "EnergyOperator", "EnergySplit", "LowRankEnergy", "PowerKernel"]
+__all__ = [
+    "DenseEnergy",
+    "EnergyOperator",
+    "EnergySplit",
+    "LowRankEnergy",
+    "PowerKernel",
+    "clear_operator_cache",
+    "operator_cache_info",
+]
 
 # Largest even integer gamma whose flux block is used in the factored form (beyond it the
 # expansion in powers of v cancels too much to be worth checking).
@@ -107,12 +117,33 @@ class EnergySplit:
     P_plus: NDArray[np.float64]
     P_minus: NDArray[np.float64]
 
-    @property
+    @functools.cached_property
     def rho(self) -> float:
-        """Largest eigenvalue of the convex part, :math:`\\lambda_{max}(\\tilde K_+)` (0 if none)."""
+        """Largest eigenvalue of the convex part, :math:`\\lambda_{max}(\\tilde K_+)` (0 if none; computed once)."""
         if self.P_plus.shape[0] == 0:
             return 0.0
         return float(np.linalg.eigvalsh(self.P_plus @ self.P_plus.T).max())
+
+    def truncated(self, h: NDArray[np.float64], below: float) -> tuple[NDArray[np.float64], float]:
+        """The convex part's leading factor and a diagonal majorant of the rest: ``(P_top, rho_tail)``.
+
+        With :math:`\\tilde K_+ = H V \\Lambda V^\\top H` (``H = diag(h)``, the eigenpairs of the
+        centred kernel, :meth:`DenseEnergy.split`), ``P_top`` keeps the rows with
+        :math:`\\lambda_i > \\text{below}\\cdot\\lambda_{max}` and ``rho_tail`` is the largest dropped
+        :math:`\\lambda_i` (0 if none), so that
+
+        .. math::  C = P_{top}^\\top P_{top} + \\rho_{tail} H^2 \\succeq \\tilde K_+,\\qquad
+                   \\delta^\\top (C - \\tilde K_+)\\delta = \\sum_{i \\notin top} (\\rho_{tail} - \\lambda_i)
+                   (v_i^\\top H\\delta)^2 + \\rho_{tail} |(I - VV^\\top) H\\delta|^2 \\ge 0:
+
+        a convex part of rank ``len(P_top)`` plus a diagonal, and ``C - K~`` is convex on mass-free
+        directions.  ``h`` is the grid's cell widths (the rows are :math:`\\sqrt{\\lambda_i} v_i^\\top H`).
+        """
+        if self.P_plus.shape[0] == 0:
+            return self.P_plus, 0.0
+        lam = np.sum((self.P_plus / h) ** 2, axis=1)
+        keep = lam > below * lam.max()
+        return self.P_plus[keep], float(lam[~keep].max()) if not keep.all() else 0.0
 
     def concave_matvec(self, delta: NDArray[np.float64]) -> NDArray[np.float64]:
         """:math:`\\tilde K_- \\delta` (last axis)."""
@@ -254,6 +285,7 @@ class LowRankEnergy(EnergyOperator):
         self.a = h * v**2
         self.b = h * v
         self.h = h
+        self._split: EnergySplit | None = None
 
     def matvec(self, f: ArrayLike) -> NDArray[np.float64]:
         f = np.asarray(f, dtype=float)
@@ -270,10 +302,12 @@ class LowRankEnergy(EnergyOperator):
         return 0.5 * (np.outer(self.a, self.h) + np.outer(self.h, self.a)) - np.outer(self.b, self.b)
 
     def split(self) -> EnergySplit:
-        # On h-orthogonal directions the a h^T terms vanish: K~ = -(Q b)(Q b)^T.
-        h = self.h
-        qb = self.b - (self.b @ h) / (h @ h) * h
-        return EnergySplit(np.zeros((0, h.size)), qb[None, :])
+        if self._split is None:
+            # On h-orthogonal directions the a h^T terms vanish: K~ = -(Q b)(Q b)^T.
+            h = self.h
+            qb = self.b - (self.b @ h) / (h @ h) * h
+            self._split = EnergySplit(np.zeros((0, h.size)), qb[None, :])
+        return self._split
 
 
 @dataclass(frozen=True)
@@ -308,7 +342,6 @@ class PowerKernel:
         if not np.isfinite(g) or g <= 0:
             raise ValueError(f"gamma must be a finite number > 0, got {self.gamma!r}")
         object.__setattr__(self, "gamma", g)
-        object.__setattr__(self, "_cache", weakref.WeakKeyDictionary())
 
     def __call__(self, v: ArrayLike) -> NDArray[np.float64]:
         """:math:`W(v) = |v|^\\gamma/\\gamma`."""
@@ -327,14 +360,74 @@ class PowerKernel:
         return self.gamma == 2.0
 
     def energy_operator(self, grid: Grid) -> EnergyOperator:
-        """The energy matrix on ``grid`` (cached per grid object)."""
-        cache = self._cache  # type: ignore[attr-defined]
-        op = cache.get(grid)
-        if op is None:
-            op = LowRankEnergy(grid) if self.is_low_rank else DenseEnergy(grid, self)
-            cache[grid] = op
-        return op
+        """The energy matrix on ``grid``, shared by every grid with the same points and kernel with the same gamma.
+
+        Operators live in a bounded least-recently-used cache (:func:`operator_cache_info`), so K,
+        its DC split (:meth:`EnergyOperator.split`) and the flux block are computed once per
+        (points, gamma) however many grid objects, problems and slices share them.
+        """
+        return _cached_operator(self, grid)
 
     def potential(self, grid: Grid, f: ArrayLike) -> NDArray[np.float64]:
         """Discrete potential :math:`(W * f)(v_j) = \\sum_l W(v_j - v_l) f_l h_l`."""
         return self.energy_operator(grid).matvec(f) / grid.h
+
+
+# Operators keyed on what they are computed from: the kernel's gamma and the grid's type, points
+# and cell widths (h follows from the points; both are keyed so a wrong hit would need both equal).
+# Strength, dt and the Fisher term scale or sit beside the operator, never enter it.  The engine
+# builds a new Grid object every step and a verification re-poses every slice, so a cache per
+# grid object recomputed K and the eigendecomposition once per step.
+_OPERATOR_CACHE_BYTES = 256 * 2**20
+"""Memory bound of the operator cache (estimated bytes, :func:`operator_cache_info`)."""
+_OPERATORS: OrderedDict[tuple, tuple[EnergyOperator, int]] = OrderedDict()
+_OPERATORS_LOCK = threading.Lock()  # slices are solved on threads
+
+
+def _operator_bytes(n: int) -> int:
+    """Upper estimate of one operator's memory at N points: K, the split's factors and the flux block."""
+    return 3 * 8 * n * n
+
+
+def _cached_operator(kernel: PowerKernel, grid: Grid) -> EnergyOperator:
+    """The cached operator of ``kernel`` on ``grid`` (built, and older ones evicted, on a miss)."""
+    key = (float(kernel.gamma), type(grid), grid.points.tobytes(), grid.h.tobytes())
+    with _OPERATORS_LOCK:
+        hit = _OPERATORS.get(key)
+        if hit is not None:
+            _OPERATORS.move_to_end(key)
+            return hit[0]
+    op = LowRankEnergy(grid) if kernel.is_low_rank else DenseEnergy(grid, kernel)
+    size = _operator_bytes(grid.n)
+    with _OPERATORS_LOCK:
+        hit = _OPERATORS.get(key)  # another thread may have built it meanwhile: keep one
+        if hit is not None:
+            return hit[0]
+        _OPERATORS[key] = (op, size)
+        total = sum(s for _, s in _OPERATORS.values())
+        while total > _OPERATOR_CACHE_BYTES and len(_OPERATORS) > 1:
+            _, (_, s) = _OPERATORS.popitem(last=False)
+            total -= s
+    return op
+
+
+def clear_operator_cache() -> None:
+    """Forget every cached energy operator (the next :meth:`PowerKernel.energy_operator` builds anew)."""
+    with _OPERATORS_LOCK:
+        _OPERATORS.clear()
+
+
+def operator_cache_info() -> dict[str, int]:
+    """The operator cache: ``entries``, estimated ``bytes`` held and the bound ``max_bytes``.
+
+    Each operator is counted at :math:`3 \\cdot 8 N^2` bytes (K, the factors of its split and the
+    flux block, whether computed yet or not); the least recently used ones are evicted while the
+    total exceeds ``max_bytes`` (256 MiB: about 46 grids of 481 points, two of 2000), except the
+    newest, which is kept whatever its size.
+    """
+    with _OPERATORS_LOCK:
+        return {
+            "entries": len(_OPERATORS),
+            "bytes": sum(s for _, s in _OPERATORS.values()),
+            "max_bytes": _OPERATOR_CACHE_BYTES,
+        }

@@ -257,10 +257,13 @@ PAGES: tuple[Page, ...] = (
     Page(
         "verify",
         "Verify benchmark",
-        "What `jko-cvx verify` costs beside the run it checks, and the conic reference against N.",
+        "What `jko-cvx verify` costs beside the run it checks, the conic reference against N, and its "
+        "DC splits (eigen, truncated) side by side.",
         (
             Entry("bench_verify.md", data=("bench_verify.csv",)),
             Entry("bench_verify_conic.csv", title="One conic solve at gamma = 3 against N"),
+            Entry("bench_conic_split.md", data=("bench_conic_split.csv", "bench_conic_split_verify.csv")),
+            Entry("conic_truncated_split.md", data=("conic_truncated_split.csv",)),
         ),
     ),
     Page(
@@ -304,6 +307,7 @@ PAGES: tuple[Page, ...] = (
 
 UNSHOWN: dict[str, str] = {
     R + "environment.json": "read for the provenance of the files beside it",
+    "environment.json": "read for the provenance of the files beside it",
     "regenerate_timing_2026-12-02T0620.md": "an earlier run of regenerate_timing.md (its CSV is listed)",
     "regenerate_timing_section_2026-12-02T0549.md": "an earlier run of the section timing (its CSV is listed)",
     "regenerate_timing_section_2026-12-02T0753.md": "an earlier run of the section timing (its CSV is listed)",

@@ -63,7 +63,12 @@ __all__ = ["ConicModel", "ConicOptions", "clear_model_cache", "conic_solvers", "
 
 _ENERGY_MODES = ("dc", "linearized")
 _FISHER_CONES = ("auto", "centred", "raw")
-_DC_SPLITS = ("eigen", "diagonal")
+_DC_SPLITS = ("eigen", "diagonal", "truncated")
+# "truncated": eigenvalues of the convex part below this fraction of the largest go to the
+# diagonal majorant (their largest times |h delta|^2) instead of the dense block.  1e-4 (rank
+# 14 at gamma = 3) slowed the convex-concave loop where the energy is strong (strength 50,
+# dt = 0.05: 50 passes, not settled, against eigen's 30); 1e-5 (rank 26) takes eigen's passes.
+_TRUNCATE_BELOW = 1e-5
 # "auto" centres the Fisher cone when the step is this small against the data.
 _CENTRE_BELOW = 1e-4
 # Default bound on one conic solve, all convex-concave passes together (seconds).  SCS
@@ -248,10 +253,17 @@ def model_cache_size() -> int:
 
 
 def _build_model(
-    n: int, with_fisher: bool, centred: bool, r_plus: int, diagonal: bool, solver: str, momentum: bool = False
+    n: int,
+    with_fisher: bool,
+    centred: bool,
+    r_plus: int,
+    diagonal: bool,
+    solver: str,
+    momentum: bool = False,
+    weighted: bool = False,
 ) -> tuple[ConicModel, bool]:
     """The cached model for this structure, and whether it was compiled by this call."""
-    key = (n, with_fisher, centred, r_plus, diagonal, solver, momentum)
+    key = (n, with_fisher, centred, r_plus, diagonal, solver, momentum, weighted)
     model = _MODEL_CACHE.get(key)
     if model is not None:
         return model, False
@@ -300,6 +312,9 @@ def _build_model(
         y = cp.Variable(r_plus, name="y")
         cons.append(y == p["P_plus"] @ delta)
         obj = obj + cp.sum_squares(y)
+    if weighted:  # the truncated split's majorant of the dropped eigenvalues: |w * delta|^2
+        p["weights"] = cp.Parameter(n, nonneg=True, name="weights")
+        obj = obj + cp.sum_squares(cp.multiply(p["weights"], delta))
     prob = cp.Problem(cp.Minimize(obj), cons)
     assert prob.is_dpp(), "collision model must be DPP"
     # Compile once with placeholder values; later solves only refill the parameters.
@@ -358,8 +373,12 @@ def _fill(problem: CollisionProblem, opts: ConicOptions, fisher_cone: str) -> _F
     linearized = opts.energy == "linearized"
     rho = split.rho if opts.dc_split == "diagonal" else 0.0  # convex part: exact, or rho*|delta|^2
     diagonal = opts.dc_split == "diagonal" and rho > 0 and not linearized
-    r_plus = 0 if (linearized or diagonal) else split.P_plus.shape[0]
-    has_concave = not linearized and (split.P_minus.shape[0] > 0 or diagonal)
+    P_top, rho_tail = split.P_plus, 0.0
+    if opts.dc_split == "truncated" and not linearized:  # convex part: leading block + diagonal majorant
+        P_top, rho_tail = split.truncated(problem.grid.h, _TRUNCATE_BELOW)
+    weighted = rho_tail > 0
+    r_plus = 0 if (linearized or diagonal) else P_top.shape[0]
+    has_concave = not linearized and (split.P_minus.shape[0] > 0 or diagonal or weighted)
     mu, varsigma = (np.float64(x) for x in _flux_scale(problem))
     with_fisher = problem.fisher is not None
     centred = with_fisher and fisher_cone == "centred"
@@ -375,7 +394,9 @@ def _fill(problem: CollisionProblem, opts: ConicOptions, fisher_cone: str) -> _F
         if with_fisher:
             values["fisher"] = 2 * problem.fisher_coef * (mu**2 if centred else 1.0) / varsigma
         if r_plus:
-            values["P_plus"] = np.sqrt(ec / varsigma) * mu * split.P_plus
+            values["P_plus"] = np.sqrt(ec / varsigma) * mu * P_top
+        if weighted:
+            values["weights"] = np.sqrt(ec * rho_tail / varsigma) * mu * problem.grid.h
         if diagonal:
             values["rho"] = ec * rho * mu**2 / varsigma
         # Linear part at f*: the energy gradient and the Fisher gradient (see the centred cone).
@@ -386,7 +407,7 @@ def _fill(problem: CollisionProblem, opts: ConicOptions, fisher_cone: str) -> _F
     if not (finite and all(np.all(np.isfinite(v)) for v in values.values())):
         return None  # f* at the edge of the floating-point range (e.g. of order 1e-320): no O(1) scaling
     model, compiled_now = _build_model(
-        problem.n, with_fisher, centred, r_plus, diagonal, opts.solver, problem.conserve_momentum
+        problem.n, with_fisher, centred, r_plus, diagonal, opts.solver, problem.conserve_momentum, weighted
     )
     for name, value in values.items():
         model.params[name].value = value
@@ -397,6 +418,10 @@ def _fill(problem: CollisionProblem, opts: ConicOptions, fisher_cone: str) -> _F
         if diagonal:
             kt = split.P_plus.T @ (split.P_plus @ x) - split.concave_matvec(x)
             return -2 * ec * (rho * x - kt)
+        if weighted:  # K_c = P_top'P_top + rho_tail H^2 - K~ (PSD on mass-free directions)
+            kt = split.P_plus.T @ (split.P_plus @ x) - split.concave_matvec(x)
+            cx = P_top.T @ (P_top @ x) + rho_tail * problem.grid.h**2 * x
+            return -2 * ec * (cx - kt)
         return -2 * ec * split.concave_matvec(x)
 
     cone = ("centred" if centred else "raw") if with_fisher else None
@@ -580,11 +605,16 @@ def solve_conic(
         ``"dc"``: convex-concave loop, one conic solve per pass, until the iterate moves
         less than ``dc_tol`` -- a KKT point of the full problem.  ``"linearized"``: one
         solve with the energy linearised at ``f_star`` (semi-implicit); status ``LINEARIZED``.
-    dc_split : {"eigen", "diagonal"}, default "eigen"
+    dc_split : {"eigen", "diagonal", "truncated"}, default "eigen"
         Convex part of the difference-of-convex split on mass-free directions: the exact
-        positive part :math:`\\tilde K_+` (fewest passes, a dense block in every solve) or
-        the majorant :math:`\\lambda_{max}(\\tilde K_+)\\|\\delta\\|^2` (cheap solves); the
-        same for :math:`\\gamma \\le 2`, where :math:`\\tilde K_+ = 0`.
+        positive part :math:`\\tilde K_+` (fewest passes, a dense block of rank about N in every
+        solve: the interior-point factorisations cost O(N^3)), the majorant
+        :math:`\\lambda_{max}(\\tilde K_+)\\|\\delta\\|^2` (cheap solves, many passes), or the
+        eigenvalues above 1e-5 of the largest exactly and a diagonal majorant of the rest
+        (:meth:`~jko_cvx.kernels.EnergySplit.truncated`; rank 26 for gamma = 3 at N = 121 to
+        961, about the passes of ``"eigen"``, about 10x faster at N = 481); all the same
+        for :math:`\\gamma \\le 2`, where :math:`\\tilde K_+ = 0`.  The split is computed once per
+        grid and gamma (:meth:`~jko_cvx.PowerKernel.energy_operator`).
     fisher_cone : {"auto", "centred", "raw"}, default "auto"
         Form of the perspective-Fisher cone (module docstring).  ``"auto"`` tries the
         centred form first when the explicit flux is below 1e-4 of max f* and the raw one
