@@ -43,6 +43,7 @@ NAMES = {
         "LowRankEnergy.split",
         "EnergySplit",
         "EnergySplit.rho",
+        "EnergySplit.truncated",
         "EnergyOperator.split",
         "EnergyOperator.flux_structure",
     ],
