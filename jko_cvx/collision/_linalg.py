@@ -41,7 +41,7 @@ def solve_sym_tridiagonal(
     rhs = np.asarray(rhs, dtype=float)
     if diag.ndim == 1 and rhs.ndim == 1:
         return _solve_one(diag, off, rhs)
-    shape = np.broadcast_shapes(diag.shape, rhs.shape)
+    shape = diag.shape if diag.shape == rhs.shape else np.broadcast_shapes(diag.shape, rhs.shape)
     n = shape[-1]
     if n == 1:
         return _thomas(diag, off, rhs, shape)
@@ -49,6 +49,8 @@ def solve_sym_tridiagonal(
     D = _rows_view(diag, shape, rows)
     E = _rows_view(off, (*shape[:-1], n - 1), rows)
     R = _rows_view(rhs, shape, rows)
+    if rows == 1:  # what the chain below does for one row, without its bookkeeping
+        return _solve_one(D[0], E[0], R[0]).reshape(shape)
     x = np.empty((rows, n))
     finite = np.isfinite(D).all(axis=-1) & np.isfinite(E).all(axis=-1) & np.isfinite(R).all(axis=-1)
     chain = np.flatnonzero(finite)

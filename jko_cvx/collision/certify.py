@@ -35,7 +35,7 @@ from jko_cvx.collision._checks import check_bool, check_unit
 from jko_cvx.collision.problem import CollisionProblem, KKTResidual
 from jko_cvx.collision.result import Status
 
-__all__ = ["Certificate", "certify"]
+__all__ = ["Certificate", "certify", "certify_validated"]
 
 
 @dataclass(frozen=True)
@@ -132,6 +132,25 @@ def certify(
     check_convexity = check_bool("check_convexity", check_convexity)
     f = real_array("f", f)
     m = real_array("m", m)
+    return certify_validated(problem, f, m, kkt_tol, check_convexity, claimed, kkt, residual, second_order)
+
+
+def certify_validated(
+    problem: CollisionProblem,
+    f: NDArray[np.float64],
+    m: NDArray[np.float64],
+    kkt_tol: float,
+    check_convexity: bool,
+    claimed: Status | NDArray | None = None,
+    kkt: KKTResidual | None = None,
+    residual: float | NDArray | None = None,
+    second_order: bool | NDArray[np.bool_] | None = None,
+) -> Certificate:
+    """:func:`certify` for arguments a solver has already checked (float arrays, ``kkt_tol`` in (0, 1)).
+
+    The same certificate, without checking (and copying) the arguments again: a solver's
+    final step, once per call.  ``f`` and ``m`` are only read.
+    """
     with np.errstate(all="ignore"):
         if residual is None:
             kkt = problem.kkt_residual(f, m) if kkt is None else kkt

@@ -64,7 +64,7 @@ from jko_cvx.collision._linalg import (
     pentadiagonal_solve_batch,
 )
 from jko_cvx.collision._structured import dense_kernel_direction
-from jko_cvx.collision.certify import certify
+from jko_cvx.collision.certify import certify_validated
 from jko_cvx.collision.options import Options, Spec, option
 from jko_cvx.collision.problem import CollisionProblem, TermParts, add_pentadiagonal
 from jko_cvx.collision.result import CollisionResult, Status
@@ -310,7 +310,7 @@ def _direction(problem: CollisionProblem, bands, g: NDArray) -> tuple[NDArray, N
 
 
 def _interior_damped(
-    problem: CollisionProblem, bands, g: NDArray, f: NDArray, p: NDArray, jammed: NDArray[np.bool_]
+    problem: CollisionProblem, bands, g: NDArray, f: NDArray, p: NDArray, damping: bool
 ) -> tuple[NDArray, NDArray[np.float64]]:
     """Where the Newton step would leave the domain, damp it in the relative metric of f.
 
@@ -327,15 +327,17 @@ def _interior_damped(
     iterates settle the undamped step stays inside, so the local convergence stays Newton's.
 
     Returns the directions and the fraction-to-boundary step lengths, for a batch
-    (arrays of shape ``(B, ...)``).
+    (arrays of shape ``(B, ...)``); without ``damping`` the directions are ``p`` itself.
     """
     h = problem.grid.h
-    _, _, _, aa, _, bb, _, o1b, _, _ = band_coefficients(problem.grid)
     pf = -divergence(p) / h
     alpha = _boundary_step(f, pf)
-    todo = jammed & (alpha < 1.0)
+    if not damping:
+        return p, alpha
+    todo = alpha < 1.0
     if not todo.any():
         return p, alpha
+    _, _, _, aa, _, bb, _, o1b, _, _ = band_coefficients(problem.grid)
     mu = 1e-2 * np.abs(np.einsum("bi,bi->b", g, p))
     for _ in range(12):
         if not todo.any():
@@ -559,6 +561,8 @@ def _retire(Pa: CollisionProblem, st: NewtonState, out: dict[str, NDArray]) -> t
     rows = st.rows[done]
     for name in _RESULT_FIELDS:
         out[name][rows] = getattr(st, name)[done]
+    if done.all():  # nothing left to iterate (a single problem's last call): no empty batch to build
+        return Pa, st.take(np.zeros_like(done))
     keep = ~done
     return Pa.rows(keep), st.take(keep)
 
@@ -574,13 +578,15 @@ def _residual_test(
     A residual that no longer halves while the Newton decrement is at rounding level
     (``_STALL_CHECKS`` times) has reached its floor.  Returns the stopped slices.
     """
-    kk = np.full(check.shape, np.nan)
-    if check.all():
+    prev = st.kkt
+    every = bool(check.all())  # always so for a single problem
+    if every:
         kk = Pa.kkt_residual(st.f, st.m, parts).total
+        st.kkt = kk
     else:
+        kk = np.full(check.shape, np.nan)
         kk[check] = Pa.rows(check).kkt_residual(st.f[check], st.m[check], parts).total
-    prev = st.kkt.copy()
-    st.kkt = np.where(check, kk, st.kkt)
+        st.kkt = np.where(check, kk, st.kkt)
     st.kkt_here |= check
     done = check & (kk <= opts.tol)
     worse = check & ~done & (prev == prev) & (kk > 0.5 * prev) & (st.decrement <= 1e-14)
@@ -588,9 +594,13 @@ def _residual_test(
     # rounding level while lowering mu still lowers the residual: there a stall is a run of
     # checks in which the residual falls by less than 10 % each.
     barrier = st.mu > 0
-    worse = np.where(barrier, check & ~done & (prev == prev) & (kk > 0.9 * prev) & (st.decrement <= 1e-10), worse)
-    st.stall = np.where(check, np.where(worse, st.stall + 1, 0), st.stall)
-    stop = done | (check & (st.stall >= np.where(barrier, _BARRIER_STALL, _STALL_CHECKS)))
+    limit = _STALL_CHECKS
+    if barrier.any():
+        worse = np.where(barrier, check & ~done & (prev == prev) & (kk > 0.9 * prev) & (st.decrement <= 1e-10), worse)
+        limit = np.where(barrier, _BARRIER_STALL, _STALL_CHECKS)
+    stall = np.where(worse, st.stall + 1, 0)
+    st.stall = stall if every else np.where(check, stall, st.stall)
+    stop = done | (check & (st.stall >= limit))
     if stop.any():
         # pd is the (shifted) Cholesky of the reduced Hessian at this very point: the
         # second-order test comes for free; certify() judges the point at the end.
@@ -659,7 +669,7 @@ def _step(Pa: CollisionProblem, st: NewtonState, g: NDArray, p: NDArray, bands, 
     function (:func:`_with_barrier`), and ``mu`` is lowered after each full step.
     """
     mu = st.mu if run.barrier else None
-    p, alpha = _interior_damped(Pa, bands, g, st.f, p, np.full(st.rows.size, run.damping))
+    p, alpha = _interior_damped(Pa, bands, g, st.f, p, run.damping)
     slope = np.einsum("bi,bi->b", g, p)
     dec = -slope / np.maximum(np.abs(st.phi), _TINY)
     st.decrement = dec
@@ -756,15 +766,8 @@ def _finalise(
         if redo.any():
             Pr = P if redo.all() else P.rows(redo)
             kkt[redo] = Pr.kkt_residual(f_out[redo], m_out[redo]).total
-        cert = certify(
-            P,
-            f_out,
-            m_out,
-            kkt_tol=opts.kkt_tol,
-            check_convexity=opts.check_convexity,
-            claimed=out["status"],
-            residual=kkt,
-            second_order=out["second"],
+        cert = certify_validated(
+            P, f_out, m_out, opts.kkt_tol, opts.check_convexity, out["status"], residual=kkt, second_order=out["second"]
         )
     info = {"warm_started": warm, "jammed": out["jammed"]}
     seconds = time.perf_counter() - t0
@@ -819,6 +822,10 @@ def _cascade(P: CollisionProblem, m0: NDArray | None, opts: NewtonOptions) -> Co
     res = _attempt(P, m0, opts, _Attempt(damping=False, jam_exit=True))
     jammed = res.info["jammed"]
     damped = np.zeros_like(jammed)
+    barrier = np.zeros_like(jammed)
+    if all(s is Status.CONVERGED for s in res.status):  # the common case: no retry to look for
+        res.info.update(jammed=jammed, interior_damping=damped, barrier=barrier)
+        return res
     retry = np.array([s in _RETRY for s in res.status]) & np.all(P.f_star > 0, axis=-1)
     if retry.any():
         again = _attempt(P.rows(retry), _m0_rows(m0, retry), opts, _Attempt(True, False))
@@ -831,7 +838,6 @@ def _cascade(P: CollisionProblem, m0: NDArray | None, opts: NewtonOptions) -> Co
             better = plain.kkt_residual < res.kkt_residual[fallback]
             _merge(res, fallback, plain, better)
             damped[np.flatnonzero(fallback)[better]] = False
-    barrier = np.zeros_like(jammed)
     todo = np.array([s in _RETRY or s == Status.NOT_CERTIFIED for s in res.status]) & np.all(P.f_star > 0, axis=-1)
     if todo.any():
         again = _attempt(P.rows(todo), _m0_rows(m0, todo), opts, _Attempt(False, False, barrier=True))
@@ -934,14 +940,15 @@ def _check_newton_args(
 ) -> NewtonOptions:
     """The checked options, the warm start checked against ``problem``; errors name the option."""
     opts = NewtonOptions(tol=tol, kkt_tol=kkt_tol, max_iter=max_iter, start=start, check_convexity=check_convexity)
-    if m0 is not None:
-        shape = (*problem.f_star.shape[:-1], problem.n - 1)
-        try:
-            m0 = np.broadcast_to(np.asarray(m0, dtype=float), shape)
-        except (TypeError, ValueError) as exc:
-            raise ValueError(
-                f"m0 must be None or fluxes of shape {(problem.n - 1,)}"
-                + (f" or {shape}" if problem.batched else "")
-                + f", got {np.shape(m0)}"
-            ) from exc
+    if m0 is None:
+        return opts
+    shape = (*problem.f_star.shape[:-1], problem.n - 1)
+    try:
+        m0 = np.broadcast_to(np.asarray(m0, dtype=float), shape)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(
+            f"m0 must be None or fluxes of shape {(problem.n - 1,)}"
+            + (f" or {shape}" if problem.batched else "")
+            + f", got {np.shape(m0)}"
+        ) from exc
     return replace(opts, m0=m0)
