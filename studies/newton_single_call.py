@@ -143,6 +143,10 @@ def check(base) -> list[str]:
             results.append(pkg.solve_collision(P, method="newton", **options))
         a, b = results
         diff = [name for name in FIELDS if not _same(getattr(a, name), getattr(b, name))]
+        if case["n"] <= 121 and case["batch"] == 1 and case["kind"] == "gauss" and len(case) == 7:
+            # the SQP shares the edge-term derivatives (jko_cvx.collision.terms) with Newton
+            sqp = [pkg.solve_collision(_problem(pkg, case, i), method="sqp", max_iter=2000) for pkg in (base, jko_cvx)]
+            diff += [f"sqp.{name}" for name in FIELDS[:-1] if not _same(getattr(sqp[0], name), getattr(sqp[1], name))]
         statuses = np.ravel(a.status)
         label = f"case {i}: {case} -> {sorted({s.name for s in statuses})}, iterations {np.ravel(a.iterations).tolist()}"
         print(("DIFFERS " + str(diff) + " " if diff else "same    ") + label, flush=True)

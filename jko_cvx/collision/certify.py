@@ -145,17 +145,20 @@ def certify_validated(
     kkt: KKTResidual | None = None,
     residual: float | NDArray | None = None,
     second_order: bool | NDArray[np.bool_] | None = None,
+    objective: float | NDArray | None = None,
 ) -> Certificate:
     """:func:`certify` for arguments a solver has already checked (float arrays, ``kkt_tol`` in (0, 1)).
 
     The same certificate, without checking (and copying) the arguments again: a solver's
-    final step, once per call.  ``f`` and ``m`` are only read.
+    final step, once per call.  ``f`` and ``m`` are only read.  ``objective``: the value of
+    ``problem.objective(f, m)`` when the solver has it already (bit for bit).
     """
     with np.errstate(all="ignore"):
         if residual is None:
             kkt = problem.kkt_residual(f, m) if kkt is None else kkt
             residual = kkt.total
-        objective = problem.objective(f, m)
+        if objective is None:
+            objective = problem.objective(f, m)
     if f.ndim == 1:
         status = _judge(problem, f, m, float(residual), objective, kkt_tol, check_convexity, claimed, second_order)
         return Certificate(status, float(residual), float(objective), kkt)

@@ -337,7 +337,7 @@ def _interior_damped(
     todo = alpha < 1.0
     if not todo.any():
         return p, alpha
-    _, _, _, aa, _, bb, _, o1b, _, _ = band_coefficients(problem.grid)
+    _, _, _, aa, _, bb, _, o1b, _, _, _ = band_coefficients(problem.grid)
     mu = 1e-2 * np.abs(np.einsum("bi,bi->b", g, p))
     for _ in range(12):
         if not todo.any():
@@ -394,7 +394,7 @@ def _with_barrier(problem: CollisionProblem, f: NDArray, mu: NDArray, g: NDArray
     :math:`\\mu h_j / f_j`, which the KKT residual weighs by :math:`f_j / \\max f`: a residual of
     order :math:`\\mu`, so a small enough :math:`\\mu` passes the unmodified test.
     """
-    _, _, _, aa, _, bb, _, o1b, _, _ = band_coefficients(problem.grid)
+    _, _, _, aa, _, bb, _, o1b, _, _, _ = band_coefficients(problem.grid)
     h = problem.grid.h
     c = mu[:, None] * h / (f * f)
     diag, off1, off2 = bands
@@ -508,13 +508,16 @@ class NewtonState:
 
 _STATE_FIELDS = tuple(f.name for f in fields(NewtonState))
 # What a slice hands to the result when it leaves the iteration.
-_RESULT_FIELDS = ("m", "f", "status", "iterations", "kkt", "kkt_here", "second", "jammed")
+_RESULT_FIELDS = ("m", "f", "phi", "status", "iterations", "kkt", "kkt_here", "second", "jammed")
 
 
-def _explicit_start(P: CollisionProblem, F_star: NDArray, m: NDArray, use: NDArray[np.bool_]) -> NDArray:
+def _explicit_start(
+    P: CollisionProblem, F_star: NDArray, m: NDArray, use: NDArray[np.bool_]
+) -> tuple[NDArray, NDArray]:
     """The damped explicit step (first SQP step) where ``use`` and where it lowers J, else ``m``.
 
-    The step is damped to keep ``f >= f*/2``.
+    The step is damped to keep ``f >= f*/2``.  Also returns J at the chosen point where
+    ``m`` is zero outside ``use`` (the explicit step's J, else J at ``(f*, 0)``).
     """
     zero = np.zeros_like(m)
     pf, pm = explicit_step(P)
@@ -522,13 +525,9 @@ def _explicit_start(P: CollisionProblem, F_star: NDArray, m: NDArray, use: NDArr
     alpha = np.minimum(1.0, 0.5 * ratio)
     cand = P.on_momentum_plane(alpha[:, None] * pm)
     fc = F_star - divergence(cand) / P.grid.h
-    better = (
-        use
-        & np.all(np.isfinite(cand), axis=-1)
-        & np.all(fc > 0, axis=-1)
-        & (_objective_interior(P, fc, cand) < _objective_interior(P, F_star, zero))
-    )
-    return np.where(better[:, None], cand, m)
+    phi_c, phi_0 = _objective_interior(P, fc, cand), _objective_interior(P, F_star, zero)
+    better = use & np.all(np.isfinite(cand), axis=-1) & np.all(fc > 0, axis=-1) & (phi_c < phi_0)
+    return np.where(better[:, None], cand, m), np.where(better, phi_c, phi_0)
 
 
 def _start(P: CollisionProblem, m0: NDArray | None, opts: NewtonOptions) -> tuple[NewtonState, NDArray[np.bool_]]:
@@ -545,11 +544,13 @@ def _start(P: CollisionProblem, m0: NDArray | None, opts: NewtonOptions) -> tupl
     status = np.full(B, None, dtype=object)
     positive = (F_star > 0).all(axis=-1)
     status[~positive] = Status.NUMERICAL_ERROR  # an interior method cannot start from exact zeros
+    phi = None
     with np.errstate(all="ignore"):
         if opts.start == "explicit" and positive.any():
-            m = _explicit_start(P, F_star, m, ~warm & positive)
+            m, phi = _explicit_start(P, F_star, m, ~warm & positive)
         f = F_star - divergence(m) / h
-        phi = _objective_interior(P, f, m)
+        if phi is None or warm.any():  # without warm rows f is f* or the explicit step's: J is known
+            phi = _objective_interior(P, f, m)
     return NewtonState.initial(m, f, phi, status), warm
 
 
@@ -766,8 +767,20 @@ def _finalise(
         if redo.any():
             Pr = P if redo.all() else P.rows(redo)
             kkt[redo] = Pr.kkt_residual(f_out[redo], m_out[redo]).total
+        # J at the last iterate, as the line search evaluated it: problem.objective's value bit
+        # for bit where every f_j > 0 (no guards apply), when computed on the same batch
+        # shape (one problem; a batch's slices were evaluated in sub-batches as they retired).
+        known = out["phi"] if out["phi"] is not None and f_out.shape[0] == 1 and positive.all() else None
         cert = certify_validated(
-            P, f_out, m_out, opts.kkt_tol, opts.check_convexity, out["status"], residual=kkt, second_order=out["second"]
+            P,
+            f_out,
+            m_out,
+            opts.kkt_tol,
+            opts.check_convexity,
+            out["status"],
+            residual=kkt,
+            second_order=out["second"],
+            objective=known,
         )
     info = {"warm_started": warm, "jammed": out["jammed"]}
     seconds = time.perf_counter() - t0
@@ -787,6 +800,7 @@ def _attempt(P: CollisionProblem, m0: NDArray | None, opts: NewtonOptions, run: 
         # The factorised Hessian was the barrier function's (more positive definite than
         # J's): the certificate runs the second-order test on J itself.
         out["second"] = np.full(out["second"].shape, None, dtype=object)
+        out["phi"] = None  # the barrier function's value, not J's
     return _finalise(P, out, warm, opts, t0)
 
 
