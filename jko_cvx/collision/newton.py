@@ -190,7 +190,7 @@ def _structured_direction(fb: FluxBlock, scale: float, bands, rhs: NDArray) -> t
     k = rhs.shape[-1]
     if rhs.shape[0] < _CHAIN_MIN:
         for i in range(rhs.shape[0]):
-            if not (np.all(diag[i] > 0) and np.all(np.isfinite(diag[i]))):
+            if not ((diag[i] > 0).all() and np.isfinite(diag[i]).all()):
                 continue
             c = pentadiagonal_cholesky(diag[i] * (1 + _PD_TOL), off1[i], off2[i])
             if c is None:
@@ -259,7 +259,8 @@ def _direction(problem: CollisionProblem, bands, g: NDArray) -> tuple[NDArray, N
     """
     fb = problem.energy.flux_structure()
     scale = 2 * problem.energy_coef
-    cols = [-g]
+    minus_g = -g
+    cols = [minus_g]
     a = problem.grid.dv
     if problem.conserve_momentum and fb.kind == "rank1":
         # gamma = 2: the energy block -(dv)(dv)' lies along the constraint normal a = dv,
@@ -270,7 +271,7 @@ def _direction(problem: CollisionProblem, bands, g: NDArray) -> tuple[NDArray, N
         fb = FluxBlock("diagonal", diag=np.zeros_like(a))
     if problem.conserve_momentum:
         cols.append(np.broadcast_to(a, g.shape))
-    rhs = np.stack(cols, axis=-1) if len(cols) > 1 else (-g)[..., None]
+    rhs = np.stack(cols, axis=-1) if len(cols) > 1 else minus_g[..., None]
     H = None
     if fb.kind in ("diagonal", "rank1"):
         x, pd = _structured_direction(fb, scale, bands, rhs)
@@ -501,7 +502,7 @@ class NewtonState:
             np.full(b, np.inf), np.zeros(b, dtype=int), np.zeros(b),
         )  # fmt: skip
 
-    def take(self, keep: NDArray[np.bool_]) -> NewtonState:
+    def take(self, keep: NDArray[np.bool_] | slice) -> NewtonState:
         """The rows ``keep``."""
         return NewtonState(*(getattr(self, name)[keep] for name in _STATE_FIELDS))
 
@@ -559,11 +560,13 @@ def _retire(Pa: CollisionProblem, st: NewtonState, out: dict[str, NDArray]) -> t
     if all(s is None for s in st.status):  # a Python loop: cheaper than NumPy at B = 1
         return Pa, st
     done = np.not_equal(st.status, None)
+    if done.all():  # every slice leaves (a single problem's last call): no masks, no empty batch
+        for name in _RESULT_FIELDS:
+            out[name][st.rows] = getattr(st, name)
+        return Pa, st.take(slice(0, 0))
     rows = st.rows[done]
     for name in _RESULT_FIELDS:
         out[name][rows] = getattr(st, name)[done]
-    if done.all():  # nothing left to iterate (a single problem's last call): no empty batch to build
-        return Pa, st.take(np.zeros_like(done))
     keep = ~done
     return Pa.rows(keep), st.take(keep)
 
@@ -642,7 +645,8 @@ def _line_search(
     cannot tell (it would truncate the steps at random); the quadratic model is exact
     there, so the full, boundary-safe step is taken.  With ``mu`` the merit function is the
     barrier one (:func:`_merit`).  Returns (accepted, alpha, the merit function at the
-    accepted point, NaN where it was taken without a trial).
+    accepted point, NaN where it was taken without a trial, and the last trial point
+    ``(m, f)`` when every slice accepted it, else None).
     """
     h = Pa.grid.h
     accepted = dec <= 1e-12
@@ -650,6 +654,7 @@ def _line_search(
         # The barrier drives f_j towards rounding level: a full step must still keep f > 0.
         accepted &= (Pa.f_star - divergence(m + alpha[:, None] * p) / h > 0).all(axis=-1)
     phi_new = np.full_like(phi0, np.nan)
+    point = None
     for _ in range(_MAX_BACKTRACKS):
         if accepted.all():
             break
@@ -660,7 +665,8 @@ def _line_search(
         phi_new = np.where(ok, phit, phi_new)
         accepted |= ok
         alpha = np.where(accepted, alpha, 0.5 * alpha)
-    return accepted, alpha, phi_new
+        point = (trial, ft) if ok.all() else None  # every slice at this trial: the step itself
+    return accepted, alpha, phi_new, point
 
 
 def _step(Pa: CollisionProblem, st: NewtonState, g: NDArray, p: NDArray, bands, run: _Attempt, tol: float) -> None:
@@ -678,8 +684,10 @@ def _step(Pa: CollisionProblem, st: NewtonState, g: NDArray, p: NDArray, bands, 
     # and the residual far below dec, so the KKT residual is checked once dec reaches tol
     # (or the rounding level 1e-13, below which it cannot fall further).
     st.near = dec <= max(tol, 1e-13)
-    accepted, alpha, phi_new = _line_search(Pa, st.m, p, alpha, st.phi, slope, dec, mu)
-    if accepted.all():
+    accepted, alpha, phi_new, point = _line_search(Pa, st.m, p, alpha, st.phi, slope, dec, mu)
+    if point is not None:  # the last trial, m + alpha p and its f, bit for bit
+        st.m, st.f = point
+    elif accepted.all():
         st.m = st.m + alpha[:, None] * p
         st.f = Pa.f_star - divergence(st.m) / Pa.grid.h
     else:
@@ -736,7 +744,8 @@ def _iterate(P: CollisionProblem, st: NewtonState, opts: NewtonOptions, run: _At
                 for i in np.nonzero(np.equal(st.status, None))[0]:
                     st.status[i] = Status.MAX_ITERATIONS if (pd[i] or not opts.check_convexity) else Status.NONCONVEX
                 break
-            _no_descent(st, g, bands, p, valid)
+            if any(s is None for s in st.status):
+                _no_descent(st, g, bands, p, valid)
             if not all(s is None for s in st.status):
                 free = np.equal(st.status, None)
                 Pa, st = _retire(Pa, st, out)
