@@ -127,7 +127,7 @@ def _fused(
     per-term split of the gradient for every slice (True), none (False), or for the slices
     of a boolean mask (the same numbers as those rows of the whole split).
     """
-    h = problem.grid.h
+    h = band_coefficients(problem.grid, f.ndim)[0]
     x, y = f[..., :-1], f[..., 1:]
     s = x + y
     wd = wasserstein_derivatives(m, s, problem.wass_coef)
