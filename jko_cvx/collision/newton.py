@@ -330,7 +330,7 @@ def _interior_damped(
     Returns the directions and the fraction-to-boundary step lengths, for a batch
     (arrays of shape ``(B, ...)``); without ``damping`` the directions are ``p`` itself.
     """
-    h = problem.grid.h
+    h = band_coefficients(problem.grid, f.ndim)[0]
     pf = -divergence(p) / h
     alpha = _boundary_step(f, pf)
     if not damping:
@@ -525,7 +525,7 @@ def _explicit_start(
     ratio = np.where(pf < 0, -F_star / np.where(pf < 0, pf, -1.0), np.inf).min(axis=-1)
     alpha = np.minimum(1.0, 0.5 * ratio)
     cand = P.on_momentum_plane(alpha[:, None] * pm)
-    fc = F_star - divergence(cand) / P.grid.h
+    fc = F_star - divergence(cand) / band_coefficients(P.grid, 2)[0]
     phi_c, phi_0 = _objective_interior(P, fc, cand), _objective_interior(P, F_star, zero)
     better = use & np.all(np.isfinite(cand), axis=-1) & np.all(fc > 0, axis=-1) & (phi_c < phi_0)
     return np.where(better[:, None], cand, m), np.where(better, phi_c, phi_0)
@@ -535,7 +535,7 @@ def _start(P: CollisionProblem, m0: NDArray | None, opts: NewtonOptions) -> tupl
     """The first iterate (``m0`` where it keeps f > 0, else the explicit step or 0), and where m0 was used."""
     F_star = P.f_star
     B, n = F_star.shape
-    h = P.grid.h
+    h = band_coefficients(P.grid, 2)[0]  # the (1, n) row of the batch
     m = np.zeros((B, n - 1))
     warm = np.zeros(B, dtype=bool)
     if m0 is not None:
@@ -648,12 +648,12 @@ def _line_search(
     accepted point, NaN where it was taken without a trial, and the last trial point
     ``(m, f)`` when every slice accepted it, else None).
     """
-    h = Pa.grid.h
+    h = band_coefficients(Pa.grid, 2)[0]
     accepted = dec <= 1e-12
     if mu is not None and accepted.any():
         # The barrier drives f_j towards rounding level: a full step must still keep f > 0.
         accepted &= (Pa.f_star - divergence(m + alpha[:, None] * p) / h > 0).all(axis=-1)
-    phi_new = np.full_like(phi0, np.nan)
+    phi_new = np.full(phi0.shape, np.nan)
     point = None
     for _ in range(_MAX_BACKTRACKS):
         if accepted.all():
@@ -689,16 +689,17 @@ def _step(Pa: CollisionProblem, st: NewtonState, g: NDArray, p: NDArray, bands, 
         st.m, st.f = point
     elif accepted.all():
         st.m = st.m + alpha[:, None] * p
-        st.f = Pa.f_star - divergence(st.m) / Pa.grid.h
+        st.f = Pa.f_star - divergence(st.m) / band_coefficients(Pa.grid, 2)[0]
     else:
         st.status[~accepted] = Status.NUMERICAL_ERROR  # no decrease even along a tiny step
         st.m[accepted] = st.m[accepted] + alpha[accepted, None] * p[accepted]
         st.f[accepted] = Pa.f_star[accepted] - divergence(st.m[accepted]) / Pa.grid.h
     fresh = accepted & np.isnan(phi_new)  # full steps were taken without evaluating J
     st.phi = np.where(accepted, phi_new, st.phi)
-    if fresh.any():
-        Pu = Pa if fresh.all() else Pa.rows(fresh)
-        st.phi[fresh] = _merit(Pu, st.f[fresh], st.m[fresh], None if mu is None else mu[fresh])
+    if fresh.all():
+        st.phi = _merit(Pa, st.f, st.m, mu)
+    elif fresh.any():
+        st.phi[fresh] = _merit(Pa.rows(fresh), st.f[fresh], st.m[fresh], None if mu is None else mu[fresh])
     if run.barrier:
         # A full step means the iterate is in the quadratic region of the barrier function
         # for this mu: move on along the central path.

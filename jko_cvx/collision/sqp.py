@@ -88,7 +88,7 @@ from jko_cvx.collision.certify import certify
 from jko_cvx.collision.options import Options, Spec, option
 from jko_cvx.collision.problem import MOMENTUM_METHODS, CollisionProblem, methods_text
 from jko_cvx.collision.result import CollisionResult, Status
-from jko_cvx.collision.terms import FISHER_TERMS, wasserstein_derivatives
+from jko_cvx.collision.terms import FISHER_TERMS, band_coefficients, wasserstein_derivatives
 
 __all__ = [
     "SAFEGUARDS",
@@ -135,7 +135,7 @@ def _step_from(
     problem: CollisionProblem, hf: NDArray, hm: NDArray, gf: NDArray, gm: NDArray
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """The step ``(p_f, p_m)`` of the tridiagonal system from the diagonal Hessian and the gradient."""
-    h = problem.grid.h
+    h = band_coefficients(problem.grid, 2 if np.ndim(hf) == 2 else 1)[0]  # a (1, n) row for a batch: no broadcast
     a = hf / h**2
     diag = a[..., :-1] + a[..., 1:] + hm
     off = -a[..., 1:-1]
@@ -159,7 +159,7 @@ def gradient_and_sqp_step(
     """
     x, y = f[..., :-1], f[..., 1:]
     s = x + y
-    if not np.all(s > 0):
+    if not (s > 0).all():
         gf, gm = problem.gradient(f, m)
         return (gf, gm, *sqp_step(problem, f, m, gf, gm))
     wd = wasserstein_derivatives(m, s, problem.wass_coef)

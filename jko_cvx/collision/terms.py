@@ -39,6 +39,15 @@ __all__ = [
 Array = NDArray[np.float64]
 
 
+def _row(coef: Array, like: Array) -> Array:
+    """The per-edge coefficients ``coef`` as a ``(1, n)`` row where ``like`` is a batch ``(B, n)``.
+
+    The same numbers; NumPy then broadcasts no 1-D operand against a 2-D one, which costs
+    about as much as the arithmetic itself on arrays of N ~ 100.
+    """
+    return coef[None] if np.ndim(like) == 2 and np.ndim(coef) == 1 else coef
+
+
 def wasserstein_value(m: Array, s: Array) -> Array:
     """:math:`m^2/s` per edge (interior: ``s > 0``); the objective weights it by ``2 dv``."""
     return m * m / s
@@ -58,8 +67,7 @@ class WassersteinDerivatives:
 def wasserstein_derivatives(m: Array, s: Array, w: Array) -> WassersteinDerivatives:
     """Derivatives of :math:`w m^2/s` with :math:`u = m/s`: gradient :math:`(-w u^2, 2 w u)`, Hessian
     :math:`(2 w u^2/s, -2 w u/s, 2 w/s)` in :math:`(s, s), (s, m), (m, m)`."""
-    if np.ndim(m) == 2 and np.ndim(w) == 1:
-        w = w[None]  # a (1, n) row: the same numbers, no broadcast of a 1-D operand
+    w = _row(w, m)
     u = m / s
     w2 = 2 * w
     g_m = w2 * u  # shared: 2 w u u / s = (2 w u) u / s and -2 w u / s = -(2 w u) / s, bit for bit
@@ -83,11 +91,13 @@ class PerspectiveFisher:
 
     def gradient(self, x: Array, y: Array, s: Array, c: Array) -> tuple[Array, Array]:
         """:math:`c\\,(\\partial_x\\psi, \\partial_y\\psi) = c(-4r - 2r^2, 4r - 2r^2)`, :math:`r = (y-x)/s`."""
+        c = _row(c, s)
         r = (y - x) / s
         return c * (-4 * r - 2 * r * r), c * (4 * r - 2 * r * r)
 
     def hessian(self, x: Array, y: Array, s: Array, c: Array) -> tuple[Array, Array, Array]:
         """:math:`c\\,(\\psi_{xx}, \\psi_{yy}, \\psi_{xy}) = (16c/s^3)(y^2, x^2, -xy)`."""
+        c = _row(c, s)
         k = 16 * c / (s * s * s)
         return k * y * y, k * x * x, -(k * x * y)
 
@@ -100,8 +110,7 @@ class PerspectiveFisher:
         one Newton iteration needs, at fewer NumPy calls.  ``mixed=False`` leaves ``hxy``
         out (None): the paper's SQP uses the diagonal only.
         """
-        if np.ndim(s) == 2 and np.ndim(c) == 1:
-            c = c[None]  # a (1, n) row: the same numbers, no broadcast of a 1-D operand
+        c = _row(c, s)
         r = (y - x) / s
         r2 = 2 * r * r
         k = 16 * c / (s * s * s)
@@ -125,11 +134,13 @@ class LogFisher:
 
     def gradient(self, x: Array, y: Array, s: Array, c: Array) -> tuple[Array, Array]:
         """:math:`c(-L s/x + L^2/2,\\ L s/y + L^2/2)`, :math:`L = \\log y - \\log x`."""
+        c = _row(c, s)
         L = np.log(y) - np.log(x)
         return c * (-L * s / x + 0.5 * L * L), c * (L * s / y + 0.5 * L * L)
 
     def hessian(self, x: Array, y: Array, s: Array, c: Array) -> tuple[Array, Array, Array]:
         """:math:`c\\,(s + L(y-x))/x^2`, :math:`c\\,(s + L(y-x))/y^2`, :math:`c\\,(-s + L(x-y))/(xy)`."""
+        c = _row(c, s)
         L = np.log(y) - np.log(x)
         q = c * (s + L * (y - x))
         return q / (x * x), q / (y * y), c * (-s + L * (x - y)) / (x * y)
@@ -143,8 +154,7 @@ class LogFisher:
         logarithms, and ``L^2/2``): what one Newton iteration needs, at fewer NumPy calls.
         ``mixed=False`` leaves ``hxy`` out (None): the paper's SQP uses the diagonal only.
         """
-        if np.ndim(s) == 2 and np.ndim(c) == 1:
-            c = c[None]  # a (1, n) row: the same numbers, no broadcast of a 1-D operand
+        c = _row(c, s)
         L = np.log(y) - np.log(x)
         half_l2 = 0.5 * L * L
         q = c * (s + L * (y - x))
