@@ -146,7 +146,10 @@ def _pentadiagonal_storage(diag: NDArray, off1: NDArray, off2: NDArray) -> NDArr
 def pentadiagonal_cholesky(diag: NDArray, off1: NDArray, off2: NDArray) -> NDArray | None:
     """Lower banded Cholesky factor (LAPACK ``dpbtrf``, ``(3, n)`` storage) of one symmetric
     pentadiagonal matrix, or None where it is not positive definite (or its last pivot is not finite)."""
-    ab = _pentadiagonal_storage(diag[None], off1[None], off2[None])[0].T
+    ab = np.zeros((3, diag.shape[-1]), order="F")  # _pentadiagonal_storage of one matrix, as LAPACK takes it
+    ab[0] = diag
+    ab[1, :-1] = off1
+    ab[2, :-2] = off2
     c, info = lapack.dpbtrf(ab, lower=1)
     return c if info == 0 and np.isfinite(c[0, -1]) else None
 

@@ -48,6 +48,7 @@ stalled with the residual above tolerance).
 
 from __future__ import annotations
 
+import functools
 import time
 from dataclasses import dataclass, fields, replace
 from typing import Any
@@ -148,11 +149,11 @@ def _fused(
     if want_parts is not False:  # the per-term split, for the KKT residual's scale
         rows = slice(None) if want_parts is True else want_parts
         g_s, g_m, gf_r, gfe_r = wd.g_s[rows], wd.g_m[rows], gf[rows], gfe[rows]
-        gfw = np.zeros_like(gf_r)
+        gfw = np.zeros(gf_r.shape)
         gfw[..., :-1] += g_s
         gfw[..., 1:] += g_s
         gff = gf_r - gfe_r - gfw
-        zero = np.zeros_like(g_m)
+        zero = np.zeros(g_m.shape)
         parts = TermParts((gfw, g_m), (gff, zero), (gfe_r, zero))
     return g, reduced_bands(problem.grid, xx, yy, xy, wd.h_sm, wd.h_mm), parts
 
@@ -185,7 +186,7 @@ def _structured_direction(fb: FluxBlock, scale: float, bands, rhs: NDArray) -> t
     diag, off1, off2 = bands
     if fb.kind == "diagonal":
         diag = diag + scale * fb.diag
-    x = np.zeros_like(rhs)
+    x = np.zeros(rhs.shape)
     pd = np.zeros(rhs.shape[0], dtype=bool)
     k = rhs.shape[-1]
     if rhs.shape[0] < _CHAIN_MIN:
@@ -520,7 +521,7 @@ def _explicit_start(
     The step is damped to keep ``f >= f*/2``.  Also returns J at the chosen point where
     ``m`` is zero outside ``use`` (the explicit step's J, else J at ``(f*, 0)``).
     """
-    zero = np.zeros_like(m)
+    zero = np.zeros(m.shape)
     pf, pm = explicit_step(P)
     ratio = np.where(pf < 0, -F_star / np.where(pf < 0, pf, -1.0), np.inf).min(axis=-1)
     alpha = np.minimum(1.0, 0.5 * ratio)
@@ -845,8 +846,8 @@ def _cascade(P: CollisionProblem, m0: NDArray | None, opts: NewtonOptions) -> Co
     """
     res = _attempt(P, m0, opts, _Attempt(damping=False, jam_exit=True))
     jammed = res.info["jammed"]
-    damped = np.zeros_like(jammed)
-    barrier = np.zeros_like(jammed)
+    damped = np.zeros(jammed.shape, dtype=bool)
+    barrier = np.zeros(jammed.shape, dtype=bool)
     if all(s is Status.CONVERGED for s in res.status):  # the common case: no retry to look for
         res.info.update(jammed=jammed, interior_damping=damped, barrier=barrier)
         return res
@@ -959,11 +960,26 @@ def solve_newton(
 solve_newton.batched = True  # type: ignore[attr-defined]
 
 
+@functools.lru_cache(maxsize=64, typed=True)
+def _checked_options(tol: Any, kkt_tol: Any, max_iter: Any, start: Any, check_convexity: Any) -> NewtonOptions:
+    """:class:`NewtonOptions` of these values, checked once per distinct values and types.
+
+    ``typed=True``: ``1``, ``1.0``, ``True`` and ``np.float64(1.0)`` are separate entries, each
+    checked on its own; a value that fails raises every time (exceptions are not cached).
+    """
+    return NewtonOptions(tol=tol, kkt_tol=kkt_tol, max_iter=max_iter, start=start, check_convexity=check_convexity)
+
+
 def _check_newton_args(
     problem: CollisionProblem, tol: Any, kkt_tol: Any, max_iter: Any, m0: Any, start: Any, check_convexity: Any
 ) -> NewtonOptions:
     """The checked options, the warm start checked against ``problem``; errors name the option."""
-    opts = NewtonOptions(tol=tol, kkt_tol=kkt_tol, max_iter=max_iter, start=start, check_convexity=check_convexity)
+    try:
+        opts = _checked_options(tol, kkt_tol, max_iter, start, check_convexity)
+    except TypeError as exc:  # an unhashable argument: check it without the cache
+        if "unhashable" not in str(exc):
+            raise
+        opts = NewtonOptions(tol=tol, kkt_tol=kkt_tol, max_iter=max_iter, start=start, check_convexity=check_convexity)
     if m0 is None:
         return opts
     shape = (*problem.f_star.shape[:-1], problem.n - 1)
