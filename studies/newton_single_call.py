@@ -118,7 +118,8 @@ def _same(a, b) -> bool:
         return a.name == b.name
     a_arr, b_arr = np.asarray(a), np.asarray(b)
     if a_arr.dtype == object or b_arr.dtype == object:
-        return a_arr.shape == b_arr.shape and all(_same(x, y) for x, y in zip(a_arr.ravel(), b_arr.ravel(), strict=True))
+        pairs = zip(a_arr.ravel(), b_arr.ravel(), strict=True)
+        return a_arr.shape == b_arr.shape and all(_same(x, y) for x, y in pairs)
     if a_arr.shape != b_arr.shape or a_arr.dtype != b_arr.dtype:
         return False
     if a_arr.dtype.kind == "f":
@@ -148,7 +149,8 @@ def check(base) -> list[str]:
             sqp = [pkg.solve_collision(_problem(pkg, case, i), method="sqp", max_iter=2000) for pkg in (base, jko_cvx)]
             diff += [f"sqp.{name}" for name in FIELDS[:-1] if not _same(getattr(sqp[0], name), getattr(sqp[1], name))]
         statuses = np.ravel(a.status)
-        label = f"case {i}: {case} -> {sorted({s.name for s in statuses})}, iterations {np.ravel(a.iterations).tolist()}"
+        names = sorted({s.name for s in statuses})
+        label = f"case {i}: {case} -> {names}, iterations {np.ravel(a.iterations).tolist()}"
         print(("DIFFERS " + str(diff) + " " if diff else "same    ") + label, flush=True)
         if diff:
             bad.append(f"{label}: {diff}")

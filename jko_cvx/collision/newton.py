@@ -732,7 +732,7 @@ def _iterate(P: CollisionProblem, st: NewtonState, opts: NewtonOptions, run: _At
             Pa, st = _retire(Pa, st, out)
             if st.rows.size == 0:
                 break
-            check = st.near | (it == opts.max_iter) | run.barrier
+            check = np.ones_like(st.near) if (it == opts.max_iter or run.barrier) else st.near
             checking = bool(check.any())
             g, bands, parts = _fused(Pa, st.f, st.m, want_parts=check if checking else False)
             if run.barrier:

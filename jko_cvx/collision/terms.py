@@ -184,7 +184,8 @@ def band_coefficients(grid, ndim: int = 1) -> tuple:
     if c is None:
         h = grid.h
         a, b = -1 / h[:-1], 1 / h[1:]
-        flat = (h, a, b, a * a, 2 * a * b, b * b, a[:-1] * a[1:], b[:-1] * a[1:], b[:-1] * b[1:], b[:-2] * a[2:], 2 * (a + b))
+        pairs = (a[:-1] * a[1:], b[:-1] * a[1:], b[:-1] * b[1:], b[:-2] * a[2:])
+        flat = (h, a, b, a * a, 2 * a * b, b * b, *pairs, 2 * (a + b))
         c = {1: flat, 2: tuple(x[None] for x in flat)}
         _BAND_CACHE[grid] = c
     return c[ndim]
@@ -204,7 +205,11 @@ def reduced_bands(grid, xx: Array, yy: Array, xy: Array, h_sm: Array, h_mm: Arra
     d[..., 1:] += yy
     diag = h_mm + aa * d[..., :-1] + ab2 * xy + bb * d[..., 1:] + mixed * h_sm
     off1 = (
-        o1a * xy[..., :-1] + o1b * d[..., 1:-1] + o1c * xy[..., 1:] + b[..., :-1] * h_sm[..., 1:] + a[..., 1:] * h_sm[..., :-1]
+        o1a * xy[..., :-1]
+        + o1b * d[..., 1:-1]
+        + o1c * xy[..., 1:]
+        + b[..., :-1] * h_sm[..., 1:]
+        + a[..., 1:] * h_sm[..., :-1]
     )
     off2 = o2 * xy[..., 1:-1]
     return diag, off1, off2
