@@ -70,8 +70,9 @@ def wasserstein_derivatives(m: Array, s: Array, w: Array) -> WassersteinDerivati
     w = _row(w, m)
     u = m / s
     w2 = 2 * w
-    g_m = w2 * u  # shared: 2 w u u / s = (2 w u) u / s and -2 w u / s = -(2 w u) / s, bit for bit
-    return WassersteinDerivatives(-w * u * u, g_m, g_m * u / s, -g_m / s, w2 / s)
+    g_m = w2 * u  # shared: 2 w u u / s is (2 w u) u / s, the same operations in the same order
+    # -2 w u / s is not written -(2 w u) / s: the same number, but a NaN would change sign
+    return WassersteinDerivatives(-w * u * u, g_m, g_m * u / s, -2 * w * u / s, w2 / s)
 
 
 class PerspectiveFisher:
