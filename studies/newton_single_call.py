@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import re
 import statistics
 import subprocess
@@ -41,6 +42,7 @@ import pandas as pd
 
 import jko_cvx
 from jko_cvx.environment import record_csv, write_markdown
+from jko_cvx.threads import thread_environment
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "studies" / "results"
@@ -168,20 +170,34 @@ def timing(base, sizes: list[int], rounds: int, inner: int) -> pd.DataFrame:
                 "newton": lambda Pn=Pn: jko_cvx.solve_collision(Pn, method="newton"),
                 "sqp": lambda Pn=Pn: jko_cvx.solve_collision(Pn, method="sqp"),
             }
-            last = {k: fn() for k, fn in fns.items()}
+            if n == 121 and fisher == "perspective" and beta == 10.0:  # the conic / Newton target
+                fns["conic"] = lambda Pn=Pn: jko_cvx.solve_collision(Pn, method="conic")
+            last = {k: fn() for k, fn in fns.items()}  # warm-up (conic's compile)
+            # ~10 ms of solves per round and method; a method slower than 0.2 s per solve runs 3 rounds
+            first = {}
+            for k, fn in fns.items():
+                t0 = time.process_time()
+                fn()
+                first[k] = time.process_time() - t0
+            reps = {k: max(1, min(inner, round(0.01 / max(t, 1e-6)))) for k, t in first.items()}
             times = {k: [] for k in fns}
-            for _ in range(rounds):
+            for r in range(rounds):
                 for k, fn in fns.items():
+                    if first[k] > 0.2 and r >= 3:
+                        continue
                     t0 = time.process_time()
-                    for _ in range(inner):
+                    for _ in range(reps[k]):
                         fn()
-                    times[k].append((time.process_time() - t0) / inner)
+                    times[k].append((time.process_time() - t0) / reps[k])
             med = {k: statistics.median(v) for k, v in times.items()}
             row = {"N": n, "fisher": fisher, "beta": beta}
             row.update({f"{k}_ms": 1e3 * v for k, v in med.items()})
             row["newton/base"] = med["newton"] / med["base_newton"]
             row["sqp/newton"] = med["sqp"] / med["newton"]
             row["sqp/base_newton"] = med["sqp"] / med["base_newton"]
+            if "conic" in med:
+                row["conic/newton"] = med["conic"] / med["newton"]
+                row["conic/base_newton"] = med["conic"] / med["base_newton"]
             row["newton_it"] = last["newton"].iterations
             row["sqp_it"] = last["sqp"].iterations
             rows.append(row)
@@ -215,8 +231,10 @@ def main(argv: list[str] | None = None) -> int:
                     f"Baseline {args.base}, tree at {head.strip()} (with its working changes).  "
                     "The step of `studies/bench_collision.py` (gamma = 1, f* = exp(-2 v^2) on [-2, 2], "
                     "dt = 0.01, default tolerances) through `solve_collision`; CPU time "
-                    f"(`time.process_time`), median over {args.rounds} rounds of {args.inner} solves, the "
-                    "three solvers interleaved in every round.  "
+                    f"(`time.process_time`), median over {args.rounds} rounds (3 for a solver slower than "
+                    f"0.2 s) of up to {args.inner} solves (about 10 ms), the solvers interleaved in every "
+                    "round; conic at N = 121 with the perspective form and beta = 10 only.  "
+                    f"Threads: {thread_environment()}; load average {os.getloadavg()[0]:.1f} at the start.  "
                     + ("Every result of the equality family is bitwise the baseline's.\n\n" if args.check and not bad
                        else "\n\n")
                     + df.to_markdown(index=False, floatfmt=".3g")

@@ -557,14 +557,23 @@ def _start(P: CollisionProblem, m0: NDArray | None, opts: NewtonOptions) -> tupl
 
 
 def _retire(Pa: CollisionProblem, st: NewtonState, out: dict[str, NDArray]) -> tuple[CollisionProblem, NewtonState]:
-    """Move the slices that have a status from ``st`` to the result arrays ``out``."""
+    """Move the slices that have a status from ``st`` to the result arrays ``out``.
+
+    ``out`` starts empty; every slice leaves exactly once, so the result arrays are allocated
+    (or, when every slice leaves at once, taken from the state) at the first call that moves any.
+    """
     if all(s is None for s in st.status):  # a Python loop: cheaper than NumPy at B = 1
         return Pa, st
     done = np.not_equal(st.status, None)
     if done.all():  # every slice leaves (a single problem's last call): no masks, no empty batch
-        for name in _RESULT_FIELDS:
-            out[name][st.rows] = getattr(st, name)
+        if not out:  # ... and all at once: the state's arrays are the result's
+            out.update((name, getattr(st, name)) for name in _RESULT_FIELDS)
+        else:
+            for name in _RESULT_FIELDS:
+                out[name][st.rows] = getattr(st, name)
         return Pa, st.take(slice(0, 0))
+    if not out:  # the first slices to leave: the state still holds the whole batch
+        out.update((name, np.empty_like(getattr(st, name))) for name in _RESULT_FIELDS)
     rows = st.rows[done]
     for name in _RESULT_FIELDS:
         out[name][rows] = getattr(st, name)[done]
@@ -725,7 +734,7 @@ def _iterate(P: CollisionProblem, st: NewtonState, opts: NewtonOptions, run: _At
 
     Returns each slice's final ``_RESULT_FIELDS``.
     """
-    out = {name: getattr(st, name).copy() for name in _RESULT_FIELDS}
+    out: dict[str, NDArray] = {}  # filled by _retire
     Pa = P
     with np.errstate(all="ignore"):
         for it in range(opts.max_iter + 1):
