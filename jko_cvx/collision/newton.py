@@ -528,7 +528,7 @@ def _explicit_start(
     cand = P.on_momentum_plane(alpha[:, None] * pm)
     fc = F_star - divergence(cand) / band_coefficients(P.grid, 2)[0]
     phi_c, phi_0 = _objective_interior(P, fc, cand), _objective_interior(P, F_star, zero)
-    better = use & np.all(np.isfinite(cand), axis=-1) & np.all(fc > 0, axis=-1) & (phi_c < phi_0)
+    better = use & np.isfinite(cand).all(axis=-1) & (fc > 0).all(axis=-1) & (phi_c < phi_0)
     return np.where(better[:, None], cand, m), np.where(better, phi_c, phi_0)
 
 

@@ -163,20 +163,19 @@ def gradient_and_sqp_step(
         gf, gm = problem.gradient(f, m)
         return (gf, gm, *sqp_step(problem, f, m, gf, gm))
     wd = wasserstein_derivatives(m, s, problem.wass_coef)
-    gfw = np.zeros_like(f)
+    gfw = np.zeros(f.shape)
     gfw[..., :-1] += wd.g_s
     gfw[..., 1:] += wd.g_s
-    gff = np.zeros_like(f)
-    hf = np.zeros_like(f)
+    gff = np.zeros(f.shape)
+    hf = np.zeros(f.shape)
     if problem.fisher is None:
         hf[..., :-1] += wd.h_ss
         hf[..., 1:] += wd.h_ss
     else:
-        term = FISHER_TERMS[problem.fisher]
-        gx, gy = term.gradient(x, y, s, problem.fisher_coef)
+        # gradient and hessian in one pass, bit for bit (the mixed entry is not needed)
+        gx, gy, hx, hy, _ = FISHER_TERMS[problem.fisher].gradient_and_hessian(x, y, s, problem.fisher_coef, mixed=False)
         gff[..., :-1] += gx
         gff[..., 1:] += gy
-        hx, hy, _ = term.hessian(x, y, s, problem.fisher_coef)
         hf[..., :-1] += wd.h_ss + hx
         hf[..., 1:] += wd.h_ss + hy
     gf = gfw + gff + 2 * problem.energy_coef * problem.energy.matvec(f)
