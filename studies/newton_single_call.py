@@ -216,6 +216,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-write", dest="write", action="store_false", help="print only")
     args = ap.parse_args(argv)
     head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout
+    dirty = subprocess.run(["git", "status", "--porcelain", "jko_cvx"], cwd=ROOT, capture_output=True, text=True).stdout
     with tempfile.TemporaryDirectory() as tmp:
         base = import_baseline(args.base, Path(tmp))
         bad = check(base) if args.check else []
@@ -228,7 +229,9 @@ def main(argv: list[str] | None = None) -> int:
                 record_csv(csv)
                 text = (
                     "# Newton's single solve: baseline against this tree, side by side\n\n"
-                    f"Baseline {args.base}, tree at {head.strip()} (with its working changes).  "
+                    f"Baseline {args.base}, tree at {head.strip()}"
+                    + (" (with uncommitted changes to jko_cvx)" if dirty.strip() else "")
+                    + ".  "
                     "The step of `studies/bench_collision.py` (gamma = 1, f* = exp(-2 v^2) on [-2, 2], "
                     "dt = 0.01, default tolerances) through `solve_collision`; CPU time "
                     f"(`time.process_time`), median over {args.rounds} rounds (3 for a solver slower than "

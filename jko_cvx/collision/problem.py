@@ -67,7 +67,6 @@ linear constraint, one more multiplier) and the drift is 1.4e-15 over the same r
 
 from __future__ import annotations
 
-import copy
 from dataclasses import dataclass
 from typing import Literal
 
@@ -321,7 +320,8 @@ class CollisionProblem:
         the cheap form of :meth:`with_f_star` that the batched solvers use on the slices
         still iterating.  The result is always batched.
         """
-        sub = copy.copy(self)
+        sub = object.__new__(type(self))  # copy.copy's shallow copy, without its reduce protocol
+        sub.__dict__.update(self.__dict__)
         f = self.f_star if self.batched else self.f_star[None]
         sub.f_star = f[index]
         sub.f_star.flags.writeable = False
