@@ -767,7 +767,8 @@ def _iterate(P: CollisionProblem, st: NewtonState, opts: NewtonOptions, run: _At
             if not all(s is None for s in st.status):
                 free = np.equal(st.status, None)
                 Pa, st = _retire(Pa, st, out)
-                g, p, bands = g[free], p[free], tuple(band[free] for band in bands)
+                if st.rows.size:  # (a single problem that stopped has nothing left to gather)
+                    g, p, bands = g[free], p[free], tuple(band[free] for band in bands)
             if st.rows.size:
                 _step(Pa, st, g, p, bands, run, opts.tol)
         _retire(Pa, st, out)
@@ -897,8 +898,10 @@ def _m0_rows(m0: NDArray | None, rows: NDArray[np.bool_]) -> NDArray | None:
 
 def _single(res: CollisionResult) -> CollisionResult:
     """The one-slice batch result as an unbatched one."""
-    info = {key: value[0] if isinstance(value, np.ndarray) else value for key, value in res.info.items()}
-    info = {key: bool(v) if isinstance(v, np.bool_) else v for key, v in info.items()}
+    info = {}
+    for key, value in res.info.items():
+        v = value[0] if isinstance(value, np.ndarray) else value
+        info[key] = bool(v) if isinstance(v, np.bool_) else v
     return CollisionResult(
         res.f[0],
         res.m[0],
