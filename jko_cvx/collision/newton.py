@@ -509,6 +509,8 @@ class NewtonState:
 
 
 _STATE_FIELDS = tuple(f.name for f in fields(NewtonState))
+# What a slice hands to the result when it leaves the iteration.
+_RESULT_FIELDS = ("m", "f", "phi", "status", "iterations", "kkt", "kkt_here", "second", "jammed")
 
 
 def _filled(shape: int | tuple[int, ...], value: float) -> NDArray[np.float64]:
@@ -516,8 +518,6 @@ def _filled(shape: int | tuple[int, ...], value: float) -> NDArray[np.float64]:
     out = np.empty(shape)
     out.fill(value)
     return out
-# What a slice hands to the result when it leaves the iteration.
-_RESULT_FIELDS = ("m", "f", "phi", "status", "iterations", "kkt", "kkt_here", "second", "jammed")
 
 
 def _explicit_start(
