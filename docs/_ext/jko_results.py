@@ -84,6 +84,7 @@ PAGES: tuple[Page, ...] = (
             Entry("bench_newton_growth.csv", title="Newton per solve against N"),
             Entry("bench_newton_batch.csv", title="Batched Newton against one slice at a time"),
             Entry("newton_single_path.md", data=("newton_certification.csv",)),
+            Entry("newton_single_call.md", data=("newton_single_call.csv",)),
             Entry("conic_defaults.md", data=("conic_defaults.csv",)),
             Entry("extremes.md", data=("extremes.csv",)),
         ),

@@ -41,7 +41,7 @@ def solve_sym_tridiagonal(
     rhs = np.asarray(rhs, dtype=float)
     if diag.ndim == 1 and rhs.ndim == 1:
         return _solve_one(diag, off, rhs)
-    shape = np.broadcast_shapes(diag.shape, rhs.shape)
+    shape = diag.shape if diag.shape == rhs.shape else np.broadcast_shapes(diag.shape, rhs.shape)
     n = shape[-1]
     if n == 1:
         return _thomas(diag, off, rhs, shape)
@@ -49,6 +49,8 @@ def solve_sym_tridiagonal(
     D = _rows_view(diag, shape, rows)
     E = _rows_view(off, (*shape[:-1], n - 1), rows)
     R = _rows_view(rhs, shape, rows)
+    if rows == 1:  # what the chain below does for one row, without its bookkeeping
+        return _solve_one(D[0], E[0], R[0]).reshape(shape)
     x = np.empty((rows, n))
     finite = np.isfinite(D).all(axis=-1) & np.isfinite(E).all(axis=-1) & np.isfinite(R).all(axis=-1)
     chain = np.flatnonzero(finite)
@@ -144,7 +146,10 @@ def _pentadiagonal_storage(diag: NDArray, off1: NDArray, off2: NDArray) -> NDArr
 def pentadiagonal_cholesky(diag: NDArray, off1: NDArray, off2: NDArray) -> NDArray | None:
     """Lower banded Cholesky factor (LAPACK ``dpbtrf``, ``(3, n)`` storage) of one symmetric
     pentadiagonal matrix, or None where it is not positive definite (or its last pivot is not finite)."""
-    ab = _pentadiagonal_storage(diag[None], off1[None], off2[None])[0].T
+    ab = np.zeros((3, diag.shape[-1]), order="F")  # _pentadiagonal_storage of one matrix, as LAPACK takes it
+    ab[0] = diag
+    ab[1, :-1] = off1
+    ab[2, :-2] = off2
     c, info = lapack.dpbtrf(ab, lower=1)
     return c if info == 0 and np.isfinite(c[0, -1]) else None
 

@@ -48,6 +48,7 @@ stalled with the residual above tolerance).
 
 from __future__ import annotations
 
+import functools
 import time
 from dataclasses import dataclass, fields, replace
 from typing import Any
@@ -64,7 +65,7 @@ from jko_cvx.collision._linalg import (
     pentadiagonal_solve_batch,
 )
 from jko_cvx.collision._structured import dense_kernel_direction
-from jko_cvx.collision.certify import certify
+from jko_cvx.collision.certify import certify_validated
 from jko_cvx.collision.options import Options, Spec, option
 from jko_cvx.collision.problem import CollisionProblem, TermParts, add_pentadiagonal
 from jko_cvx.collision.result import CollisionResult, Status
@@ -127,7 +128,7 @@ def _fused(
     per-term split of the gradient for every slice (True), none (False), or for the slices
     of a boolean mask (the same numbers as those rows of the whole split).
     """
-    h = problem.grid.h
+    h = band_coefficients(problem.grid, f.ndim)[0]
     x, y = f[..., :-1], f[..., 1:]
     s = x + y
     wd = wasserstein_derivatives(m, s, problem.wass_coef)
@@ -148,11 +149,11 @@ def _fused(
     if want_parts is not False:  # the per-term split, for the KKT residual's scale
         rows = slice(None) if want_parts is True else want_parts
         g_s, g_m, gf_r, gfe_r = wd.g_s[rows], wd.g_m[rows], gf[rows], gfe[rows]
-        gfw = np.zeros_like(gf_r)
+        gfw = np.zeros(gf_r.shape)
         gfw[..., :-1] += g_s
         gfw[..., 1:] += g_s
         gff = gf_r - gfe_r - gfw
-        zero = np.zeros_like(g_m)
+        zero = np.zeros(g_m.shape)
         parts = TermParts((gfw, g_m), (gff, zero), (gfe_r, zero))
     return g, reduced_bands(problem.grid, xx, yy, xy, wd.h_sm, wd.h_mm), parts
 
@@ -185,12 +186,12 @@ def _structured_direction(fb: FluxBlock, scale: float, bands, rhs: NDArray) -> t
     diag, off1, off2 = bands
     if fb.kind == "diagonal":
         diag = diag + scale * fb.diag
-    x = np.zeros_like(rhs)
+    x = np.zeros(rhs.shape)
     pd = np.zeros(rhs.shape[0], dtype=bool)
     k = rhs.shape[-1]
     if rhs.shape[0] < _CHAIN_MIN:
         for i in range(rhs.shape[0]):
-            if not (np.all(diag[i] > 0) and np.all(np.isfinite(diag[i]))):
+            if not ((diag[i] > 0).all() and np.isfinite(diag[i]).all()):
                 continue
             c = pentadiagonal_cholesky(diag[i] * (1 + _PD_TOL), off1[i], off2[i])
             if c is None:
@@ -259,7 +260,8 @@ def _direction(problem: CollisionProblem, bands, g: NDArray) -> tuple[NDArray, N
     """
     fb = problem.energy.flux_structure()
     scale = 2 * problem.energy_coef
-    cols = [-g]
+    minus_g = -g
+    cols = [minus_g]
     a = problem.grid.dv
     if problem.conserve_momentum and fb.kind == "rank1":
         # gamma = 2: the energy block -(dv)(dv)' lies along the constraint normal a = dv,
@@ -270,7 +272,7 @@ def _direction(problem: CollisionProblem, bands, g: NDArray) -> tuple[NDArray, N
         fb = FluxBlock("diagonal", diag=np.zeros_like(a))
     if problem.conserve_momentum:
         cols.append(np.broadcast_to(a, g.shape))
-    rhs = np.stack(cols, axis=-1) if len(cols) > 1 else (-g)[..., None]
+    rhs = np.stack(cols, axis=-1) if len(cols) > 1 else minus_g[..., None]
     H = None
     if fb.kind in ("diagonal", "rank1"):
         x, pd = _structured_direction(fb, scale, bands, rhs)
@@ -310,7 +312,7 @@ def _direction(problem: CollisionProblem, bands, g: NDArray) -> tuple[NDArray, N
 
 
 def _interior_damped(
-    problem: CollisionProblem, bands, g: NDArray, f: NDArray, p: NDArray, jammed: NDArray[np.bool_]
+    problem: CollisionProblem, bands, g: NDArray, f: NDArray, p: NDArray, damping: bool
 ) -> tuple[NDArray, NDArray[np.float64]]:
     """Where the Newton step would leave the domain, damp it in the relative metric of f.
 
@@ -327,15 +329,17 @@ def _interior_damped(
     iterates settle the undamped step stays inside, so the local convergence stays Newton's.
 
     Returns the directions and the fraction-to-boundary step lengths, for a batch
-    (arrays of shape ``(B, ...)``).
+    (arrays of shape ``(B, ...)``); without ``damping`` the directions are ``p`` itself.
     """
-    h = problem.grid.h
-    _, _, _, aa, _, bb, _, o1b, _, _ = band_coefficients(problem.grid)
+    h = band_coefficients(problem.grid, f.ndim)[0]
     pf = -divergence(p) / h
     alpha = _boundary_step(f, pf)
-    todo = jammed & (alpha < 1.0)
+    if not damping:
+        return p, alpha
+    todo = alpha < 1.0
     if not todo.any():
         return p, alpha
+    _, _, _, aa, _, bb, _, o1b, _, _, _ = band_coefficients(problem.grid)
     mu = 1e-2 * np.abs(np.einsum("bi,bi->b", g, p))
     for _ in range(12):
         if not todo.any():
@@ -392,7 +396,7 @@ def _with_barrier(problem: CollisionProblem, f: NDArray, mu: NDArray, g: NDArray
     :math:`\\mu h_j / f_j`, which the KKT residual weighs by :math:`f_j / \\max f`: a residual of
     order :math:`\\mu`, so a small enough :math:`\\mu` passes the unmodified test.
     """
-    _, _, _, aa, _, bb, _, o1b, _, _ = band_coefficients(problem.grid)
+    _, _, _, aa, _, bb, _, o1b, _, _, _ = band_coefficients(problem.grid)
     h = problem.grid.h
     c = mu[:, None] * h / (f * f)
     diag, off1, off2 = bands
@@ -494,68 +498,89 @@ class NewtonState:
         """The state before the first iteration."""
         b = m.shape[0]
         return cls(
-            np.arange(b), m, f, phi, status, np.zeros(b, dtype=int), np.full(b, np.nan), np.zeros(b, dtype=bool),
+            np.arange(b), m, f, phi, status, np.zeros(b, dtype=int), _filled(b, np.nan), np.zeros(b, dtype=bool),
             np.zeros(b, dtype=bool), np.zeros(b, dtype=bool), np.zeros(b, dtype=bool), np.zeros(b, dtype=int),
-            np.full(b, np.inf), np.zeros(b, dtype=int), np.zeros(b),
+            _filled(b, np.inf), np.zeros(b, dtype=int), np.zeros(b),
         )  # fmt: skip
 
-    def take(self, keep: NDArray[np.bool_]) -> NewtonState:
+    def take(self, keep: NDArray[np.bool_] | slice) -> NewtonState:
         """The rows ``keep``."""
         return NewtonState(*(getattr(self, name)[keep] for name in _STATE_FIELDS))
 
 
 _STATE_FIELDS = tuple(f.name for f in fields(NewtonState))
 # What a slice hands to the result when it leaves the iteration.
-_RESULT_FIELDS = ("m", "f", "status", "iterations", "kkt", "kkt_here", "second", "jammed")
+_RESULT_FIELDS = ("m", "f", "phi", "status", "iterations", "kkt", "kkt_here", "second", "jammed")
 
 
-def _explicit_start(P: CollisionProblem, F_star: NDArray, m: NDArray, use: NDArray[np.bool_]) -> NDArray:
+def _filled(shape: int | tuple[int, ...], value: float) -> NDArray[np.float64]:
+    """``np.full(shape, value)`` at a third of its cost (np.full is Python; empty and fill are not)."""
+    out = np.empty(shape)
+    out.fill(value)
+    return out
+
+
+def _explicit_start(
+    P: CollisionProblem, F_star: NDArray, m: NDArray, use: NDArray[np.bool_]
+) -> tuple[NDArray, NDArray]:
     """The damped explicit step (first SQP step) where ``use`` and where it lowers J, else ``m``.
 
-    The step is damped to keep ``f >= f*/2``.
+    The step is damped to keep ``f >= f*/2``.  Also returns J at the chosen point where
+    ``m`` is zero outside ``use`` (the explicit step's J, else J at ``(f*, 0)``).
     """
-    zero = np.zeros_like(m)
+    zero = np.zeros(m.shape)
     pf, pm = explicit_step(P)
     ratio = np.where(pf < 0, -F_star / np.where(pf < 0, pf, -1.0), np.inf).min(axis=-1)
     alpha = np.minimum(1.0, 0.5 * ratio)
     cand = P.on_momentum_plane(alpha[:, None] * pm)
-    fc = F_star - divergence(cand) / P.grid.h
-    better = (
-        use
-        & np.all(np.isfinite(cand), axis=-1)
-        & np.all(fc > 0, axis=-1)
-        & (_objective_interior(P, fc, cand) < _objective_interior(P, F_star, zero))
-    )
-    return np.where(better[:, None], cand, m)
+    fc = F_star - divergence(cand) / band_coefficients(P.grid, 2)[0]
+    phi_c, phi_0 = _objective_interior(P, fc, cand), _objective_interior(P, F_star, zero)
+    better = use & np.isfinite(cand).all(axis=-1) & (fc > 0).all(axis=-1) & (phi_c < phi_0)
+    return np.where(better[:, None], cand, m), np.where(better, phi_c, phi_0)
 
 
 def _start(P: CollisionProblem, m0: NDArray | None, opts: NewtonOptions) -> tuple[NewtonState, NDArray[np.bool_]]:
     """The first iterate (``m0`` where it keeps f > 0, else the explicit step or 0), and where m0 was used."""
     F_star = P.f_star
     B, n = F_star.shape
-    h = P.grid.h
+    h = band_coefficients(P.grid, 2)[0]  # the (1, n) row of the batch
     m = np.zeros((B, n - 1))
     warm = np.zeros(B, dtype=bool)
     if m0 is not None:
         M0 = P.on_momentum_plane(np.broadcast_to(m0, (B, n - 1)))
         warm = np.all(F_star - divergence(M0) / h > 0, axis=-1) & np.all(np.isfinite(M0), axis=-1)
         m[warm] = M0[warm]
-    status = np.full(B, None, dtype=object)
+    status = np.empty(B, dtype=object)  # None: still iterating
     positive = (F_star > 0).all(axis=-1)
     status[~positive] = Status.NUMERICAL_ERROR  # an interior method cannot start from exact zeros
+    phi = None
     with np.errstate(all="ignore"):
         if opts.start == "explicit" and positive.any():
-            m = _explicit_start(P, F_star, m, ~warm & positive)
+            m, phi = _explicit_start(P, F_star, m, ~warm & positive)
         f = F_star - divergence(m) / h
-        phi = _objective_interior(P, f, m)
+        if phi is None or warm.any():  # without warm rows f is f* or the explicit step's: J is known
+            phi = _objective_interior(P, f, m)
     return NewtonState.initial(m, f, phi, status), warm
 
 
 def _retire(Pa: CollisionProblem, st: NewtonState, out: dict[str, NDArray]) -> tuple[CollisionProblem, NewtonState]:
-    """Move the slices that have a status from ``st`` to the result arrays ``out``."""
+    """Move the slices that have a status from ``st`` to the result arrays ``out``.
+
+    ``out`` starts empty; every slice leaves exactly once, so the result arrays are allocated
+    (or, when every slice leaves at once, taken from the state) at the first call that moves any.
+    """
     if all(s is None for s in st.status):  # a Python loop: cheaper than NumPy at B = 1
         return Pa, st
     done = np.not_equal(st.status, None)
+    if done.all():  # every slice leaves (a single problem's last call): no masks, no empty batch
+        if not out:  # ... and all at once: the state's arrays are the result's
+            out.update((name, getattr(st, name)) for name in _RESULT_FIELDS)
+        else:
+            for name in _RESULT_FIELDS:
+                out[name][st.rows] = getattr(st, name)
+        return Pa, st.take(slice(0, 0))
+    if not out:  # the first slices to leave: the state still holds the whole batch
+        out.update((name, np.empty_like(getattr(st, name))) for name in _RESULT_FIELDS)
     rows = st.rows[done]
     for name in _RESULT_FIELDS:
         out[name][rows] = getattr(st, name)[done]
@@ -574,13 +599,15 @@ def _residual_test(
     A residual that no longer halves while the Newton decrement is at rounding level
     (``_STALL_CHECKS`` times) has reached its floor.  Returns the stopped slices.
     """
-    kk = np.full(check.shape, np.nan)
-    if check.all():
+    prev = st.kkt
+    every = bool(check.all())  # always so for a single problem
+    if every:
         kk = Pa.kkt_residual(st.f, st.m, parts).total
+        st.kkt = kk
     else:
+        kk = np.full(check.shape, np.nan)
         kk[check] = Pa.rows(check).kkt_residual(st.f[check], st.m[check], parts).total
-    prev = st.kkt.copy()
-    st.kkt = np.where(check, kk, st.kkt)
+        st.kkt = np.where(check, kk, st.kkt)
     st.kkt_here |= check
     done = check & (kk <= opts.tol)
     worse = check & ~done & (prev == prev) & (kk > 0.5 * prev) & (st.decrement <= 1e-14)
@@ -588,9 +615,13 @@ def _residual_test(
     # rounding level while lowering mu still lowers the residual: there a stall is a run of
     # checks in which the residual falls by less than 10 % each.
     barrier = st.mu > 0
-    worse = np.where(barrier, check & ~done & (prev == prev) & (kk > 0.9 * prev) & (st.decrement <= 1e-10), worse)
-    st.stall = np.where(check, np.where(worse, st.stall + 1, 0), st.stall)
-    stop = done | (check & (st.stall >= np.where(barrier, _BARRIER_STALL, _STALL_CHECKS)))
+    limit = _STALL_CHECKS
+    if barrier.any():
+        worse = np.where(barrier, check & ~done & (prev == prev) & (kk > 0.9 * prev) & (st.decrement <= 1e-10), worse)
+        limit = np.where(barrier, _BARRIER_STALL, _STALL_CHECKS)
+    stall = np.where(worse, st.stall + 1, 0)
+    st.stall = stall if every else np.where(check, stall, st.stall)
+    stop = done | (check & (st.stall >= limit))
     if stop.any():
         # pd is the (shifted) Cholesky of the reduced Hessian at this very point: the
         # second-order test comes for free; certify() judges the point at the end.
@@ -631,14 +662,16 @@ def _line_search(
     cannot tell (it would truncate the steps at random); the quadratic model is exact
     there, so the full, boundary-safe step is taken.  With ``mu`` the merit function is the
     barrier one (:func:`_merit`).  Returns (accepted, alpha, the merit function at the
-    accepted point, NaN where it was taken without a trial).
+    accepted point, NaN where it was taken without a trial, and the last trial point
+    ``(m, f)`` when every slice accepted it, else None).
     """
-    h = Pa.grid.h
+    h = band_coefficients(Pa.grid, 2)[0]
     accepted = dec <= 1e-12
     if mu is not None and accepted.any():
         # The barrier drives f_j towards rounding level: a full step must still keep f > 0.
         accepted &= (Pa.f_star - divergence(m + alpha[:, None] * p) / h > 0).all(axis=-1)
-    phi_new = np.full_like(phi0, np.nan)
+    phi_new = _filled(phi0.shape, np.nan)
+    point = None
     for _ in range(_MAX_BACKTRACKS):
         if accepted.all():
             break
@@ -649,7 +682,8 @@ def _line_search(
         phi_new = np.where(ok, phit, phi_new)
         accepted |= ok
         alpha = np.where(accepted, alpha, 0.5 * alpha)
-    return accepted, alpha, phi_new
+        point = (trial, ft) if ok.all() else None  # every slice at this trial: the step itself
+    return accepted, alpha, phi_new, point
 
 
 def _step(Pa: CollisionProblem, st: NewtonState, g: NDArray, p: NDArray, bands, run: _Attempt, tol: float) -> None:
@@ -659,7 +693,7 @@ def _step(Pa: CollisionProblem, st: NewtonState, g: NDArray, p: NDArray, bands, 
     function (:func:`_with_barrier`), and ``mu`` is lowered after each full step.
     """
     mu = st.mu if run.barrier else None
-    p, alpha = _interior_damped(Pa, bands, g, st.f, p, np.full(st.rows.size, run.damping))
+    p, alpha = _interior_damped(Pa, bands, g, st.f, p, run.damping)
     slope = np.einsum("bi,bi->b", g, p)
     dec = -slope / np.maximum(np.abs(st.phi), _TINY)
     st.decrement = dec
@@ -667,19 +701,22 @@ def _step(Pa: CollisionProblem, st: NewtonState, g: NDArray, p: NDArray, bands, 
     # and the residual far below dec, so the KKT residual is checked once dec reaches tol
     # (or the rounding level 1e-13, below which it cannot fall further).
     st.near = dec <= max(tol, 1e-13)
-    accepted, alpha, phi_new = _line_search(Pa, st.m, p, alpha, st.phi, slope, dec, mu)
-    if accepted.all():
+    accepted, alpha, phi_new, point = _line_search(Pa, st.m, p, alpha, st.phi, slope, dec, mu)
+    if point is not None:  # the last trial, m + alpha p and its f, bit for bit
+        st.m, st.f = point
+    elif accepted.all():
         st.m = st.m + alpha[:, None] * p
-        st.f = Pa.f_star - divergence(st.m) / Pa.grid.h
+        st.f = Pa.f_star - divergence(st.m) / band_coefficients(Pa.grid, 2)[0]
     else:
         st.status[~accepted] = Status.NUMERICAL_ERROR  # no decrease even along a tiny step
         st.m[accepted] = st.m[accepted] + alpha[accepted, None] * p[accepted]
         st.f[accepted] = Pa.f_star[accepted] - divergence(st.m[accepted]) / Pa.grid.h
     fresh = accepted & np.isnan(phi_new)  # full steps were taken without evaluating J
     st.phi = np.where(accepted, phi_new, st.phi)
-    if fresh.any():
-        Pu = Pa if fresh.all() else Pa.rows(fresh)
-        st.phi[fresh] = _merit(Pu, st.f[fresh], st.m[fresh], None if mu is None else mu[fresh])
+    if fresh.all():
+        st.phi = _merit(Pa, st.f, st.m, mu)
+    elif fresh.any():
+        st.phi[fresh] = _merit(Pa.rows(fresh), st.f[fresh], st.m[fresh], None if mu is None else mu[fresh])
     if run.barrier:
         # A full step means the iterate is in the quadratic region of the barrier function
         # for this mu: move on along the central path.
@@ -704,14 +741,14 @@ def _iterate(P: CollisionProblem, st: NewtonState, opts: NewtonOptions, run: _At
 
     Returns each slice's final ``_RESULT_FIELDS``.
     """
-    out = {name: getattr(st, name).copy() for name in _RESULT_FIELDS}
+    out: dict[str, NDArray] = {}  # filled by _retire
     Pa = P
     with np.errstate(all="ignore"):
         for it in range(opts.max_iter + 1):
             Pa, st = _retire(Pa, st, out)
             if st.rows.size == 0:
                 break
-            check = st.near | (it == opts.max_iter) | run.barrier
+            check = np.ones_like(st.near) if (it == opts.max_iter or run.barrier) else st.near
             checking = bool(check.any())
             g, bands, parts = _fused(Pa, st.f, st.m, want_parts=check if checking else False)
             if run.barrier:
@@ -725,11 +762,13 @@ def _iterate(P: CollisionProblem, st: NewtonState, opts: NewtonOptions, run: _At
                 for i in np.nonzero(np.equal(st.status, None))[0]:
                     st.status[i] = Status.MAX_ITERATIONS if (pd[i] or not opts.check_convexity) else Status.NONCONVEX
                 break
-            _no_descent(st, g, bands, p, valid)
+            if any(s is None for s in st.status):
+                _no_descent(st, g, bands, p, valid)
             if not all(s is None for s in st.status):
                 free = np.equal(st.status, None)
                 Pa, st = _retire(Pa, st, out)
-                g, p, bands = g[free], p[free], tuple(band[free] for band in bands)
+                if st.rows.size:  # (a single problem that stopped has nothing left to gather)
+                    g, p, bands = g[free], p[free], tuple(band[free] for band in bands)
             if st.rows.size:
                 _step(Pa, st, g, p, bands, run, opts.tol)
         _retire(Pa, st, out)
@@ -756,15 +795,20 @@ def _finalise(
         if redo.any():
             Pr = P if redo.all() else P.rows(redo)
             kkt[redo] = Pr.kkt_residual(f_out[redo], m_out[redo]).total
-        cert = certify(
+        # J at the last iterate, as the line search evaluated it: problem.objective's value bit
+        # for bit where every f_j > 0 (no guards apply), when computed on the same batch
+        # shape (one problem; a batch's slices were evaluated in sub-batches as they retired).
+        known = out["phi"] if out["phi"] is not None and f_out.shape[0] == 1 and positive.all() else None
+        cert = certify_validated(
             P,
             f_out,
             m_out,
-            kkt_tol=opts.kkt_tol,
-            check_convexity=opts.check_convexity,
-            claimed=out["status"],
+            opts.kkt_tol,
+            opts.check_convexity,
+            out["status"],
             residual=kkt,
             second_order=out["second"],
+            objective=known,
         )
     info = {"warm_started": warm, "jammed": out["jammed"]}
     seconds = time.perf_counter() - t0
@@ -784,6 +828,7 @@ def _attempt(P: CollisionProblem, m0: NDArray | None, opts: NewtonOptions, run: 
         # The factorised Hessian was the barrier function's (more positive definite than
         # J's): the certificate runs the second-order test on J itself.
         out["second"] = np.full(out["second"].shape, None, dtype=object)
+        out["phi"] = None  # the barrier function's value, not J's
     return _finalise(P, out, warm, opts, t0)
 
 
@@ -818,7 +863,11 @@ def _cascade(P: CollisionProblem, m0: NDArray | None, opts: NewtonOptions) -> Co
     """
     res = _attempt(P, m0, opts, _Attempt(damping=False, jam_exit=True))
     jammed = res.info["jammed"]
-    damped = np.zeros_like(jammed)
+    damped = np.zeros(jammed.shape, dtype=bool)
+    barrier = np.zeros(jammed.shape, dtype=bool)
+    if all(s is Status.CONVERGED for s in res.status):  # the common case: no retry to look for
+        res.info.update(jammed=jammed, interior_damping=damped, barrier=barrier)
+        return res
     retry = np.array([s in _RETRY for s in res.status]) & np.all(P.f_star > 0, axis=-1)
     if retry.any():
         again = _attempt(P.rows(retry), _m0_rows(m0, retry), opts, _Attempt(True, False))
@@ -831,7 +880,6 @@ def _cascade(P: CollisionProblem, m0: NDArray | None, opts: NewtonOptions) -> Co
             better = plain.kkt_residual < res.kkt_residual[fallback]
             _merge(res, fallback, plain, better)
             damped[np.flatnonzero(fallback)[better]] = False
-    barrier = np.zeros_like(jammed)
     todo = np.array([s in _RETRY or s == Status.NOT_CERTIFIED for s in res.status]) & np.all(P.f_star > 0, axis=-1)
     if todo.any():
         again = _attempt(P.rows(todo), _m0_rows(m0, todo), opts, _Attempt(False, False, barrier=True))
@@ -850,8 +898,10 @@ def _m0_rows(m0: NDArray | None, rows: NDArray[np.bool_]) -> NDArray | None:
 
 def _single(res: CollisionResult) -> CollisionResult:
     """The one-slice batch result as an unbatched one."""
-    info = {key: value[0] if isinstance(value, np.ndarray) else value for key, value in res.info.items()}
-    info = {key: bool(v) if isinstance(v, np.bool_) else v for key, v in info.items()}
+    info = {}
+    for key, value in res.info.items():
+        v = value[0] if isinstance(value, np.ndarray) else value
+        info[key] = bool(v) if isinstance(v, np.bool_) else v
     return CollisionResult(
         res.f[0],
         res.m[0],
@@ -929,19 +979,35 @@ def solve_newton(
 solve_newton.batched = True  # type: ignore[attr-defined]
 
 
+@functools.lru_cache(maxsize=64, typed=True)
+def _checked_options(tol: Any, kkt_tol: Any, max_iter: Any, start: Any, check_convexity: Any) -> NewtonOptions:
+    """:class:`NewtonOptions` of these values, checked once per distinct values and types.
+
+    ``typed=True``: ``1``, ``1.0``, ``True`` and ``np.float64(1.0)`` are separate entries, each
+    checked on its own; a value that fails raises every time (exceptions are not cached).
+    """
+    return NewtonOptions(tol=tol, kkt_tol=kkt_tol, max_iter=max_iter, start=start, check_convexity=check_convexity)
+
+
 def _check_newton_args(
     problem: CollisionProblem, tol: Any, kkt_tol: Any, max_iter: Any, m0: Any, start: Any, check_convexity: Any
 ) -> NewtonOptions:
     """The checked options, the warm start checked against ``problem``; errors name the option."""
-    opts = NewtonOptions(tol=tol, kkt_tol=kkt_tol, max_iter=max_iter, start=start, check_convexity=check_convexity)
-    if m0 is not None:
-        shape = (*problem.f_star.shape[:-1], problem.n - 1)
-        try:
-            m0 = np.broadcast_to(np.asarray(m0, dtype=float), shape)
-        except (TypeError, ValueError) as exc:
-            raise ValueError(
-                f"m0 must be None or fluxes of shape {(problem.n - 1,)}"
-                + (f" or {shape}" if problem.batched else "")
-                + f", got {np.shape(m0)}"
-            ) from exc
+    try:
+        opts = _checked_options(tol, kkt_tol, max_iter, start, check_convexity)
+    except TypeError as exc:  # an unhashable argument: check it without the cache
+        if "unhashable" not in str(exc):
+            raise
+        opts = NewtonOptions(tol=tol, kkt_tol=kkt_tol, max_iter=max_iter, start=start, check_convexity=check_convexity)
+    if m0 is None:
+        return opts
+    shape = (*problem.f_star.shape[:-1], problem.n - 1)
+    try:
+        m0 = np.broadcast_to(np.asarray(m0, dtype=float), shape)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(
+            f"m0 must be None or fluxes of shape {(problem.n - 1,)}"
+            + (f" or {shape}" if problem.batched else "")
+            + f", got {np.shape(m0)}"
+        ) from exc
     return replace(opts, m0=m0)

@@ -67,7 +67,6 @@ linear constraint, one more multiplier) and the drift is 1.4e-15 over the same r
 
 from __future__ import annotations
 
-import copy
 from dataclasses import dataclass
 from typing import Literal
 
@@ -77,7 +76,13 @@ from numpy.typing import ArrayLike, NDArray
 
 from jko_cvx._numbers import real_array, real_scalar
 from jko_cvx.collision._linalg import divergence, divergence_adjoint, solve_sym_tridiagonal
-from jko_cvx.collision.terms import FISHER_TERMS, reduced_bands, wasserstein_derivatives, wasserstein_value
+from jko_cvx.collision.terms import (
+    FISHER_TERMS,
+    band_coefficients,
+    reduced_bands,
+    wasserstein_derivatives,
+    wasserstein_value,
+)
 from jko_cvx.grid import Grid
 from jko_cvx.kernels import EnergyOperator, PowerKernel
 from jko_cvx.mesh.moments import restore_moments
@@ -315,7 +320,8 @@ class CollisionProblem:
         the cheap form of :meth:`with_f_star` that the batched solvers use on the slices
         still iterating.  The result is always batched.
         """
-        sub = copy.copy(self)
+        sub = object.__new__(type(self))  # copy.copy's shallow copy, without its reduce protocol
+        sub.__dict__.update(self.__dict__)
         f = self.f_star if self.batched else self.f_star[None]
         sub.f_star = f[index]
         sub.f_star.flags.writeable = False
@@ -580,7 +586,7 @@ class CollisionProblem:
         """
         f = np.asarray(f, dtype=float)
         m = np.asarray(m, dtype=float)
-        h = self.grid.h
+        h = band_coefficients(self.grid, 2 if f.ndim == 2 else 1)[0]  # a (1, n) row for a batch: no broadcast
         if parts is None:
             parts = self.gradient_parts(f, m)
         gf = parts.wasserstein[0] + parts.fisher[0] + parts.energy[0]
@@ -617,13 +623,13 @@ class CollisionProblem:
                 u = -np.divide(num, den, out=np.zeros_like(np.asarray(den)), where=den > 0)
                 u = np.asarray(u)[..., None]
                 phi, rf, rm = phi - u * z, rf + u * zf, rm + u * zm
-            stat_num = np.maximum(np.max(w * np.abs(rf), axis=-1), np.max(om * np.abs(rm), axis=-1))
+            stat_num = np.maximum((w * np.abs(rf)).max(axis=-1), (om * np.abs(rm)).max(axis=-1))
             scale_f = sum(np.abs(p[0]) for p in (parts.wasserstein, parts.fisher, parts.energy)) / h
-            scale = np.maximum(np.max(np.where(w > 0, w * scale_f, 0.0), axis=-1), np.max(om * np.abs(gmw), axis=-1))
+            scale = np.maximum(np.where(w > 0, w * scale_f, 0.0).max(axis=-1), (om * np.abs(gmw)).max(axis=-1))
             scale = np.where(scale > 0, scale, np.finfo(float).tiny)
             stationarity = stat_num / scale
             stationarity = np.where(np.isfinite(stationarity), stationarity, np.inf)
-        feas = np.sum(np.abs(self.constraint_residual(f, m)), axis=-1) / np.sum(self.f_star * h, axis=-1)
+        feas = np.abs(h * (f - self.f_star) + divergence(m)).sum(axis=-1) / (self.f_star * h).sum(axis=-1)
         if self.conserve_momentum:
             feas = np.maximum(feas, self.momentum_change(f))
         positivity = np.maximum(0.0, -f.min(axis=-1)) / fmax[..., 0]

@@ -88,7 +88,7 @@ from jko_cvx.collision.certify import certify
 from jko_cvx.collision.options import Options, Spec, option
 from jko_cvx.collision.problem import MOMENTUM_METHODS, CollisionProblem, methods_text
 from jko_cvx.collision.result import CollisionResult, Status
-from jko_cvx.collision.terms import FISHER_TERMS, wasserstein_derivatives
+from jko_cvx.collision.terms import FISHER_TERMS, band_coefficients, wasserstein_derivatives
 
 __all__ = [
     "SAFEGUARDS",
@@ -135,7 +135,7 @@ def _step_from(
     problem: CollisionProblem, hf: NDArray, hm: NDArray, gf: NDArray, gm: NDArray
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """The step ``(p_f, p_m)`` of the tridiagonal system from the diagonal Hessian and the gradient."""
-    h = problem.grid.h
+    h = band_coefficients(problem.grid, 2 if np.ndim(hf) == 2 else 1)[0]  # a (1, n) row for a batch: no broadcast
     a = hf / h**2
     diag = a[..., :-1] + a[..., 1:] + hm
     off = -a[..., 1:-1]
@@ -159,24 +159,23 @@ def gradient_and_sqp_step(
     """
     x, y = f[..., :-1], f[..., 1:]
     s = x + y
-    if not np.all(s > 0):
+    if not (s > 0).all():
         gf, gm = problem.gradient(f, m)
         return (gf, gm, *sqp_step(problem, f, m, gf, gm))
     wd = wasserstein_derivatives(m, s, problem.wass_coef)
-    gfw = np.zeros_like(f)
+    gfw = np.zeros(f.shape)
     gfw[..., :-1] += wd.g_s
     gfw[..., 1:] += wd.g_s
-    gff = np.zeros_like(f)
-    hf = np.zeros_like(f)
+    gff = np.zeros(f.shape)
+    hf = np.zeros(f.shape)
     if problem.fisher is None:
         hf[..., :-1] += wd.h_ss
         hf[..., 1:] += wd.h_ss
     else:
-        term = FISHER_TERMS[problem.fisher]
-        gx, gy = term.gradient(x, y, s, problem.fisher_coef)
+        # gradient and hessian in one pass, bit for bit (the mixed entry is not needed)
+        gx, gy, hx, hy, _ = FISHER_TERMS[problem.fisher].gradient_and_hessian(x, y, s, problem.fisher_coef, mixed=False)
         gff[..., :-1] += gx
         gff[..., 1:] += gy
-        hx, hy, _ = term.hessian(x, y, s, problem.fisher_coef)
         hf[..., :-1] += wd.h_ss + hx
         hf[..., 1:] += wd.h_ss + hy
     gf = gfw + gff + 2 * problem.energy_coef * problem.energy.matvec(f)

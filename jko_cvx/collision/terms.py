@@ -20,7 +20,7 @@ written once so that both callers round alike.
 from __future__ import annotations
 
 import weakref
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -39,14 +39,25 @@ __all__ = [
 Array = NDArray[np.float64]
 
 
+def _row(coef: Array, like: Array) -> Array:
+    """The per-edge coefficients ``coef`` as a ``(1, n)`` row where ``like`` is a batch ``(B, n)``.
+
+    The same numbers; NumPy then broadcasts no 1-D operand against a 2-D one, which costs
+    about as much as the arithmetic itself on arrays of N ~ 100.
+    """
+    return coef[None] if np.ndim(like) == 2 and np.ndim(coef) == 1 else coef
+
+
 def wasserstein_value(m: Array, s: Array) -> Array:
     """:math:`m^2/s` per edge (interior: ``s > 0``); the objective weights it by ``2 dv``."""
     return m * m / s
 
 
-@dataclass(frozen=True)
-class WassersteinDerivatives:
-    """First and second derivatives of :math:`w\\,m^2/s` per edge (``s`` stands for x and y alike)."""
+class WassersteinDerivatives(NamedTuple):
+    """First and second derivatives of :math:`w\\,m^2/s` per edge (``s`` stands for x and y alike).
+
+    A named tuple: built in every Newton and SQP iteration (0.4 us against a frozen dataclass's 0.65 us).
+    """
 
     g_s: Array  # d/ds = d/dx = d/dy
     g_m: Array
@@ -58,8 +69,12 @@ class WassersteinDerivatives:
 def wasserstein_derivatives(m: Array, s: Array, w: Array) -> WassersteinDerivatives:
     """Derivatives of :math:`w m^2/s` with :math:`u = m/s`: gradient :math:`(-w u^2, 2 w u)`, Hessian
     :math:`(2 w u^2/s, -2 w u/s, 2 w/s)` in :math:`(s, s), (s, m), (m, m)`."""
+    w = _row(w, m)
     u = m / s
-    return WassersteinDerivatives(-w * u * u, 2 * w * u, 2 * w * u * u / s, -2 * w * u / s, 2 * w / s)
+    w2 = 2 * w
+    g_m = w2 * u  # shared: 2 w u u / s is (2 w u) u / s, the same operations in the same order
+    # -2 w u / s is not written -(2 w u) / s: the same number, but a NaN would change sign
+    return WassersteinDerivatives(-w * u * u, g_m, g_m * u / s, -2 * w * u / s, w2 / s)
 
 
 class PerspectiveFisher:
@@ -79,11 +94,13 @@ class PerspectiveFisher:
 
     def gradient(self, x: Array, y: Array, s: Array, c: Array) -> tuple[Array, Array]:
         """:math:`c\\,(\\partial_x\\psi, \\partial_y\\psi) = c(-4r - 2r^2, 4r - 2r^2)`, :math:`r = (y-x)/s`."""
+        c = _row(c, s)
         r = (y - x) / s
         return c * (-4 * r - 2 * r * r), c * (4 * r - 2 * r * r)
 
     def hessian(self, x: Array, y: Array, s: Array, c: Array) -> tuple[Array, Array, Array]:
         """:math:`c\\,(\\psi_{xx}, \\psi_{yy}, \\psi_{xy}) = (16c/s^3)(y^2, x^2, -xy)`."""
+        c = _row(c, s)
         k = 16 * c / (s * s * s)
         return k * y * y, k * x * x, -(k * x * y)
 
@@ -96,6 +113,7 @@ class PerspectiveFisher:
         one Newton iteration needs, at fewer NumPy calls.  ``mixed=False`` leaves ``hxy``
         out (None): the paper's SQP uses the diagonal only.
         """
+        c = _row(c, s)
         r = (y - x) / s
         r2 = 2 * r * r
         k = 16 * c / (s * s * s)
@@ -119,11 +137,13 @@ class LogFisher:
 
     def gradient(self, x: Array, y: Array, s: Array, c: Array) -> tuple[Array, Array]:
         """:math:`c(-L s/x + L^2/2,\\ L s/y + L^2/2)`, :math:`L = \\log y - \\log x`."""
+        c = _row(c, s)
         L = np.log(y) - np.log(x)
         return c * (-L * s / x + 0.5 * L * L), c * (L * s / y + 0.5 * L * L)
 
     def hessian(self, x: Array, y: Array, s: Array, c: Array) -> tuple[Array, Array, Array]:
         """:math:`c\\,(s + L(y-x))/x^2`, :math:`c\\,(s + L(y-x))/y^2`, :math:`c\\,(-s + L(x-y))/(xy)`."""
+        c = _row(c, s)
         L = np.log(y) - np.log(x)
         q = c * (s + L * (y - x))
         return q / (x * x), q / (y * y), c * (-s + L * (x - y)) / (x * y)
@@ -137,6 +157,7 @@ class LogFisher:
         logarithms, and ``L^2/2``): what one Newton iteration needs, at fewer NumPy calls.
         ``mixed=False`` leaves ``hxy`` out (None): the paper's SQP uses the diagonal only.
         """
+        c = _row(c, s)
         L = np.log(y) - np.log(x)
         half_l2 = 0.5 * L * L
         q = c * (s + L * (y - x))
@@ -154,15 +175,23 @@ FISHER_TERMS: dict[str, PerspectiveFisher | LogFisher] = {"perspective": Perspec
 _BAND_CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
-def band_coefficients(grid) -> tuple:
-    """Grid constants of the reduced-Hessian bands (T has columns a_k e_k + b_k e_{k+1}), cached per grid."""
+def band_coefficients(grid, ndim: int = 1) -> tuple:
+    """Grid constants of the reduced-Hessian bands (T has columns a_k e_k + b_k e_{k+1}), cached per grid.
+
+    ``(h, a, b, a a, 2 a b, b b, a_k a_{k+1}, b_k a_{k+1}, b_k b_{k+1}, b_k a_{k+2}, 2 (a + b))``.
+    ``ndim=2``: the same arrays as ``(1, n)`` rows, the operands for batches ``(B, n)``: the
+    same numbers, and NumPy need not broadcast a 1-D operand (measured: the bands of one
+    slice at N = 61 in 9 us against 16 us).
+    """
     c = _BAND_CACHE.get(grid)
     if c is None:
         h = grid.h
         a, b = -1 / h[:-1], 1 / h[1:]
-        c = (h, a, b, a * a, 2 * a * b, b * b, a[:-1] * a[1:], b[:-1] * a[1:], b[:-1] * b[1:], b[:-2] * a[2:])
+        pairs = (a[:-1] * a[1:], b[:-1] * a[1:], b[:-1] * b[1:], b[:-2] * a[2:])
+        flat = (h, a, b, a * a, 2 * a * b, b * b, *pairs, 2 * (a + b))
+        c = {1: flat, 2: tuple(x[None] for x in flat)}
         _BAND_CACHE[grid] = c
-    return c
+    return c[ndim]
 
 
 def reduced_bands(grid, xx: Array, yy: Array, xy: Array, h_sm: Array, h_mm: Array) -> tuple[Array, Array, Array]:
@@ -173,11 +202,17 @@ def reduced_bands(grid, xx: Array, yy: Array, xy: Array, h_sm: Array, h_mm: Arra
     mixed f-m entries of an edge are ``h_sm`` for both of its points), the reduced
     Hessian of the edge terms is pentadiagonal.
     """
-    _, a, b, aa, ab2, bb, o1a, o1b, o1c, o2 = band_coefficients(grid)
+    _, a, b, aa, ab2, bb, o1a, o1b, o1c, o2, mixed = band_coefficients(grid, 2 if xx.ndim == 2 else 1)
     d = np.zeros((*xx.shape[:-1], xx.shape[-1] + 1))
     d[..., :-1] += xx
     d[..., 1:] += yy
-    diag = h_mm + aa * d[..., :-1] + ab2 * xy + bb * d[..., 1:] + 2 * (a + b) * h_sm
-    off1 = o1a * xy[..., :-1] + o1b * d[..., 1:-1] + o1c * xy[..., 1:] + b[:-1] * h_sm[..., 1:] + a[1:] * h_sm[..., :-1]
+    diag = h_mm + aa * d[..., :-1] + ab2 * xy + bb * d[..., 1:] + mixed * h_sm
+    off1 = (
+        o1a * xy[..., :-1]
+        + o1b * d[..., 1:-1]
+        + o1c * xy[..., 1:]
+        + b[..., :-1] * h_sm[..., 1:]
+        + a[..., 1:] * h_sm[..., :-1]
+    )
     off2 = o2 * xy[..., 1:-1]
     return diag, off1, off2
