@@ -36,6 +36,7 @@ from jko_cvx.scene.schema import (
     check_known,
     parse_table,
     require_table,
+    unknown_keys_together,
 )
 from jko_cvx.stepping import StepPolicy, step_policy
 
@@ -197,7 +198,8 @@ def scene_from_dict(d: Mapping[str, Any], limits: Limits | None = None) -> Scene
         a value of the wrong type or range, an inconsistent combination, or a scene
         beyond the limits.
     """
-    top = parse_table(SceneTable, require_table(d, "scene"), "")
+    _unknown_keys(require_table(d, "scene"))  # typos in several tables are named in one error
+    top = parse_table(SceneTable, d, "")
     v = parse_table(VTable, top.v, "v")
     x = None if top.x is None else parse_table(XTable, top.x, "x")
     initial = _parse_initial(top.initial, x is not None)
@@ -254,6 +256,35 @@ def _check_initial_density(scene: Scene, f0: np.ndarray) -> None:
             f"undefined at 0), but it is 0 at {zeros} of {f0.size} points (exp underflow): widen the bumps "
             "(smaller initial.rates / initial.a, initial.b) or use collision.fisher = 'perspective'"
         )
+
+
+_SECTIONS = {"v": VTable, "x": XTable, "time": TimeTable, "collision": CollisionTable, "stop": StopTable,
+             "output": OutputTable}  # fmt: skip
+
+
+def _unknown_keys(d: Mapping[str, Any]) -> None:
+    """Every unknown key of the document's tables, refused in one :class:`SceneError` (before the
+    values are parsed: a misspelt required key is then reported as the typo, not as missing).
+    Sections that are not tables are left to the parser, which names them."""
+
+    def fields(cls) -> list[str]:
+        return [f.name for f in dataclasses.fields(cls)]
+
+    with unknown_keys_together():
+        check_known(d, fields(SceneTable), "")
+        for name, cls in _SECTIONS.items():
+            if isinstance(d.get(name), Mapping):
+                check_known(d[name], fields(cls), name)
+        refine = d.get("refine")
+        if isinstance(refine, Mapping):
+            check_known(refine, ("v", "x", "concentration_set"), "refine")
+            for axis in ("v", "x"):
+                if isinstance(refine.get(axis), Mapping):
+                    check_known(refine[axis], fields(RefineAxisTable), f"refine.{axis}")
+        initial = d.get("initial")
+        kind = initial.get("kind") if isinstance(initial, Mapping) else None
+        if isinstance(kind, str) and kind in INITIAL_KINDS:
+            check_known({k: val for k, val in initial.items() if k != "kind"}, fields(INITIAL_KINDS[kind]), "initial")
 
 
 def _parse_initial(data: Any, has_x: bool) -> Initial:

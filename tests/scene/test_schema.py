@@ -477,3 +477,28 @@ def test_memory_estimate_counts_dense_hessians_only_where_newton_forms_them():
     assert shipped_scene("inhom_gamma3_lambda4", big).v.n == 1025
     with pytest.raises(SceneError, match="JKO_CVX_MAX_GIB"):
         shipped_scene("inhom_gamma1p5_before", big)
+
+
+def test_typos_in_several_tables_are_named_in_one_error():
+    """One pass over the file finds every unknown key: each table's message, in one error."""
+    import tomllib
+
+    from jko_cvx.scene.model import default_scene, scene_from_dict
+
+    d = default_scene().to_dict()
+    d["v"]["nn"] = d["v"].pop("n")  # a misspelt required key: reported as the typo, not as missing
+    d["stop"]["eps_vv"] = 1e-3
+    d["refine"]["v"]["delta_0"] = 0.3
+    d["initial"]["rate"] = [2.0]
+    d["gama"] = 1.0
+    with pytest.raises(SceneError) as info:
+        scene_from_dict(d)
+    msg = str(info.value)
+    for dotted, hint in [("gama", "gamma"), ("v.nn", "v.n"), ("stop.eps_vv", "stop.eps_v"),
+                         ("refine.v.delta_0", "refine.v.delta0"), ("initial.rate", "initial.rates")]:  # fmt: skip
+        assert f"'{dotted}'" in msg and f"did you mean '{hint}'?" in msg, (dotted, msg)
+    # one table's unknown keys: the message check_known gives alone, unchanged
+    one = tomllib.loads('gamma = 1.0\nt_end = 1.0\n[v]\nL = 2.0\nnn = 21\n[initial]\nkind = "gaussians"\n'
+                        'amplitudes = [1.0]\nrates = [2.0]\ncentres = [0.0]\n[time]\ndt = 0.01\n')  # fmt: skip
+    with pytest.raises(SceneError, match=r"^unknown key\(s\) \['v.nn'\] in \[v\] \(did you mean 'v.n'\?\); allowed: "):
+        scene_from_dict(one)
