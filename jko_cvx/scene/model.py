@@ -36,7 +36,7 @@ from jko_cvx.scene.schema import (
     check_known,
     parse_table,
     require_table,
-    unknown_keys_together,
+    unknown_keys_message,
 )
 from jko_cvx.stepping import StepPolicy, step_policy
 
@@ -260,6 +260,7 @@ def _check_initial_density(scene: Scene, f0: np.ndarray) -> None:
 
 _SECTIONS = {"v": VTable, "x": XTable, "time": TimeTable, "collision": CollisionTable, "stop": StopTable,
              "output": OutputTable}  # fmt: skip
+_REFINE_KEYS = ("v", "x", "concentration_set")  # the [refine] table: one sub-table per axis, and the set
 
 
 def _unknown_keys(d: Mapping[str, Any]) -> None:
@@ -270,21 +271,20 @@ def _unknown_keys(d: Mapping[str, Any]) -> None:
     def fields(cls) -> list[str]:
         return [f.name for f in dataclasses.fields(cls)]
 
-    with unknown_keys_together():
-        check_known(d, fields(SceneTable), "")
-        for name, cls in _SECTIONS.items():
-            if isinstance(d.get(name), Mapping):
-                check_known(d[name], fields(cls), name)
-        refine = d.get("refine")
-        if isinstance(refine, Mapping):
-            check_known(refine, ("v", "x", "concentration_set"), "refine")
-            for axis in ("v", "x"):
-                if isinstance(refine.get(axis), Mapping):
-                    check_known(refine[axis], fields(RefineAxisTable), f"refine.{axis}")
-        initial = d.get("initial")
-        kind = initial.get("kind") if isinstance(initial, Mapping) else None
-        if isinstance(kind, str) and kind in INITIAL_KINDS:
-            check_known({k: val for k, val in initial.items() if k != "kind"}, fields(INITIAL_KINDS[kind]), "initial")
+    tables: list[tuple[Mapping[str, Any], Any, str]] = [(d, fields(SceneTable), "")]
+    tables += [(d[name], fields(cls), name) for name, cls in _SECTIONS.items() if isinstance(d.get(name), Mapping)]
+    refine = d.get("refine")
+    if isinstance(refine, Mapping):
+        tables.append((refine, _REFINE_KEYS, "refine"))
+        tables += [(refine[a], fields(RefineAxisTable), f"refine.{a}") for a in ("v", "x")
+                   if isinstance(refine.get(a), Mapping)]  # fmt: skip
+    initial = d.get("initial")
+    kind = initial.get("kind") if isinstance(initial, Mapping) else None
+    if isinstance(kind, str) and kind in INITIAL_KINDS:
+        tables.append(({k: val for k, val in initial.items() if k != "kind"}, fields(INITIAL_KINDS[kind]), "initial"))
+    refusals = [m for m in (unknown_keys_message(*table) for table in tables) if m is not None]
+    if refusals:
+        raise SceneError("; and ".join(refusals))
 
 
 def _parse_initial(data: Any, has_x: bool) -> Initial:
@@ -304,7 +304,7 @@ def _parse_refine(data: Any, has_x: bool) -> tuple[RefineTable, bool]:
     if data is None:
         return RefineTable(), False
     data = require_table(data, "refine")
-    check_known(data, ("v", "x", "concentration_set"), "refine")
+    check_known(data, _REFINE_KEYS, "refine")
     if "x" in data and not has_x:
         raise SceneError("refine.x needs an [x] grid")
     specs: dict[str, Any] = {}

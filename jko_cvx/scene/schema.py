@@ -14,9 +14,7 @@ import dataclasses
 import difflib
 import math
 import re
-from collections.abc import Iterator, Mapping
-from contextlib import contextmanager
-from contextvars import ContextVar
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
@@ -165,46 +163,23 @@ def _suggest(name: str, valid) -> str:
     return f" (did you mean {close[0]!r}?)" if close else ""
 
 
-# Inside unknown_keys_together(): the unknown-key messages of every table parsed so far.
-_PENDING: ContextVar[list[str] | None] = ContextVar("jko_cvx_unknown_keys", default=None)
-
-
-def check_known(data: Mapping[str, Any], valid, where: str) -> None:
-    """Refuse keys of ``data`` outside ``valid``, naming them as dotted keys with a suggestion.
-
-    Inside :func:`unknown_keys_together` the refusal is recorded and raised at its end, with
-    every other table's, so that a file with typos in several tables is corrected in one pass.
-    """
+def unknown_keys_message(data: Mapping[str, Any], valid, where: str) -> str | None:
+    """The refusal of the keys of ``data`` outside ``valid`` (dotted, with a suggestion), or None."""
     unknown = sorted(set(data) - set(valid), key=str)
     if not unknown:
-        return
+        return None
     names = [_dotted(where, str(u)) for u in unknown]
     close = difflib.get_close_matches(str(unknown[0]), sorted(valid), n=1, cutoff=0.6)
     hint = f" (did you mean {_dotted(where, close[0])!r}?)" if close else ""
     label = f"key(s) {names} in [{where}]" if where else f"top-level key(s) {names}"
-    message = f"unknown {label}{hint}; allowed: {sorted(valid)}"
-    pending = _PENDING.get()
-    if pending is None:
+    return f"unknown {label}{hint}; allowed: {sorted(valid)}"
+
+
+def check_known(data: Mapping[str, Any], valid, where: str) -> None:
+    """Refuse keys of ``data`` outside ``valid``, naming them as dotted keys with a suggestion."""
+    message = unknown_keys_message(data, valid, where)
+    if message is not None:
         raise SceneError(message)
-    pending.append(message)
-
-
-@contextmanager
-def unknown_keys_together() -> Iterator[None]:
-    """Check several tables, then refuse every unknown key at once.
-
-    Within the block :func:`check_known` records unknown keys instead of raising; on leaving,
-    one :class:`SceneError` names them all, one table after another (the message of a single
-    table's unknown keys is the one :func:`check_known` raises outside the block).
-    """
-    pending: list[str] = []
-    token = _PENDING.set(pending)
-    try:
-        yield
-    finally:
-        _PENDING.reset(token)
-    if pending:
-        raise SceneError("; and ".join(pending))
 
 
 def require_table(val: Any, where: str) -> Mapping[str, Any]:
