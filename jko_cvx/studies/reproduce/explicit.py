@@ -31,6 +31,7 @@ import pandas as pd
 from scipy.integrate import solve_ivp
 
 from jko_cvx.environment import record_csv, write_markdown
+from jko_cvx.studies.solvers.figures import pyplot
 
 __all__ = ["closed_form", "reproduce_explicit", "solve_ode1"]
 
@@ -124,8 +125,6 @@ def reproduce_explicit(out: Path, quick: bool = False, **_sweep_opts: Any) -> pd
 
 
 def _figure(df: pd.DataFrame, path: Path) -> None:
-    from jko_cvx.studies.solvers.figures import pyplot
-
     plt = pyplot()
 
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))

@@ -40,6 +40,7 @@ from jko_cvx.grid import Grid
 from jko_cvx.scene.model import Scene, shipped_scene
 from jko_cvx.studies.reproduce.blowup_tables import FIT_COLUMNS, fit_columns
 from jko_cvx.studies.reproduce.paper import TAB_G2BU
+from jko_cvx.studies.solvers.figures import pyplot
 from jko_cvx.studies.sweep import run_sweep
 
 __all__ = ["g2bu_run", "g2bu_scene", "level_set_components", "reproduce_tab_g2bu", "secondary_peaks"]
@@ -210,8 +211,6 @@ def _zoomed(ax, snap: dict, title: str) -> None:
 
 def _snapshot_figure(df: pd.DataFrame, path: Path) -> None:
     """``fig:gk2_bu``, ``fig:gk2_bu_2``: every lambda at T_b; ``fig:gk2_evo_example``: lambda = 310 in time."""
-    from jko_cvx.studies.solvers.figures import pyplot
-
     plt = pyplot()
 
     evolution = [s for snaps in df.snapshots for s in snaps]
@@ -237,8 +236,6 @@ def _at_end(r: np.ndarray) -> float:
 
 
 def _figure(df: pd.DataFrame, path: Path) -> None:
-    from jko_cvx.studies.solvers.figures import pyplot
-
     plt = pyplot()
 
     fine = df[df.n_v > df.n_v.min()]

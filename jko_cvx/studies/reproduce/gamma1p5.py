@@ -33,6 +33,7 @@ from jko_cvx.engine.loop import simulate, snapshot_record
 from jko_cvx.environment import record_csv, write_markdown
 from jko_cvx.grid import Grid, PeriodicGrid
 from jko_cvx.scene.model import Scene, shipped_scene
+from jko_cvx.studies.solvers.figures import pyplot
 from jko_cvx.studies.sweep import run_sweep
 
 __all__ = [
@@ -364,15 +365,9 @@ def reproduce_inhom_gamma1p5(out: Path, quick: bool = False, **sweep_opts: Any) 
     return main
 
 
-def _plt():
-    from jko_cvx.studies.solvers.figures import pyplot
-
-    return pyplot()
-
-
 def _figure(main: pd.DataFrame, path: Path, meet: float) -> None:
     """``fig:gk1p5_C5`` / ``fig:gk1p5_C2p5``: snapshots at the paper's times and the records."""
-    plt = _plt()
+    plt = pyplot()
     k = max(len(r.snapshots) for _, r in main.iterrows())
     fig, axes = plt.subplots(len(main), k + 1, figsize=(2.9 * (k + 1), 2.7 * len(main)), squeeze=False)
     for ax_row, (_, r) in zip(axes, main.iterrows(), strict=True):
@@ -398,7 +393,7 @@ def _figure(main: pd.DataFrame, path: Path, meet: float) -> None:
 
 def _resolution_figure(runs: pd.DataFrame, refs: pd.DataFrame, path: Path, meet: float) -> None:
     """min dv (the paper's criterion) and sigma_v (the density's own spread) against t, every grid."""
-    plt = _plt()
+    plt = pyplot()
     fig, axes = plt.subplots(2, 2, figsize=(11, 7), squeeze=False)
     for row, case in zip(axes, _CASES, strict=True):
         for i, (_, r) in enumerate(runs[runs.case == case].iterrows()):
@@ -453,7 +448,7 @@ def _properties_table(main: pd.DataFrame) -> pd.DataFrame:
 
 def _properties_figure(main: pd.DataFrame, path: Path) -> None:
     """Rows 3-4 of ``fig:gk3_properties``: mass, momentum, moments 2-4 and entropy against t."""
-    plt = _plt()
+    plt = pyplot()
     names = ("mass", "momentum", "moment2", "moment3", "moment4", "entropy")
     fig, axes = plt.subplots(len(main), len(names), figsize=(3.1 * len(names), 2.8 * len(main)), squeeze=False)
     for ax_row, (_, r) in zip(axes, main.iterrows(), strict=True):

@@ -34,7 +34,7 @@ from jko_cvx.studies.reproduce.gamma1p5 import (
     UNIFORM,
     spread_event,
 )
-from jko_cvx.studies.solvers.figures import pyplot
+from jko_cvx.studies.solvers.figures import finish_figure, pyplot
 
 __all__ = ["EVENT_FILES", "events", "reproduce_inhom_gamma1p5_events"]
 
@@ -118,11 +118,7 @@ def _figure(df: pd.DataFrame, samples: dict[int, tuple[list[float], list[float]]
         )
         ax.set_xlabel("t")
         ax.set_ylabel("sigma_v")
-        ax.grid(True, which="both", alpha=0.2)
-        ax.legend(fontsize=6, loc="upper center", bbox_to_anchor=(0.5, -0.12))
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    finish_figure(fig, axes[0], path, fontsize=6, loc="upper center", bbox_to_anchor=(0.5, -0.12))
 
 
 def reproduce_inhom_gamma1p5_events(out: Path, quick: bool = False, **_sweep_opts: Any) -> pd.DataFrame:

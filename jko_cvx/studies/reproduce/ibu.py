@@ -19,6 +19,7 @@ import pandas as pd
 from jko_cvx.engine.loop import simulate
 from jko_cvx.environment import record_csv, write_markdown
 from jko_cvx.scene.model import Scene, shipped_scene
+from jko_cvx.studies.solvers.figures import pyplot
 from jko_cvx.studies.sweep import run_sweep
 
 __all__ = ["bump_positions", "ibu_point", "ibu_run", "ibu_scene", "reproduce_ibu"]
@@ -110,8 +111,6 @@ def reproduce_ibu(out: Path, quick: bool = False, **sweep_opts: Any) -> pd.DataF
 
 
 def _figure(df: pd.DataFrame, run: dict[str, Any], path: Path) -> None:
-    from jko_cvx.studies.solvers.figures import pyplot
-
     plt = pyplot()
 
     fig, ax = plt.subplots(1, 3, figsize=(13, 3.6))

@@ -21,6 +21,7 @@ from jko_cvx.engine.loop import simulate, snapshot_record
 from jko_cvx.environment import record_csv, write_markdown
 from jko_cvx.scene.model import Scene, shipped_scene, shipped_scene_names
 from jko_cvx.studies.reproduce.blowup_tables import FIT_COLUMNS, fit_columns
+from jko_cvx.studies.solvers.figures import pyplot
 from jko_cvx.studies.sweep import run_sweep
 
 __all__ = ["inhomogeneous_gamma3", "inhomogeneous_scene", "reproduce_inhom_gamma3"]
@@ -117,8 +118,6 @@ def reproduce_inhom_gamma3(out: Path, quick: bool = False, **sweep_opts) -> pd.D
 
 
 def _figures(df: pd.DataFrame, out: Path) -> None:
-    from jko_cvx.studies.solvers.figures import pyplot
-
     plt = pyplot()
 
     k = len(df)

@@ -19,6 +19,7 @@ from jko_cvx.environment import record_csv, write_markdown
 from jko_cvx.grid import Grid
 from jko_cvx.mesh.maps import OneBumpMap, TwoBumpMap
 from jko_cvx.mesh.remapping import remap
+from jko_cvx.studies.solvers.figures import pyplot
 
 __all__ = ["reproduce_mesh_maps"]
 
@@ -35,8 +36,6 @@ def _cases() -> list[tuple[str, Grid, np.ndarray, type, str]]:
 
 def reproduce_mesh_maps(out: Path, quick: bool = False, **_sweep_opts: Any) -> pd.DataFrame:
     """Draw both figures and write ``mesh_maps.{csv,md}`` (``quick`` is the same: it takes a second)."""
-    from jko_cvx.studies.solvers.figures import pyplot
-
     plt = pyplot()
 
     out = Path(out)

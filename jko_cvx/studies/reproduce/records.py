@@ -27,6 +27,7 @@ from jko_cvx.collision.sqp import SqpOptions
 from jko_cvx.engine.loop import simulate
 from jko_cvx.environment import record_csv, write_markdown
 from jko_cvx.studies.reproduce.blowup_tables import blowup_scene
+from jko_cvx.studies.solvers.figures import finish_figure, pyplot
 from jko_cvx.studies.sweep import run_sweep
 
 __all__ = ["PAPER_HALVING", "QUICK_HALVING", "record_run", "record_scene", "reproduce_gk1_records"]
@@ -167,8 +168,6 @@ def reproduce_gk1_records(out: Path, quick: bool = False, **sweep_opts) -> pd.Da
 
 
 def _figure(df: pd.DataFrame, path: Path) -> None:
-    from jko_cvx.studies.solvers.figures import pyplot
-
     plt = pyplot()
 
     fixed = df[df.policy == "fixed"]
@@ -197,8 +196,6 @@ def _figure(df: pd.DataFrame, path: Path) -> None:
 
 def _adpt_tau_figure(df: pd.DataFrame, path: Path) -> None:
     """``fig:gk1_adpt_tau``: dt against t for g1 (delta0 = 0.05 left, 0.5 right), each SQP budget labelled."""
-    from jko_cvx.studies.solvers.figures import pyplot
-
     plt = pyplot()
 
     runs = df[(df.policy == "halving") & (df.data == "g1")]
@@ -216,8 +213,4 @@ def _adpt_tau_figure(df: pd.DataFrame, path: Path) -> None:
         ax.set_title(f"fig:gk1_adpt_tau: g1, N_v = 121, delta = 0.5, delta0 = {d0:g}", fontsize=9)
         ax.set_xlabel("t")
         ax.set_ylabel("adaptive dt")
-        ax.grid(True, which="both", alpha=0.2)
-        ax.legend(fontsize=6.5, loc="upper center", bbox_to_anchor=(0.5, -0.14))
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    finish_figure(fig, axes[0], path, fontsize=6.5, loc="upper center", bbox_to_anchor=(0.5, -0.14))

@@ -34,6 +34,7 @@ from jko_cvx.collision.conic import clear_model_cache
 from jko_cvx.environment import record_csv, write_markdown
 from jko_cvx.grid import Grid
 from jko_cvx.kernels import PowerKernel
+from jko_cvx.studies.solvers.figures import pyplot
 from jko_cvx.studies.sweep import code_identity
 from jko_cvx.threads import thread_environment, usable_cores
 
@@ -217,8 +218,6 @@ def cost_growth(out: Path, quick: bool = False, repeats: int = 5, **_sweep_opts:
 
 
 def _plot(step: pd.DataFrame, batch: pd.DataFrame, tstep: pd.DataFrame, path: Path) -> None:
-    from jko_cvx.studies.solvers.figures import pyplot
-
     plt = pyplot()
 
     fig, axes = plt.subplots(1, 3, figsize=(16, 4.3))

@@ -54,11 +54,12 @@ def pyplot() -> _Headless:
     return _Headless()
 
 
-def finish_figure(fig, axes, path: Path) -> None:
-    """Grid and legend on every axis, tight layout, save at 120 dpi, close."""
+def finish_figure(fig, axes, path: Path, **legend) -> None:
+    """Grid and legend on every axis (``legend``: keyword arguments of ``Axes.legend``, default
+    ``fontsize=7``), tight layout, save at 120 dpi, close."""
     for ax in axes:
         ax.grid(True, which="both", alpha=0.2)
-        ax.legend(fontsize=7)
+        ax.legend(**{"fontsize": 7, **legend})
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     pyplot().close(fig)
