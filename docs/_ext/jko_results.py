@@ -134,7 +134,9 @@ PAGES: tuple[Page, ...] = (
         "reproduce_tables",
         "The paper's tables, reproduced",
         "The blow-up tables of the paper (tab:bu, tab:bu_tb2, tab:g2bu) rerun by `jko-cvx reproduce`, "
-        "each entry beside the paper's number, and the Fisher-weight scan behind tab:bu.",
+        "each entry beside the paper's number, the controls of its blow-up criteria (across the "
+        "tab:g2bu threshold, and across gamma = 2 where the homogeneous theory forbids blow-up), and the "
+        "Fisher-weight scan behind tab:bu.",
         (
             Entry(R + "tab_bu.md", figures=(R + "tab_bu.png",), data=(R + "tab_bu.csv",)),
             Entry(R + "tab_bu_tb2.md", figures=(R + "tab_bu_tb2.png",), data=(R + "tab_bu_tb2.csv",)),
@@ -144,6 +146,11 @@ PAGES: tuple[Page, ...] = (
                 data=(R + "tab_g2bu.csv", R + "tab_g2bu_previous_code.csv"),
             ),
             Entry(R + "tab_g2bu_control.md", data=(R + "tab_g2bu_control.csv",)),
+            Entry(
+                R + "criterion_control.md",
+                figures=(R + "criterion_control.png",),
+                data=(R + "criterion_control.csv",),
+            ),
             Entry(R + "tab_bu_beta_scan.md", data=(R + "tab_bu_beta_scan.csv",)),
             Entry(R + "tab_bu_beta_scan_summary.csv", title="tab:bu against beta: summary"),
             Entry(R + "tab_bu_traces.md", data=(R + "tab_bu_traces.csv",)),
@@ -207,6 +214,7 @@ PAGES: tuple[Page, ...] = (
                     R + "inhom_gamma1p5.csv",
                     R + "inhom_gamma1p5_resolution.csv",
                     R + "inhom_gamma1p5_resolution_previous_code.csv",
+                    R + "inhom_gamma1p5_properties.csv",
                 ),
             ),
             Entry(
@@ -297,6 +305,7 @@ PAGES: tuple[Page, ...] = (
                     "regenerate_timing_section_2026-12-02T0753.csv",
                 ),
             ),
+            Entry(R + "section.md", data=(R + "section.csv",)),
             Entry("ab_entry.csv", title="One reproduction entry timed on two commits, alternating"),
             Entry("reproduce_unchanged.md"),
             Entry(R + "summary.md"),

@@ -166,3 +166,44 @@ def test_the_error_bar_covers_the_lag_of_the_numerical_max_f(overrides):
     assert abs(fit.T_b_fit - T) <= fit.T_b_fit_err
     assert fit.T_b_fit_err < 0.05 * T  # measured 0.8 - 4 %
     assert fit.T_b_fit_err >= fit.T_b_fit_spread  # the window's spread is part of the bar, never less
+
+
+def test_a_rise_too_small_to_extrapolate_is_not_finite_time():
+    """An exact power law (T = 1, a = 0.4) seen only while max f grows 1.42-fold on its final approach:
+    the records cannot tell a singularity from a slow bounded rise, so the kind is undetermined."""
+    t = np.linspace(0.0, 0.85, 86)
+    m = 0.4 * (1.0 - t) ** (-0.4)
+    fit = fit_blowup(t, m)
+    start, stop = fit.window
+    assert m[stop - 1] / m[start] < 1.5  # the premise: the fitted records grow less than 1.5-fold
+    assert fit.blowup_kind == "undetermined", fit.reason
+    assert "grows only" in fit.reason
+    # the same law seen further on (max f growing 4-fold on the approach) is finite_time
+    t = np.linspace(0.0, 0.99, 200)
+    assert fit_blowup(t, 0.4 * (1.0 - t) ** (-0.4)).blowup_kind == "finite_time"
+
+
+def test_a_concentration_that_relaxes_after_the_fitted_time_is_no_finite_time():
+    """max f follows 1/(2 (T - t)) up to t = 0.45 (T = 0.5), then falls to a third (a rise and relax,
+    as for gamma = 3 inhomogeneous): the records after the fitted T contradict the singularity."""
+    t = np.linspace(0.0, 0.8, 161)
+    peak = 0.45
+    rise = 1 / (2 * (0.5 - np.minimum(t, peak)))
+    m = np.where(t <= peak, rise, rise * np.exp(-3 * (t - peak)))
+    fit = fit_blowup(t, m)
+    assert fit.blowup_kind == "no_finite_time", fit.reason
+    assert "relaxed" in fit.reason
+    # cut before the relaxation the same records still read finite_time (the rule needs records past T)
+    keep = t <= peak + 0.02
+    assert fit_blowup(t[keep], m[keep]).blowup_kind == "finite_time"
+
+
+def test_the_slow_rise_of_tab_g2bu_below_its_threshold_is_not_finite_time():
+    """lambda = 50 in the tab:g2bu scene (61 x 101): max f rises from 0.40 to 1.4 and the run reaches
+    t = 0.2 with every step certified, past any finite time a fit of its early rise would give."""
+    from jko_cvx.studies.reproduce.g2bu import g2bu_scene
+
+    run = simulate(g2bu_scene(50.0, 61, 101, 0.2).replace({"output.every": 10**6}))
+    v, d = run.verdict, run.diagnostics
+    assert not run.blowup and d.failed.sum() == 0 and d.max_f.max() < 2
+    assert v.blowup_kind != "finite_time", v.blowup_reason

@@ -10,6 +10,7 @@ from __future__ import annotations
 from jko_cvx.studies.reproduce.beta_scan import reproduce_tab_bu_beta_scan
 from jko_cvx.studies.reproduce.blowup_tables import reproduce_tab_bu, reproduce_tab_bu_tb2
 from jko_cvx.studies.reproduce.conclusions import reproduce_conclusions
+from jko_cvx.studies.reproduce.criterion_control import reproduce_criterion_control
 from jko_cvx.studies.reproduce.discrimination import reproduce_discrimination
 from jko_cvx.studies.reproduce.explicit import reproduce_explicit
 from jko_cvx.studies.reproduce.explicit_figures import reproduce_explicit_figures
@@ -43,6 +44,7 @@ REPRODUCTIONS = {
     "inhom_gamma1p5_events": reproduce_inhom_gamma1p5_events,
     "tab_g2bu": reproduce_tab_g2bu,
     "tab_g2bu_control": reproduce_tab_g2bu_control,
+    "criterion_control": reproduce_criterion_control,
     "tab_bu_traces": reproduce_tab_bu_traces,
     "property_budget": reproduce_property_budget,
     "tab_bu_beta_scan": reproduce_tab_bu_beta_scan,
@@ -63,6 +65,7 @@ REPRODUCTIONS = {
 __all__ = [
     "REPRODUCTIONS",
     "reproduce_conclusions",
+    "reproduce_criterion_control",
     "reproduce_discrimination",
     "reproduce_explicit",
     "reproduce_explicit2_sketch",

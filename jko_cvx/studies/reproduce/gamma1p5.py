@@ -33,6 +33,7 @@ from jko_cvx.engine.loop import simulate, snapshot_record
 from jko_cvx.environment import record_csv, write_markdown
 from jko_cvx.grid import Grid, PeriodicGrid
 from jko_cvx.scene.model import Scene, shipped_scene
+from jko_cvx.studies.reproduce.blowup_tables import FIT_COLUMNS, fit_columns
 from jko_cvx.studies.solvers.figures import pyplot
 from jko_cvx.studies.sweep import run_sweep
 
@@ -106,6 +107,7 @@ def _verdict(run) -> dict[str, Any]:
         "reason": run.verdict["reason"],
         "t_end": float(run.t),
         "steps": len(run.diagnostics) - 1,
+        **fit_columns(run.verdict),
     }
 
 
@@ -259,6 +261,7 @@ def _summary(r: pd.Series, uniform: bool = False) -> dict[str, Any]:
         "lambda": _CASES[r.case][0],
         "grid": f"{r.n_x:g} x {r.n_v:g} uniform" if uniform else f"{r.n:g} x {r.n:g}",
         "T_b": r.T_b,
+        **{k: r[k] for k in FIT_COLUMNS},
         "reason": r.reason,
         "steps": r.steps,
         "max f (end)": r.max_f[-1],
@@ -337,7 +340,8 @@ def reproduce_inhom_gamma1p5(out: Path, quick: bool = False, **sweep_opts: Any) 
         "no collapse by t_end" if np.isnan(t) else f"collapse in v {'before' if t < meet else 'after'}"
         for t in main[collapse]
     ]
-    cols = ["case", "lambda", "n", "T_b", "meeting time c/d", "ours", "paper", "supports", "T_b over grids"]
+    cols = ["case", "lambda", "n", "T_b", *FIT_COLUMNS, "meeting time c/d", "ours", "paper", "supports",
+            "T_b over grids"]  # fmt: skip
     cols += [collapse, f"{collapse} over grids", "density criterion", centre]
     cols += ["reason", "steps", "max f (end)", "sigma_v (end)", "mass drift", "seconds"]
     main[cols].to_csv(out / "inhom_gamma1p5.csv", index=False)

@@ -9,14 +9,17 @@ behind its conclusions converge:
     v, CFL steps of ``alg:SPMCSL-JKO``) and on a fixed uniform n x n grid (no maps: the
     map-free reference; the CFL rule then gives dt = 0.9 dv / L_v, so the step refines with
     the grid; ``v.floor_every_step`` keeps the 1e-10 floor of the remap the mapped runs do
-    every step).  Every run stops at the first of: the paper's criterion min dv < eps_v
+    every step).  Every mapped and uniform run stops at the first of: the paper's criterion min dv < eps_v
     (T_b), the density criterion sigma_v < :data:`~jko_cvx.studies.reproduce.gamma1p5.COLLAPSE_SPREAD`
     (``stop.spread_v``; sigma_v is the smallest local velocity spread over slices with
     rho >= 0.1 max rho) and t = :data:`T_END`.  The paper's criterion on the mapped grids is
     reached only after thousands of CFL steps on a collapsed grid (121 x 121: 6093 steps and
     34 minutes for lambda = 10, ``inhom_gamma1p5.md``); at 481 x 481 that crawl is out of reach,
     so the study measures the density's collapse, which every grid resolves, and records
-    whether the paper's criterion fired before it.
+    whether the paper's criterion fired before it.  The ``continued uniform`` runs are the
+    uniform runs carried on through the collapse to t = :data:`T_END` (no density stop), so that
+    the record shows what follows the collapse (sigma_v's minimum and return) and the power-law
+    fit of max f (:func:`~jko_cvx.blowup.fit_blowup`) sees the whole history.
 ``tab:g2bu`` (:mod:`jko_cvx.studies.reproduce.g2bu`)
     all nine lambda at N_x = 121 and N_v = 201, 401, 801, run to the paper's criterion
     (min dx < eps_x or min dv < eps_v, eps = 5e-6): T_b, its direction and the level-set
@@ -43,7 +46,7 @@ from jko_cvx.environment import record_csv, write_markdown
 from jko_cvx.scene.model import Scene
 from jko_cvx.studies.reproduce.blowup_tables import FIT_COLUMNS, fit_columns
 from jko_cvx.studies.reproduce.g2bu import g2bu_run
-from jko_cvx.studies.reproduce.gamma1p5 import COLLAPSE_SPREAD, gamma1p5_scene
+from jko_cvx.studies.reproduce.gamma1p5 import COLLAPSE_SPREAD, gamma1p5_scene, spread_event
 from jko_cvx.studies.reproduce.paper import TAB_G2BU
 from jko_cvx.studies.solvers.figures import finish_figure, pyplot
 from jko_cvx.studies.sweep import code_identity, run_sweep
@@ -51,6 +54,7 @@ from jko_cvx.studies.sweep import code_identity, run_sweep
 __all__ = [
     "G2BU_N_V",
     "GRIDS",
+    "GRID_KINDS",
     "T_END",
     "convergence",
     "grid_point",
@@ -70,20 +74,23 @@ MEETING_TIME = 1.0
 QUICK = {"grids": (31, 41), "t_end": 0.25, "lambdas": (310.0,), "n_x": 41, "n_v": (61, 81)}
 """The quick form: coarse grids, short runs (a check of the pipeline, not of convergence)."""
 _CASES = {"before": 10.0, "after": 5.0}  # lambda of each parameter set
-_SPREAD_TIMES = (0.1, 0.2, 0.3)
+_SPREAD_TIMES = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6)
+GRID_KINDS = ("mapped", "uniform", "continued uniform")
+"""The gamma = 3/2 grids: the paper's maps, the fixed uniform grid, and that grid run through the collapse."""
 
 
 def study_scene(case: str, n: int, grid: str, t_end: float = T_END) -> Scene:
-    """The scene of one gamma = 3/2 point: mapped or uniform n x n, stopped at the collapse or t_end."""
-    if grid not in ("mapped", "uniform"):
-        raise ValueError(f"grid must be 'mapped' or 'uniform', got {grid!r}")
+    """The scene of one gamma = 3/2 point on n x n: mapped or uniform (stopped at the collapse or t_end) or
+    continued uniform (to t_end)."""
+    if grid not in GRID_KINDS:
+        raise ValueError(f"grid must be one of {list(GRID_KINDS)}, got {grid!r}")
     overrides: dict[str, Any] = {
-        "stop.spread_v": COLLAPSE_SPREAD,
+        "stop.spread_v": 0.0 if grid == "continued uniform" else COLLAPSE_SPREAD,
         "t_end": t_end,
         "output.times": None,
         "output.every": 10**9,
     }
-    if grid == "uniform":  # no maps and no mesh criterion: the map-free reference
+    if grid != "mapped":  # no maps and no mesh criterion: the map-free reference
         # the floor of the paper's every-step v-remap (eqn:mass_conserv_v) kept on the fixed
         # grid, so that the reference differs from the mapped run in the grid only
         overrides.update({"refine": None, "stop.eps_v": 0.0, "stop.eps_x": 0.0, "v.floor_every_step": True})
@@ -91,7 +98,7 @@ def study_scene(case: str, n: int, grid: str, t_end: float = T_END) -> Scene:
 
 
 def _gamma1p5(case: str, n: int, grid: str, t_end: float) -> dict[str, Any]:
-    """One gamma = 3/2 run (mapped or uniform n x n) to the first of T_b, the collapse and t_end."""
+    """One gamma = 3/2 run (:func:`study_scene`) to the first of T_b, the collapse (not continued runs) and t_end."""
     run = simulate(study_scene(case, n, grid, t_end))
     d = run.diagnostics
     stop = run.verdict.stop
@@ -100,9 +107,11 @@ def _gamma1p5(case: str, n: int, grid: str, t_end: float) -> dict[str, Any]:
         "reason": run.verdict["reason"],
         # the paper's indicators (B_v, B_x, e_f); the density criterion is reported apart
         "T_b": float(run.verdict["T_b"]) if stop.blowup and stop is not StopReason.SPREAD_V else float("nan"),
-        "t_collapse": float(run.verdict["T_b"]) if stop is StopReason.SPREAD_V else float("nan"),
+        # the first record with sigma_v below the threshold (where a stopped run stops)
+        "t_collapse": spread_event(d.t.tolist(), d.min_spread_v.tolist())["t below"],
         "t_stop": float(run.t),
         **fit_columns(run.verdict),
+        "fit_reason": run.verdict["blowup_reason"],
         "steps": len(d) - 1,
         "t": d.t.tolist(),
         "min_spread_v": d.min_spread_v.tolist(),
@@ -163,13 +172,27 @@ def _points(quick: bool) -> list[dict[str, Any]]:
     g1p5 = [
         {"study": "gamma1p5", "case": c, "n": n, "grid": g, "t_end": t_end}
         for n in grids
-        for g in ("uniform", "mapped")
+        for g in ("uniform", "mapped", "continued uniform")
         for c in _CASES
     ]
     g2 = [{"study": "g2bu", "lam": lam, "n_x": n_x, "n_v": n_v} for n_v in n_vs for lam in lambdas]
     # the finest of each study last: the two coarser levels of both first
     coarse = [p for p in g1p5 if p["n"] != grids[-1]] + [p for p in g2 if p["n_v"] != n_vs[-1]]
     return coarse + [p for p in g1p5 if p["n"] == grids[-1]] + [p for p in g2 if p["n_v"] == n_vs[-1]]
+
+
+def _after_collapse(r: pd.Series) -> dict[str, Any]:
+    """What the whole record says after the collapse: sigma_v's minimum and return, max f's peak."""
+    ev = spread_event(r.t, r.min_spread_v, t_below=r.t_collapse, followed=r.grid == "continued uniform")
+    k = int(np.argmax(r.max_f))
+    return {
+        "min sigma_v": ev["min sigma_v"],
+        "t(min sigma_v)": ev["t(min sigma_v)"],
+        f"t(sigma_v back >= {COLLAPSE_SPREAD:g})": ev["t back above"],
+        "peak max f": float(r.max_f[k]),
+        "t(peak max f)": float(r.t[k]),
+        "event": ev["event"],
+    }
 
 
 def _gamma1p5_rows(df: pd.DataFrame) -> pd.DataFrame:
@@ -186,8 +209,10 @@ def _gamma1p5_rows(df: pd.DataFrame) -> pd.DataFrame:
                 "T_b (paper's criteria)": r.T_b,
                 f"t(sigma_v < {COLLAPSE_SPREAD:g})": r.t_collapse,
                 **{k: r.get(k, float("nan")) for k in FIT_COLUMNS},
+                "fit reason": r.get("fit_reason", ""),
                 **{f"sigma_v(t={tk:g})": _at(r.t, r.min_spread_v, tk) for tk in _SPREAD_TIMES},
                 "sigma_v (stop)": r.min_spread_v[-1],
+                **_after_collapse(r),
                 "max f (stop)": r.max_f[-1],
                 "max rho (stop)": r.max_rho[-1],
                 "min dv (stop)": r.min_dv[-1],
@@ -202,12 +227,16 @@ def _gamma1p5_rows(df: pd.DataFrame) -> pd.DataFrame:
 
 
 def _gamma1p5_convergence(rows: pd.DataFrame) -> pd.DataFrame:
-    """Per case and grid kind: the collapse time and sigma_v(t) on each n, with :func:`convergence`."""
+    """Per case and grid kind: the collapse time and sigma_v(t) on each n (continued runs: sigma_v's minimum and
+    return, max f's peak and the fitted T), with :func:`convergence`."""
     out = []
-    quantities = [f"t(sigma_v < {COLLAPSE_SPREAD:g})"] + [f"sigma_v(t={tk:g})" for tk in _SPREAD_TIMES]
+    stopped = [f"t(sigma_v < {COLLAPSE_SPREAD:g})"] + [f"sigma_v(t={tk:g})" for tk in _SPREAD_TIMES[:3]]
+    # a continued run equals the uniform one up to the collapse: its own quantities are those after it
+    continued = ["min sigma_v", "t(min sigma_v)", f"t(sigma_v back >= {COLLAPSE_SPREAD:g})", "peak max f",
+                 "t(peak max f)", "T_b_fit"]  # fmt: skip
     for (case, grid), g in rows.groupby(["case", "grid"], sort=False):
         g = g.sort_values("n")
-        for q in quantities:
+        for q in continued if grid == "continued uniform" else stopped:
             values = g[q].tolist()
             conv = convergence(values) if len(values) >= 3 else {}
             out.append(
@@ -254,8 +283,16 @@ def _fit_words(r: pd.Series) -> str:
 
 
 def _outcome(r: pd.Series, collapse: str) -> str:
-    """One run's outcome in words: the density's collapse, the paper's T_b, or neither by its end."""
-    return _outcome_paper(r, collapse) + _fit_words(r)
+    """One run's outcome in words: the density's collapse, the paper's T_b, or neither by its end; for a run
+    continued through the collapse what followed it, and the fit's reason."""
+    if r.grid != "continued uniform":
+        return _outcome_paper(r, collapse) + _fit_words(r)
+    why = str(r.get("fit reason", "")).split(":")[0]
+    return (
+        f"{r.event} (min sigma_v {r['min sigma_v']:.3g} at t = {r['t(min sigma_v)']:.3g}; max f peaks at "
+        f"{r['peak max f']:.4g} at t = {r['t(peak max f)']:.3g} and is {r['max f (stop)']:.4g} at t = "
+        f"{r['t stop']:.3g}){_fit_words(r)}, {why}"
+    )
 
 
 def _outcome_paper(r: pd.Series, collapse: str) -> str:
@@ -377,7 +414,7 @@ def write_report(
         + (__doc__ or "").split("\n\n", 1)[1].split("\n\nFor a quantity")[0]
         + absent
         + "\n\n## gamma = 3/2: every run\n\n"
-        + rows.to_markdown(index=False, floatfmt=".4g")
+        + rows.drop(columns=["fit reason", "event"]).to_markdown(index=False, floatfmt=".4g")
         + "\n\n## gamma = 3/2: convergence over the grids\n\n"
         "d1, d2: the differences between successive grids; order = log2(d1/d2).\n\n"
         + conv.to_markdown(index=False, floatfmt=".4g")

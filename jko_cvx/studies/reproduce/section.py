@@ -51,6 +51,7 @@ SECTION = (
     "tab_bu_beta_scan",
     "tab_g2bu",
     "tab_g2bu_control",
+    "criterion_control",
     "gk1_records",
     "gk2_bu",
     "inhom_gamma3",

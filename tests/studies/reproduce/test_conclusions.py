@@ -66,3 +66,16 @@ def test_the_entry_writes_its_page_and_refuses_missing_files(tmp_path):
     md = (root / "conclusions.md").read_text()
     assert md.split("\n")[2].startswith("*Environment:")
     assert f"{(df.verdict == 'not settled').sum()} not settled" in md
+
+
+def test_the_criterion_row_reads_the_control(tmp_path):
+    """Contradicted while the mesh criterion fires for some gamma >= 2; supported once no such run fires."""
+    root = _copy(tmp_path)
+    row = conclusions(root).set_index("claim").filter(like="min dv < eps_v is the blow-up time", axis=0).iloc[0]
+    d = pd.read_csv(root / "criterion_control.csv")
+    n_false = int(d["fires where theory forbids"].sum())
+    assert row.verdict == ("contradicted" if n_false else "supported") and f"fires in {n_false} of" in row.ours
+    d["fires where theory forbids"] = False
+    d.to_csv(root / "criterion_control.csv", index=False)
+    row = conclusions(root).set_index("claim").filter(like="min dv < eps_v is the blow-up time", axis=0).iloc[0]
+    assert row.verdict == "supported" and "fires in 0 of" in row.ours

@@ -13,6 +13,7 @@ import pytest
 from jko_cvx.studies.reproduce import REPRODUCTIONS
 from jko_cvx.studies.reproduce.grid_convergence import (
     G2BU_N_V,
+    GRID_KINDS,
     GRIDS,
     T_END,
     _points,
@@ -44,7 +45,7 @@ def test_the_full_sweep_covers_every_grid_and_runs_the_finest_last():
     g1p5 = [p for p in points if p["study"] == "gamma1p5"]
     g2 = [p for p in points if p["study"] == "g2bu"]
     assert {(p["case"], p["n"], p["grid"]) for p in g1p5} == {
-        (c, n, g) for c in ("before", "after") for n in GRIDS for g in ("uniform", "mapped")
+        (c, n, g) for c in ("before", "after") for n in GRIDS for g in GRID_KINDS
     }
     assert all(p["t_end"] == T_END for p in g1p5)
     assert {(p["lam"], p["n_v"]) for p in g2} == {(float(lam), n) for lam in TAB_G2BU for n in G2BU_N_V}
@@ -66,9 +67,17 @@ def test_quick_grid_convergence_runs_both_studies_and_keeps_the_invariants(tmp_p
     # no maps on the reference: its spacing stays the uniform 2 L / (n - 1), and the mesh criterion never fires
     assert np.allclose(uniform["min dv (stop)"], 10.0 / (uniform.n - 1))
     assert uniform["T_b (paper's criteria)"].isna().all()
-    collapse = rows["t(sigma_v < 0.05)"]
-    assert (collapse.notna() == rows.stop.str.startswith("min spread_v")).all()
-    assert ((rows["t stop"] <= 0.25 + 1e-12) & (collapse.fillna(0) <= rows["t stop"] + 1e-12)).all()
+    stopped = rows[rows.grid != "continued uniform"]
+    collapse = stopped["t(sigma_v < 0.05)"]
+    assert (collapse.notna() == stopped.stop.str.startswith("min spread_v")).all()
+    assert ((rows["t stop"] <= 0.25 + 1e-12) & (rows["t(sigma_v < 0.05)"].fillna(0) <= rows["t stop"] + 1e-12)).all()
+    # a continued run is the uniform run, not stopped at the collapse: the same record up to it, then on to t_end
+    continued = rows[rows.grid == "continued uniform"].set_index(["case", "n"])
+    same = uniform.set_index(["case", "n"]).loc[continued.index]
+    assert len(continued) == len(uniform) and (continued["t stop"] == 0.25).all()
+    for q in ("t(sigma_v < 0.05)", "sigma_v(t=0.1)", "sigma_v(t=0.2)"):
+        assert continued[q].equals(same[q]), q
+    assert (continued["min sigma_v"] <= same["sigma_v (stop)"]).all()
     g2 = pd.read_csv(tmp_path / "grid_convergence_g2bu.csv")
     assert g2["lambda"].tolist() == [310]
     assert {"T_b (N_v = 61)", "T_b (N_v = 81)"} <= set(g2.columns)
