@@ -127,6 +127,14 @@ class Verdict(Mapping):
                 f" (WARNING: max f grew by a factor {self.unflagged_growth:.3g} and no blow-up rule fired: "
                 "a concentration the mesh criterion did not see)"
             )
+        if self.blowup and self.blowup_kind == "no_finite_time":
+            # a threshold crossed at a finite t by a concentration that is not a singularity
+            # (exponential contraction, as for gamma >= 2 by the Osgood criterion)
+            text += (
+                f" (WARNING: a blow-up rule fired at T_b = {self.T_b:.6g}, but the records fit no finite-time "
+                "law (blow-up kind no_finite_time): the threshold time is set by the mesh threshold, "
+                "not by a singularity)"
+            )
         return text
 
     def describe_fit(self) -> str:

@@ -75,3 +75,27 @@ def test_a_verdict_record_with_an_unknown_kind_is_refused():
     assert Verdict.from_dict(d) == Verdict.from_dict(json.loads(json.dumps(d)))
     with pytest.raises(ValueError, match="blowup_kind"):
         Verdict.from_dict({**d, "blowup_kind": "soon"})
+
+
+def test_a_rule_that_fired_without_a_finite_time_law_is_warned():
+    """The gamma >= 2 case: max f grows exponentially, the mesh threshold is crossed at a finite t,
+    but no finite-time singularity is there (Osgood): the verdict must not read as plain blow-up."""
+    t = np.linspace(0, 3, 80)
+    fired = Verdict().stopped(StopReason.EPS_V, 3.0, "min dv = 1e-4 < eps_v").with_fit(_rows(t, np.exp(2 * t)))
+    assert fired.blowup_kind == "no_finite_time", fired.blowup_reason
+    text = fired.describe()
+    assert "WARNING" in text and "no_finite_time" in text and "T_b = 3" in text
+    singular = np.linspace(0, 0.49, 50)
+    law = Verdict().stopped(StopReason.EPS_V, 0.49, "min dv < eps_v").with_fit(_rows(singular, 0.5 / (0.5 - singular)))
+    assert law.blowup_kind == "finite_time" and "WARNING" not in law.describe()
+    quiet = Verdict().with_fit(_rows(t, np.exp(2 * t) / np.exp(2 * t)))  # no rule fired, nothing grew
+    assert "WARNING" not in quiet.describe()
+
+
+def test_the_warning_reaches_the_run_summary(tmp_path):
+    # gamma = 2 contracts exponentially: with a coarse eps_v the mesh rule fires all the same
+    scene = shipped_scene("tab_bu_g1", {"gamma": 2.0, "time.dt": 0.02, "t_end": 3.0, "stop.eps_v": 2e-3})
+    run = simulate(scene, out=tmp_path / "r")
+    v = load_run(tmp_path / "r").verdict
+    assert v.blowup and v.blowup_kind == "no_finite_time", (v.reason, v.blowup_reason)
+    assert "WARNING" in run.summary() and "no_finite_time" in run.summary()
