@@ -174,7 +174,7 @@ def spread_event(
     sigma: list[float],
     level: float = COLLAPSE_SPREAD,
     t_below: float = float("nan"),
-    t_back: float = float("nan"),
+    t_back: float | None = None,
     followed: bool = True,
 ) -> dict[str, Any]:
     """Blow-up or collapse: the event of one run, named from its record of sigma_v against t.
@@ -185,9 +185,12 @@ def spread_event(
         The recorded times (increasing) and sigma_v there: a run's whole record, or samples of it.
     level
         The threshold (:data:`COLLAPSE_SPREAD`).
-    t_below, t_back
-        The first time sigma_v < level and the first later time sigma_v >= level, where the
-        caller knows them better than the samples (nan: read off the samples).
+    t_below
+        The first time sigma_v < level, where the caller knows it better than the samples
+        (nan: read off the samples).
+    t_back
+        The first time after ``t_below`` with sigma_v >= level, from the whole record where the
+        caller has it (nan: the record never comes back); None: read off the samples.
     followed
         False for a run stopped at the threshold: nothing is known after ``t_below``.
 
@@ -207,9 +210,11 @@ def spread_event(
     if np.isnan(t_below):
         t_below = _first_below(tt.tolist(), ss.tolist(), level)
     k = int(np.nanargmin(ss))
-    if not np.isnan(t_below) and followed and np.isnan(t_back):
-        back = np.flatnonzero((tt > t_below) & (ss >= level))
-        t_back = float(tt[back[0]]) if back.size else float("nan")
+    if t_back is None:
+        t_back = float("nan")
+        if not np.isnan(t_below) and followed:
+            back = np.flatnonzero((tt > t_below) & (ss >= level))
+            t_back = float(tt[back[0]]) if back.size else float("nan")
     if np.isnan(t_below):
         event = f"no collapse by t = {tt[-1]:.3g}"
     elif not followed:

@@ -12,10 +12,11 @@ t = t_end"``), or was not followed past the threshold (a run stopped there).
 ``inhom_gamma1p5_resolution.csv`` (41^2-121^2 mapped and the uniform reference, run past the
 collapse) and ``grid_convergence.csv`` (121^2-481^2 mapped and uniform, stopped at it), and
 writes ``inhom_gamma1p5_events.{csv,md,png}``.  The resolution file holds sigma_v at
-t = 0.2, 0.4, 0.6, at the threshold crossing and at the run's end (and, from the sweep of
-:func:`~jko_cvx.studies.reproduce.gamma1p5.reproduce_inhom_gamma1p5` on, the exact minimum
-and return time of the whole record): a minimum read off these samples is an upper bound
-of the record's, and a return time the first sample back above the threshold.
+t = 0.2, 0.4, 0.6 and at the run's end, and the whole record's exact minimum, its time, the
+first time below the threshold and the first return above it (files written before those
+columns: a minimum read off the samples, an upper bound of the record's).  The minimum need
+not come before the return: on some grids sigma_v comes back above the threshold and then
+dips a second time, deeper, before T_b (``end / min`` is measured from that deepest point).
 """
 
 from __future__ import annotations
@@ -42,6 +43,7 @@ EVENT_FILES = ("inhom_gamma1p5_resolution.csv", "grid_convergence.csv")
 """The files :func:`events` reads: the sweep run past the collapse, and the grid study stopped at it."""
 
 _BELOW = f"t(sigma_v < {COLLAPSE_SPREAD:g})"
+_BACK = f"t(sigma_v back >= {COLLAPSE_SPREAD:g})"
 
 
 def _num(r: pd.Series, key: str) -> float:
@@ -49,19 +51,41 @@ def _num(r: pd.Series, key: str) -> float:
 
 
 def _resolution_event(r: pd.Series, uniform_t_end: float) -> dict[str, Any]:
-    """One row of ``inhom_gamma1p5_resolution.csv``: its samples of sigma_v, and the exact columns where present."""
+    """One row of ``inhom_gamma1p5_resolution.csv``: its samples of sigma_v, and the exact columns where present.
+
+    Where the file has the whole record's columns (minimum, its time, the return above the
+    threshold) they decide, and the samples must agree with them: no sample below the
+    minimum, none at or above the threshold after the collapse of a run that never comes
+    back, the return after the collapse.  A row that disagrees was edited or written by
+    other code, and is refused.
+    """
     t_end = _num(r, "t (end)")
     if np.isnan(t_end):  # files written before the column: the run ended at T_b, or at the uniform reference's t_end
         t_end = r.T_b if pd.notna(r.T_b) else uniform_t_end
     t = [tk for tk in SPREAD_TIMES if pd.notna(r.get(f"sigma_v(t={tk:g})"))]
     samples = [(tk, float(r[f"sigma_v(t={tk:g})"])) for tk in t]
-    if not np.isnan(_num(r, "t(min sigma_v)")):
-        samples.append((_num(r, "t(min sigma_v)"), _num(r, "min sigma_v")))
     samples.append((float(t_end), float(r["sigma_v (end)"])))
+    exact = not np.isnan(_num(r, "t(min sigma_v)")) and _BACK in r.index
+    t_below, t_back = _num(r, _BELOW), (_num(r, _BACK) if exact else None)
+    if exact:
+        t_min, s_min = _num(r, "t(min sigma_v)"), _num(r, "min sigma_v")
+        where = f"{EVENT_FILES[0]}, {r.case} {r.grid}"
+        if not (0.0 <= t_min <= t_end) or any(sk < s_min * (1 - 1e-12) for _, sk in samples):
+            raise ValueError(f"{where}: min sigma_v {s_min:g} at t = {t_min:g} disagrees with the samples {samples}")
+        if not np.isnan(t_below):
+            if t_back is not None and not np.isnan(t_back) and not (t_below < t_back <= t_end):
+                raise ValueError(
+                    f"{where}: the return t = {t_back:g} is not between the collapse {t_below:g} and the end"
+                )
+            if (
+                t_back is not None
+                and np.isnan(t_back)
+                and any(tk > t_below and sk >= COLLAPSE_SPREAD for tk, sk in samples)
+            ):
+                raise ValueError(f"{where}: no return above {COLLAPSE_SPREAD:g} recorded, but a sample is above it")
+        samples.append((t_min, s_min))
     times, sigma = zip(*sorted(samples), strict=True)
-    return spread_event(
-        list(times), list(sigma), t_below=_num(r, _BELOW), t_back=_num(r, f"t(sigma_v back >= {COLLAPSE_SPREAD:g})")
-    )
+    return spread_event(list(times), list(sigma), t_below=t_below, t_back=t_back)
 
 
 def _convergence_event(r: pd.Series) -> dict[str, Any]:
@@ -137,19 +161,20 @@ def reproduce_inhom_gamma1p5_events(out: Path, quick: bool = False, **_sweep_opt
     for kind in ("mapped", "uniform"):
         runs = followed[followed.grid.str.endswith(kind)]
         counts.append(f"{int(runs['t back above'].notna().sum())} of {len(runs)} {kind}")
+    second = int((followed["t(min sigma_v)"] > followed["t back above"]).sum())
     write_markdown(
         out / "inhom_gamma1p5_events.md",
         "# sec:sp_inhom_gamma_1p5: blow-up or collapse\n\n"
         f"What the smallest local velocity spread sigma_v does after it falls below {COLLAPSE_SPREAD:g}, "
         "on every gamma = 3/2 grid the result files hold.  A blow-up in v keeps sigma_v at 0; a "
-        "collapse that comes back above the threshold is not a blow-up.  The minimum and the return "
-        "are read off the recorded samples (t = "
+        "collapse that comes back above the threshold is not a blow-up.  The minimum, its time and the "
+        "return are the whole record's where the file has them (a minimum read off the samples at t = "
         + ", ".join(f"{tk:g}" for tk in SPREAD_TIMES)
-        + ", the end of the run, and the exact minimum where the file has it): a sampled minimum "
-        "is an upper bound of the record's.  Runs stopped at the threshold (the grid study) were "
-        "not followed past it.\n\n"
+        + " and the end is an upper bound of the record's).  Runs stopped at the threshold (the grid "
+        "study) were not followed past it.\n\n"
         f"Of the runs that fell below the threshold and were followed past it, {' and '.join(counts)} come back "
-        "above it before their end (on the mapped grids: T_b of the paper's criterion).\n\n"
+        "above it before their end (on the mapped grids: T_b of the paper's criterion); "
+        f"{second} of them dip a second time, deeper, after the return (t(min sigma_v) > t back above).\n\n"
         + table.to_markdown(index=False, floatfmt=".4g")
         + "\n",
     )
