@@ -14,8 +14,11 @@ set comes from one of two rules (``concentration_set``):
   gives the axis the uniform grid (extent :data:`UNIFORM_EXTENT`).
 
 The map is centred at 0 (``centre = "origin"``, the paper's maps) or on the concentration
-(``centre = "follow"``, one bump only: :class:`~jko_cvx.mesh.maps.FollowingMap` centred at the
-grid point of max f, so a delta that forms away from 0 is refined where it forms).
+(``centre = "follow"``, so a delta that forms away from 0 is refined where it forms): one bump
+in v is :class:`~jko_cvx.mesh.maps.FollowingMap` centred at the grid point of max f, one bump in
+x the paper's periodic map rotated onto it (:func:`~jko_cvx.mesh.following.periodic_following_grid`),
+and two bumps on either axis a :class:`~jko_cvx.mesh.following.ClusterMap` with each set where
+its bump is (:func:`~jko_cvx.mesh.following.concentration_clusters`).
 
 An axis is remeshed only when its set's extent moved by more than ``tol`` times its width
 (always with ``tol = 0``, the paper's every-step remesh).  The extents the grids were built
@@ -29,6 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from jko_cvx.grid import Grid, PeriodicGrid
+from jko_cvx.mesh.following import ClusterMap, concentration_clusters, periodic_following_grid
 from jko_cvx.mesh.maps import FollowingMap, OneBumpMap, TwoBumpMap, periodic_map_grid, quadrant_set
 from jko_cvx.mesh.remapping import remap, remap_periodic
 
@@ -39,7 +43,7 @@ CONCENTRATION_SETS = ("projections", "quadrant")
 ``refine.concentration_set``)."""
 
 CENTRES = ("origin", "follow")
-"""Where a one-bump map is centred (:attr:`RefineSpec.centre`): at v = 0, or on the concentration."""
+"""Where a map's sets are (:attr:`RefineSpec.centre`): at 0 (symmetric about it), or on the concentration."""
 
 UNIFORM_EXTENT = np.zeros(1)
 """The extent recorded for an empty quadrant set (the uniform grid): r = 0, which no map has (r > 0),
@@ -50,8 +54,8 @@ and non-empty, so a checkpoint (where an empty array means None) reads it back a
 class RefineSpec:
     """Mesh refinement on one axis: map type, delta0, delta, and the remeshing tolerance.
 
-    ``centre``: ``"origin"`` (the paper's maps, centred at 0) or ``"follow"`` (one bump centred on
-    the concentration: the grid point of max f; its extent is recorded as (c - r, c + r)).
+    ``centre``: ``"origin"`` (the paper's maps, centred at 0) or ``"follow"`` (each set centred on
+    its concentration: the grid point of max f; its extent is recorded as (c - r, c + r) per set).
     ``tol = 0`` remeshes every step (the paper's Algorithm ``alg:one_step_MR_JKO``); ``tol > 0``
     remeshes only when the concentration set's extent has moved by more than ``tol`` times
     its width.  Measured (``ibu_gamma3``): remeshing every step moves the bumps inward by as
@@ -69,8 +73,6 @@ class RefineSpec:
     def __post_init__(self) -> None:
         if self.centre not in CENTRES:
             raise ValueError(f"centre must be one of {list(CENTRES)}, got {self.centre!r}")
-        if self.centre == "follow" and self.bumps != 1:
-            raise ValueError(f"centre = 'follow' centres a one-bump map (bumps = 1), got bumps = {self.bumps}")
 
 
 def _map_params(mu) -> np.ndarray:
@@ -91,7 +93,10 @@ def _moved(spec: RefineSpec, old: np.ndarray | None, new: np.ndarray) -> bool:
         return False
     if old is None or old.size != new.size or spec.tol == 0:
         return True
-    width = new[-1] - (new[0] if new.size == 2 else 0.0)
+    if spec.centre == "follow":  # (lo, hi) per set: the widest set's width
+        width = float((new[1::2] - new[::2]).max())
+    else:
+        width = new[-1] - (new[0] if new.size == 2 else 0.0)
     return bool(np.abs(new - old).max() > spec.tol * width)
 
 
@@ -140,8 +145,6 @@ class RemeshPolicy:
             sp is not None and sp.centre == "follow" for sp in (self.v, self.x)
         ):
             raise ValueError("centre = 'follow' builds its map from the projections, not the quadrant set")
-        if self.x is not None and self.x.centre == "follow":
-            raise ValueError("centre = 'follow' is available for the v-axis only (the x-maps are periodic)")
         if self.concentration_set not in CONCENTRATION_SETS:
             raise ValueError(
                 f"concentration_set must be one of {list(CONCENTRATION_SETS)}, got {self.concentration_set!r}"
@@ -198,9 +201,14 @@ class RemeshPolicy:
     def _refine_v(self, vgrid: Grid, f: np.ndarray, params: Extent):
         spec = self.v
         fv = f if f.ndim == 1 else f.max(axis=0)
-        if spec.centre == "follow":
+        if spec.centre == "follow" and spec.bumps == 1:
             mu = FollowingMap.from_density(vgrid, fv, spec.delta0, spec.delta)
             new = np.array([mu.c - mu.r, mu.c + mu.r])
+        elif spec.centre == "follow":
+            L = float(vgrid.points[-1])
+            sets = concentration_clusters(vgrid.points, fv, spec.delta0, spec.bumps)
+            mu = ClusterMap(L, tuple((c, min(r, L * spec.delta)) for c, r in sets), spec.delta)
+            new = mu.extent()
         else:
             cls = OneBumpMap if spec.bumps == 1 else TwoBumpMap
             mu = cls.from_density(vgrid, fv, spec.delta0, spec.delta)
@@ -214,14 +222,32 @@ class RemeshPolicy:
 
     def _refine_x(self, xgrid: PeriodicGrid, f: np.ndarray, params: Extent):
         spec = self.x
-        cls = OneBumpMap if spec.bumps == 1 else TwoBumpMap
         fx = f.max(axis=1)
+        if spec.centre == "follow":
+            return self._follow_x(xgrid, f, fx, params)
+        cls = OneBumpMap if spec.bumps == 1 else TwoBumpMap
         proxy = self._x_proxy(xgrid)
         mu = cls.from_density(proxy, np.concatenate([[fx[0]], fx, [fx[-1]]]), spec.delta0, spec.delta)
         new = _map_params(mu)
         if not _moved(spec, params, new):
             return f, xgrid, params
         grid = periodic_map_grid(mu, xgrid.n, xgrid.period)
+        return remap_periodic(xgrid, f, grid, axis=0, conserve_moment=self.conserve_x_moment), grid, new
+
+    def _follow_x(self, xgrid: PeriodicGrid, f: np.ndarray, fx: np.ndarray, params: Extent):
+        """``refine.x.centre = "follow"``: the sets of max_v f on the periodic axis, each where its bump is."""
+        spec, L = self.x, float(self.x_L)
+        sets = concentration_clusters(xgrid.points, fx, spec.delta0, spec.bumps, period=xgrid.period)
+        sets = [(c, min(r, L * spec.delta)) for c, r in sets]
+        if spec.bumps == 1:
+            (c, r), mu = sets[0], None
+            new = np.array([c - r, c + r])
+        else:
+            mu = ClusterMap(L, tuple(sets), spec.delta, periodic=True)
+            new = mu.extent()
+        if not _moved(spec, params, new):
+            return f, xgrid, params
+        grid = periodic_following_grid(L, c, r, spec.delta, xgrid.n) if mu is None else mu.periodic_grid(xgrid.n)
         return remap_periodic(xgrid, f, grid, axis=0, conserve_moment=self.conserve_x_moment), grid, new
 
     def _x_proxy(self, xgrid: PeriodicGrid) -> Grid:

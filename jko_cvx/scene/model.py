@@ -235,7 +235,7 @@ def scene_from_dict(d: Mapping[str, Any], limits: Limits | None = None) -> Scene
     check_limits(scene, limits)  # before anything of the run's size is allocated
     f0 = scene.initial_density(scene.xgrid(), scene.vgrid())
     _check_initial_density(scene, f0)
-    return _resolve_centre(scene, f0) if centre_auto else scene
+    return _resolve_centre(scene, f0, centre_auto) if centre_auto else scene
 
 
 def _check_initial_density(scene: Scene, f0: np.ndarray) -> None:
@@ -298,11 +298,11 @@ def _parse_initial(data: Any, has_x: bool) -> Initial:
     return initial
 
 
-def _parse_refine(data: Any, has_x: bool) -> tuple[RefineTable, bool]:
+def _parse_refine(data: Any, has_x: bool) -> tuple[RefineTable, tuple[str, ...]]:
     """The ``[refine]`` table (a :class:`RefineSpec` per axis the scene refines, and the concentration set) and
-    whether ``refine.v.centre`` is ``"auto"``."""
+    the axes whose ``centre`` is ``"auto"``."""
     if data is None:
-        return RefineTable(), False
+        return RefineTable(), ()
     data = require_table(data, "refine")
     check_known(data, _REFINE_KEYS, "refine")
     if "x" in data and not has_x:
@@ -311,11 +311,6 @@ def _parse_refine(data: Any, has_x: bool) -> tuple[RefineTable, bool]:
     for axis in ("v", "x"):
         if axis in data:
             table = asdict(parse_table(RefineAxisTable, data[axis], f"refine.{axis}"))
-            if table["centre"] == "follow" and (axis == "x" or table["bumps"] != 1):
-                raise SceneError(
-                    f"refine.{axis}.centre = 'follow' centres a one-bump velocity map: it needs refine.v with "
-                    "bumps = 1 (use 'origin' or 'auto')"
-                )
             # "auto" is resolved against f0 once the scene is built (_resolve_centre); a RefineSpec holds
             # only what the run does
             specs[axis] = RefineSpec(**{**table, "centre": "origin" if table["centre"] == "auto" else table["centre"]})
@@ -333,23 +328,34 @@ def _parse_refine(data: Any, has_x: bool) -> tuple[RefineTable, bool]:
             )
         if specs["concentration_set"] == "quadrant" and not ("v" in specs or "x" in specs):
             raise SceneError('refine.concentration_set = "quadrant" needs [refine.v] or [refine.x] (a map to build)')
-    return RefineTable(**specs), auto.get("v", False)
+    if specs.get("concentration_set") == "quadrant":
+        for axis in ("v", "x"):
+            if axis in specs and specs[axis].centre == "follow":
+                raise SceneError(
+                    f"refine.{axis}.centre = 'follow' places the map on the projections' sets; "
+                    'refine.concentration_set = "quadrant" builds both maps from one quadrant set '
+                    "(use 'origin' or 'auto' there)"
+                )
+    return RefineTable(**specs), tuple(axis for axis, is_auto in auto.items() if is_auto)
 
 
-def _symmetric_in_v(f0: np.ndarray) -> bool:
-    """The v-projection max_x f0 (homogeneous: f0) is even on the scene's grid (symmetric about v = 0)."""
-    fv = f0 if f0.ndim == 1 else f0.max(axis=0)
-    return bool(np.allclose(fv, fv[::-1], rtol=1e-12, atol=1e-14 * fv.max()))
+def _even(profile: np.ndarray) -> bool:
+    """The profile is even on a grid symmetric about 0 (the scenes' v- and x-grids are)."""
+    return bool(np.allclose(profile, profile[::-1], rtol=1e-12, atol=1e-14 * profile.max()))
 
 
-def _resolve_centre(scene: Scene, f0: np.ndarray) -> Scene:
-    """``refine.v.centre = "auto"``: the paper's centred map where f0 is symmetric in v (or the map has two bumps,
-    or the sets are the quadrant's), the map that follows the concentration elsewhere."""
-    spec = scene.refine.v
-    if spec.bumps != 1 or scene.refine.concentration_set != "projections" or _symmetric_in_v(f0):
+def _resolve_centre(scene: Scene, f0: np.ndarray, axes: tuple[str, ...]) -> Scene:
+    """``refine.<axis>.centre = "auto"``: the paper's map at 0 where f0's projection on the axis is even (max_x f0
+    in v, max_v f0 in x), the map that follows the concentration elsewhere; always the paper's map where the
+    sets are the quadrant's."""
+    if scene.refine.concentration_set != "projections":
         return scene
-    refine = dataclasses.replace(scene.refine, v=dataclasses.replace(spec, centre="follow"))
-    return dataclasses.replace(scene, refine=refine)
+    refine = scene.refine
+    for axis in axes:
+        profile = (f0 if f0.ndim == 1 else f0.max(axis=0)) if axis == "v" else f0.max(axis=1)
+        if not _even(profile):
+            refine = dataclasses.replace(refine, **{axis: dataclasses.replace(getattr(refine, axis), centre="follow")})
+    return scene if refine is scene.refine else dataclasses.replace(scene, refine=refine)
 
 
 def _check_combinations(top, v, x, t, c, s, o) -> None:

@@ -312,8 +312,9 @@ class RefineAxisTable(Table):
     centre: str = key(
         Rule("str", choices=("auto", *CENTRES)),
         "auto",
-        doc="refine.v, one bump: origin (the paper's map at v = 0), follow (at the grid point of max f) or auto "
-        "(origin where max_x f0 is even in v, follow elsewhere)",
+        doc="origin (the paper's maps: one set at 0, or two symmetric about it), follow (each set where its bump "
+        "is: centred at its point of max f, on v or on the periodic x) or auto (origin where f0's projection on "
+        "the axis, max_x f0 or max_v f0, is even, follow elsewhere)",
     )
 
 

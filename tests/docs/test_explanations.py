@@ -66,6 +66,7 @@ NAMES = {
         "quadrant_set",
         "periodic_map_grid",
     ],
+    "jko_cvx.mesh.following": ["ClusterMap", "concentration_clusters", "periodic_following_grid"],
     "jko_cvx.mesh.remapping": ["remap", "remap_periodic"],
     "jko_cvx.mesh.moments": ["restore_moments", "restore_three_moments"],
     "jko_cvx.mesh.policy": ["RemeshPolicy", "RemeshPolicy.refine", "RefineSpec"],

@@ -42,27 +42,32 @@ def test_bad_maps_are_refused(kw, match):
         FollowingMap(**{"L": 2.0, "c": 0.3, "r": 0.2, "delta": 0.5, **kw})
 
 
-def test_follow_needs_one_bump_and_the_v_axis():
-    with pytest.raises(ValueError, match="bumps = 1"):
-        RefineSpec(bumps=2, centre="follow")
+def test_follow_is_refused_only_with_the_quadrant_set():
     with pytest.raises(ValueError, match="centre must be one of"):
         RefineSpec(centre="middle")
-    with pytest.raises(ValueError, match="v-axis only"):
-        RemeshPolicy(None, RefineSpec(centre="follow"), 2.0, 4.0)
-    with pytest.raises(SceneError, match=r"refine\.v\.centre"):
-        shipped_scene("tab_bu_g4", {"refine.v.centre": "follow"})  # two bumps
+    with pytest.raises(ValueError, match="projections"):
+        RemeshPolicy(RefineSpec(centre="follow"), None, 5.0, 5.0, concentration_set="quadrant")
+    with pytest.raises(SceneError, match=r"refine\.x\.centre = 'follow'.*quadrant"):
+        shipped_scene("inhom_gamma1p5_before", {"refine.x.centre": "follow", "refine.concentration_set": "quadrant"})
     with pytest.raises(SceneError, match=r"refine\.v\.centre"):
         shipped_scene("tab_bu_g1", {"refine.v.centre": "middle"})
+    # two bumps, and the periodic x-axis, follow
+    assert shipped_scene("tab_bu_g4", {"refine.v.centre": "follow"}).refine.v == RefineSpec(bumps=2, centre="follow")
+    sc = shipped_scene("inhom_gamma1p5_before", {"refine.x.centre": "follow", "refine.v.centre": "follow"})
+    assert (sc.refine.x.centre, sc.refine.x.bumps, sc.refine.v.centre, sc.refine.v.bumps) == ("follow", 1, "follow", 2)
 
 
 def test_auto_keeps_the_paper_map_for_every_shipped_scene_and_follows_off_centre_data():
-    assert all(shipped_scene(n).refine.v.centre == "origin" for n in shipped_scene_names())
+    for name in shipped_scene_names():
+        refine = shipped_scene(name).refine
+        assert all(spec is None or spec.centre == "origin" for spec in (refine.v, refine.x)), name
     assert shipped_scene("tab_bu_g1", {"initial.centres": [0.3]}).refine.v.centre == "follow"
     assert (
         shipped_scene("tab_bu_g1", {"initial.centres": [0.3], "refine.v.centre": "origin"}).refine.v.centre == "origin"
     )
     two = {"initial.amplitudes": [1.0, 0.6], "initial.rates": [4.0, 4.0], "initial.centres": [0.3, -0.5]}
     assert shipped_scene("tab_bu_g1", two).refine.v.centre == "follow"  # asymmetric; a one-bump map
+    assert shipped_scene("tab_bu_g4", two).refine.v == RefineSpec(bumps=2, centre="follow")  # and a two-bump one
     sym = {"initial.amplitudes": [1.0, 1.0], "initial.rates": [4.0, 4.0], "initial.centres": [0.4, -0.4]}
     assert shipped_scene("tab_bu_g1", sym).refine.v.centre == "origin"
 
