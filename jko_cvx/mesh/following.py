@@ -36,13 +36,21 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from jko_cvx._numbers import real_scalar
 from jko_cvx.grid import Grid, PeriodicGrid
-from jko_cvx.mesh.maps import OneBumpMap, _check_fraction, periodic_map_grid
+from jko_cvx.mesh.maps import OneBumpMap, periodic_map_grid
 
 __all__ = ["ClusterMap", "concentration_clusters", "periodic_following_grid"]
 
 _SAMPLES_PER_POINT = 64
 """Fine samples of the monitor per grid point: the inverse of its integral is read off them (linear)."""
+
+
+def _check_fraction(name: str, x: object) -> float:
+    x = real_scalar(name, x)
+    if not 0 < x < 1:
+        raise ValueError(f"{name} must lie in (0, 1), got {x!r}")
+    return x
 
 
 def _distance(y: NDArray, c: float, period: float | None) -> NDArray:
