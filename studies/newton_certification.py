@@ -12,11 +12,17 @@ Three families of one collision step each, drawn from seeds used nowhere else:
 
 Each problem is solved by :func:`~jko_cvx.collision.newton.solve_newton` and
 :func:`~jko_cvx.collision.nlp.solve_nlp` at their defaults (Newton certifies at KKT 1e-10,
-IPOPT at 1e-6; the certificate is :func:`~jko_cvx.collision.certify.certify` for both).
+IPOPT at 1e-6).  Both returned points are then judged by one yardstick,
+:func:`~jko_cvx.collision.certify.certify` at the engine's acceptance threshold
+(:data:`~jko_cvx.engine.loop.ACCEPT_KKT`, columns ``*_cert``) and at 1e-10 (``*_cert10``):
+the solvers' own statuses use different tolerances.
 Rows are appended to ``studies/results/newton_certification.csv`` with the date, the code
-commit, the label and the BLAS thread setting; run it once per code version to compare::
+commit, the label, the seed set and the BLAS thread setting; run it once per code version::
 
-    OPENBLAS_NUM_THREADS=1 PYTHONPATH=. python studies/newton_certification.py LABEL [PER_FAMILY]
+    OPENBLAS_NUM_THREADS=1 PYTHONPATH=. python studies/newton_certification.py LABEL [PER_FAMILY] [SEEDS]
+
+``SEEDS``: ``development`` (default; the families the solver was tuned on) or ``held_out``
+(other seeds of the same families, drawn once a change is made, to measure it).
 """
 
 from __future__ import annotations
@@ -31,14 +37,16 @@ from pathlib import Path
 
 import numpy as np
 
-import jko_cvx
 from jko_cvx import CollisionProblem, Grid, PowerKernel, Status
 from jko_cvx.collision import solve_newton
+from jko_cvx.collision.certify import certify
 from jko_cvx.collision.nlp import solve_nlp
+from jko_cvx.engine.loop import ACCEPT_KKT
 from jko_cvx.testing import random_density
 
 OUT = Path(__file__).parent / "results" / "newton_certification.csv"
 SEEDS = {"broad": 9101, "large_dt": 9202, "two_bumps": 9303}
+HELD_OUT_SEEDS = {"broad": 9404, "large_dt": 9505, "two_bumps": 9606}
 
 
 def _grid(rng: np.random.Generator, n: int, ratio: float, half_width: float = 2.0) -> Grid:
@@ -57,9 +65,9 @@ def _two_bumps(rng: np.random.Generator, grid: Grid) -> np.ndarray:
     )
 
 
-def problems(family: str, count: int) -> list[tuple[CollisionProblem, dict]]:
+def problems(family: str, count: int, seeds: dict[str, int] = SEEDS) -> list[tuple[CollisionProblem, dict]]:
     """The first ``count`` problems of ``family`` with their parameters."""
-    rng = np.random.default_rng(SEEDS[family])
+    rng = np.random.default_rng(seeds[family])
     out = []
     for _ in range(count):
         n = int(rng.integers(41, 162))
@@ -92,6 +100,10 @@ def problems(family: str, count: int) -> list[tuple[CollisionProblem, dict]]:
 def main() -> None:
     label = sys.argv[1] if len(sys.argv) > 1 else "current"
     count = int(sys.argv[2]) if len(sys.argv) > 2 else 20
+    seed_set = sys.argv[3] if len(sys.argv) > 3 else "development"
+    if seed_set not in ("development", "held_out"):
+        raise SystemExit(f"SEEDS must be 'development' or 'held_out', got {seed_set!r}")
+    seeds = SEEDS if seed_set == "development" else HELD_OUT_SEEDS
     commit = subprocess.run(
         ["git", "-C", str(Path(__file__).parent), "describe", "--always", "--dirty"], capture_output=True, text=True
     ).stdout.strip()
@@ -99,7 +111,7 @@ def main() -> None:
     threads = os.environ.get("OPENBLAS_NUM_THREADS", "unset")
     rows = []
     for family in SEEDS:
-        for i, (P, par) in enumerate(problems(family, count)):
+        for i, (P, par) in enumerate(problems(family, count, seeds)):
             t = time.perf_counter()
             rn = solve_newton(P)
             tn = time.perf_counter() - t
@@ -107,36 +119,65 @@ def main() -> None:
             rc = solve_nlp(P)
             tc = time.perf_counter() - t
             gap = float(P.objective(rn.f, rn.m) - P.objective(rc.f, rc.m))
+            judged = {
+                f"{name}_cert{suffix}": certify(P, r.f, r.m, kkt_tol=tol).status.name
+                for name, r in (("newton", rn), ("nlp", rc))
+                for suffix, tol in (("", ACCEPT_KKT), ("10", 1e-10))
+            }
             rows.append(
                 {
                     "date": date, "commit": commit, "label": label, "threads": threads, "family": family, "index": i,
                     **{k: f"{v:.4g}" for k, v in par.items()},
                     "newton": rn.status.name, "newton_kkt": f"{rn.kkt_residual:.2e}", "newton_iter": rn.iterations,
                     "newton_s": f"{tn:.3f}", "nlp": rc.status.name, "nlp_kkt": f"{rc.kkt_residual:.2e}",
-                    "nlp_s": f"{tc:.3f}", "objective_gap": f"{gap:.2e}",
+                    "nlp_s": f"{tc:.3f}", "objective_gap": f"{gap:.2e}", "seeds": seed_set, **judged,
                 }
             )  # fmt: skip
-    new = not OUT.exists()
-    with OUT.open("a", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        if new:
-            writer.writeheader()
-        writer.writerows(rows)
+    _append(rows)
     conv = Status.CONVERGED.name
-    print(f"{label} ({commit}, {Path(jko_cvx.__file__).parent}, OPENBLAS_NUM_THREADS={threads})")
-    print("| family | problems | nlp certifies | Newton certifies | Newton certifies where nlp does | both NONCONVEX |")
-    print("|---|---|---|---|---|---|")
-    for family in SEEDS:
+    lines = [
+        f"{label} ({commit}, seeds {seed_set}, {date} UTC, OPENBLAS_NUM_THREADS={threads})",
+        "",
+        "Statuses: each solver's own (Newton at KKT 1e-10, IPOPT at 1e-6); certified: the returned point judged by "
+        f"certify at the engine's acceptance threshold {ACCEPT_KKT:g} (and at 1e-10).",
+        "",
+        "| family | problems | nlp CONVERGED | Newton CONVERGED | nlp certified | Newton certified | Newton certified "
+        "where nlp is | same at 1e-10 | both NONCONVEX |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for family in seeds:
         fam = [r for r in rows if r["family"] == family]
-        ref = [r for r in fam if r["nlp"] == conv]
-        both = sum(r["newton"] == conv for r in ref)
-        nonconvex = sum(r["nlp"] == r["newton"] == Status.NONCONVEX.name for r in fam)
-        newton = sum(r["newton"] == conv for r in fam)
-        print(f"| {family} | {len(fam)} | {len(ref)} | {newton} | {both} / {len(ref)} | {nonconvex} |")
-    for r in rows:
-        if r["nlp"] == conv and r["newton"] != conv:
-            keys = ("family", "index", "gamma", "dt", "cfl", "beta", "newton", "newton_kkt")
-            print("  missed:", {k: r[k] for k in keys})
+        ref = [r for r in fam if r["nlp_cert"] == conv]
+        ref10 = [r for r in fam if r["nlp_cert10"] == conv]
+        lines.append(
+            f"| {family} | {len(fam)} | {sum(r['nlp'] == conv for r in fam)} | {sum(r['newton'] == conv for r in fam)} "
+            f"| {len(ref)} | {sum(r['newton_cert'] == conv for r in fam)} "
+            f"| {sum(r['newton_cert'] == conv for r in ref)} / {len(ref)} "
+            f"| {sum(r['newton_cert10'] == conv for r in ref10)} / {len(ref10)} "
+            f"| {sum(r['nlp'] == r['newton'] == Status.NONCONVEX.name for r in fam)} |"
+        )
+    missed = [r for r in rows if r["nlp_cert"] == conv and r["newton_cert"] != conv]
+    keys = ("family", "index", "gamma", "dt", "cfl", "beta", "newton", "newton_kkt", "nlp_kkt")
+    lines += ["", *(f"missed: {({k: r[k] for k in keys})}" for r in missed)] if missed else []
+    text = "\n".join(lines) + "\n"
+    print(text)
+    with (OUT.with_suffix(".md")).open("a") as fh:
+        fh.write(("" if fh.tell() == 0 else "\n") + "## " + text)
+
+
+def _append(rows: list[dict]) -> None:
+    """Append ``rows`` to :data:`OUT`, rewriting it with the union of the columns where they differ."""
+    old: list[dict] = []
+    fields = list(rows[0])
+    if OUT.exists():
+        with OUT.open(newline="") as fh:
+            reader = csv.DictReader(fh)
+            old = list(reader)
+            fields = list(dict.fromkeys([*(reader.fieldnames or []), *fields]))
+    with OUT.open("w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=fields, restval="")
+        writer.writeheader()
+        writer.writerows([*old, *rows])
 
 
 if __name__ == "__main__":

@@ -855,7 +855,8 @@ def _cascade(P: CollisionProblem, m0: NDArray | None, opts: NewtonOptions) -> Co
     3. Slices that had jammed and still are not ``CONVERGED``: a third time undamped
        without the jam test (a slice may only look jammed: gamma = 3, lambda = 10); the
        attempt with the smaller residual is kept.
-    4. Slices still without a solution (``_RETRY`` or ``NOT_CERTIFIED``): a barrier attempt
+    4. Slices still without a solution (``_RETRY``, ``NOT_CERTIFIED``, or ``NONCONVEX`` at a point that
+       is not stationary, KKT residual above ``tol``): a barrier attempt
        (:func:`_with_barrier`), for minimisers on the vacuum boundary (large steps empty
        cells: explicit CFL numbers of 20 and more); kept where its residual is smaller.
        Slices certified by an earlier attempt are never solved again, so their results do
@@ -880,7 +881,11 @@ def _cascade(P: CollisionProblem, m0: NDArray | None, opts: NewtonOptions) -> Co
             better = plain.kkt_residual < res.kkt_residual[fallback]
             _merge(res, fallback, plain, better)
             damped[np.flatnonzero(fallback)[better]] = False
-    todo = np.array([s in _RETRY or s == Status.NOT_CERTIFIED for s in res.status]) & np.all(P.f_star > 0, axis=-1)
+    # NONCONVEX above tol: the iteration limit or a failed shift ended a slice that is no stationary point (a
+    # minimiser on the vacuum boundary looks so to the interior iteration); a stationary non-minimiser is kept
+    unfinished = [s in _RETRY or s == Status.NOT_CERTIFIED or (s == Status.NONCONVEX and k > opts.tol)
+                  for s, k in zip(res.status, res.kkt_residual, strict=True)]  # fmt: skip
+    todo = np.array(unfinished) & np.all(P.f_star > 0, axis=-1)
     if todo.any():
         again = _attempt(P.rows(todo), _m0_rows(m0, todo), opts, _Attempt(False, False, barrier=True))
         better = (again.status == Status.CONVERGED) | (again.kkt_residual < res.kkt_residual[todo])

@@ -105,3 +105,34 @@ def test_the_barrier_attempt_judges_second_order_on_j_itself():
     assert res.kkt_residual[0] <= 1e-10  # a stationary point ...
     assert not P.is_local_minimiser(res.f[0], res.m[0])  # ... that is not a minimiser
     assert res.status[0] == Status.NONCONVEX
+
+
+def _held_out_two_bumps(index: int) -> CollisionProblem:
+    """Problem ``index`` of the ``two_bumps`` family of studies/newton_certification.py (seed 9303): a non-uniform
+    grid (spacing ratio up to 10), two Gaussian bumps, gamma in [3, 4.5], dt in [0.1, 0.5], no Fisher term."""
+    rng = np.random.default_rng(9303)
+    for _ in range(index + 1):
+        n = int(rng.integers(41, 162))
+        gamma, ratio = float(rng.uniform(3.0, 4.5)), float(rng.uniform(1.0, 10.0))
+        steps = ratio ** rng.uniform(0.0, 1.0, n - 1)
+        steps[rng.integers(n - 1)], steps[rng.integers(n - 1)] = 1.0, ratio
+        pts = np.concatenate([[0.0], np.cumsum(steps)])
+        v = -2 + 4 * pts / pts[-1]
+        a, b = rng.uniform(-1.2, -0.2), rng.uniform(0.2, 1.2)
+        f = rng.uniform(0.3, 1.0) * np.exp(-rng.uniform(2, 15) * (v - a) ** 2) + rng.uniform(0.3, 1.0) * np.exp(
+            -rng.uniform(2, 15) * (v - b) ** 2
+        )
+        dt = float(rng.uniform(0.1, 0.5))
+    return CollisionProblem(Grid(v), PowerKernel(gamma), f, dt)
+
+
+def test_a_slice_stopped_non_stationary_by_the_iteration_limit_gets_the_barrier_attempt():
+    """gamma = 4.47, N = 143, dt = 0.49 (explicit CFL 1729): the interior attempts end at the iteration limit with an
+    indefinite reduced Hessian and KKT 3e-2 (reported NONCONVEX, though no stationary point was reached); IPOPT
+    certifies a minimiser with 18 empty cells.  The barrier attempt must be tried there, and certifies it."""
+    P = _held_out_two_bumps(15)
+    assert P.cfl() > 1000
+    res = solve_newton(P)
+    assert res.status == Status.CONVERGED, (res.status, res.kkt_residual)
+    assert res.info["barrier"]
+    _agrees_with_nlp(P, res)
