@@ -158,7 +158,7 @@ def main() -> None:
         )
     missed = [r for r in rows if r["nlp_cert"] == conv and r["newton_cert"] != conv]
     keys = ("family", "index", "gamma", "dt", "cfl", "beta", "newton", "newton_kkt", "nlp_kkt")
-    lines += ["", *(f"missed: {({k: r[k] for k in keys})}" for r in missed)] if missed else []
+    lines += ["", *(f"missed: { {k: r[k] for k in keys} }" for r in missed)] if missed else []
     text = "\n".join(lines) + "\n"
     print(text)
     with (OUT.with_suffix(".md")).open("a") as fh:
