@@ -71,7 +71,9 @@ later collapse.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -134,6 +136,20 @@ class BlowupFit:
     window: tuple[int, int] | None
     T_b_fit_spread: float | None = None
     dt_last: float | None = None
+    at_horizon: bool = False
+
+    @property
+    def located(self) -> bool:
+        """Whether :attr:`T_b_fit` estimates a blow-up time.
+
+        False where no power law was fitted, where its :math:`T` sits at the horizon bound (a bound of the fit,
+        not an estimate), and for ``"no_finite_time"``: a verdict carries ``T_b_fit`` only where this holds.
+        """
+        return self.T_b_fit is not None and not self.at_horizon and self.blowup_kind != "no_finite_time"
+
+    def estimate(self) -> tuple[float | None, float | None, float | None]:
+        """``(T_b_fit, T_b_fit_err, blowup_rate)`` where the fit is :attr:`located`, else three None."""
+        return (self.T_b_fit, self.T_b_fit_err, self.blowup_rate) if self.located else (None, None, None)
 
     def curve(self, t: ArrayLike) -> np.ndarray:
         """The fitted :math:`C (T - t)^{-a}` at ``t < T`` (NaN elsewhere)."""
@@ -315,6 +331,10 @@ def fit_blowup(
         raise ValueError("t must be finite and strictly increasing")
     if not (np.all(np.isfinite(m)) and np.all(m > 0)):
         raise ValueError("max_f must be finite and > 0")
+    above = m >= growth * m[0]
+    if above.any() and not above[-1]:
+        return _relaxed(t, m, above, cut, early, growth=growth, max_step_growth=max_step_growth,
+                        min_points=min_points, horizon=horizon, noise=noise, rate_drop=rate_drop)  # fmt: skip
     win = _window(t, m, growth, max_step_growth, rate_drop)
     if isinstance(win, str):
         return _undetermined(win + cut + early)
@@ -357,12 +377,13 @@ def fit_blowup(
         "log_C": log_c,
         "T_b_fit_spread": float(np.hypot(sig_T, spread)),
         "dt_last": dt_last,
+        "at_horizon": not T < tw[-1] + 0.95 * H,
     }
     if rms > noise:
         why = f"records too noisy (rms residual {rms:.2g} > {noise:g} in log max f)"
         return BlowupFit(**out, blowup_kind="undetermined", reason=f"{why}: {numbers}{cut}{early}", window=win)
     fails = []
-    if not T < tw[-1] + 0.95 * H:
+    if out["at_horizon"]:
         fails.append("T at the horizon")
     if not a > 2 * sig_a:
         fails.append("a not significantly > 0")
@@ -372,6 +393,8 @@ def fit_blowup(
         fails.append("the exponential law fits as well")
     rise = float(m[stop - 1] / m[start])
     open_question = ["error bar wider than a quarter of the horizon"]
+    if aic_pow < aic_exp - 2:  # growth that accelerates as a power law's, towards a T the record cannot reach
+        open_question.append("T at the horizon")
     if not rise >= WINDOW_GROWTH:
         open_question.append(f"max f grows only {rise:.3g}-fold over the fitted records (< {WINDOW_GROWTH:g})")
         fails.append(open_question[-1])
@@ -383,11 +406,32 @@ def fit_blowup(
         )
     if not fails:
         return BlowupFit(**out, blowup_kind="finite_time", reason=f"power law: {numbers}{cut}{early}", window=win)
-    # evidence against a collapse (T at the horizon, no significant rate, an exponential that fits as well, a
-    # relaxation after T) makes no_finite_time; a bar too wide or a rise too small leaves the question open
+    # evidence against a collapse (no significant rate, an exponential that fits as well -- T then sits at the
+    # horizon too --, a relaxation after T) makes no_finite_time; a bar too wide, a rise too small, or a power law
+    # that beats the exponential towards a T past the horizon leaves the question open
     against = [f for f in fails if f not in open_question]
     kind = "undetermined" if early or not against else "no_finite_time"
     return BlowupFit(**out, blowup_kind=kind, reason=f"{'; '.join(fails)}: {numbers}{cut}{early}", window=win)
+
+
+def _relaxed(
+    t: np.ndarray, m: np.ndarray, above: np.ndarray, cut: str, early: str, **options: Any
+) -> BlowupFit:
+    """A record whose max f rose above ``growth`` times its first value and fell back below it by its end.
+
+    The rise (the records up to the last one above that level) is fitted as any record; the fall back is
+    evidence against a singularity (a blow-up law's max f only grows, and past the blow-up the grid holds it at
+    its cap): ``"no_finite_time"``, or ``"undetermined"`` for a run stopped early.
+    """
+    last = int(np.flatnonzero(above)[-1])
+    peak = int(np.argmax(m))
+    rise = fit_blowup(t[: last + 1], m[: last + 1], **options)
+    relax = (
+        f"the concentration relaxed: max f rose {m[peak] / m[0]:.3g}-fold by t = {t[peak]:.6g} and fell back to "
+        f"{m[-1] / m[0]:.3g} times its first value (below {options['growth']:g}) by t = {t[-1]:.6g}"
+    )
+    kind = "undetermined" if early else "no_finite_time"
+    return dataclasses.replace(rise, blowup_kind=kind, reason=f"{relax}; the rise: {rise.reason}{cut}{early}")
 
 
 @dataclass(frozen=True)

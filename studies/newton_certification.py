@@ -47,6 +47,11 @@ from jko_cvx.testing import random_density
 OUT = Path(__file__).parent / "results" / "newton_certification.csv"
 SEEDS = {"broad": 9101, "large_dt": 9202, "two_bumps": 9303}
 HELD_OUT_SEEDS = {"broad": 9404, "large_dt": 9505, "two_bumps": 9606}
+TITLE = (
+    "# Newton against IPOPT: certification on random families\n\n"
+    "One collision step per problem, solved by Newton and by IPOPT (`method='nlp'`) at their defaults; "
+    "`studies/newton_certification.py`, one section per run, rows in `newton_certification.csv`.\n\n"
+)
 
 
 def _grid(rng: np.random.Generator, n: int, ratio: float, half_width: float = 2.0) -> Grid:
@@ -162,7 +167,7 @@ def main() -> None:
     text = "\n".join(lines) + "\n"
     print(text)
     with (OUT.with_suffix(".md")).open("a") as fh:
-        fh.write(("" if fh.tell() == 0 else "\n") + "## " + text)
+        fh.write((TITLE if fh.tell() == 0 else "\n") + "## " + text)
 
 
 def _append(rows: list[dict]) -> None:

@@ -820,9 +820,11 @@ def _attempt(P: CollisionProblem, m0: NDArray | None, opts: NewtonOptions, run: 
     t0 = time.perf_counter()
     st, warm = _start(P, m0, opts)
     if run.barrier:
-        # The first weight: the barrier's part of J of relative size _MU_START.
-        st.mu = _MU_START * np.abs(st.phi) / P.grid.length
-        st.phi = _merit(P, st.f, st.m, st.mu)
+        # The first weight: the barrier's part of J of relative size _MU_START (data near the float range's
+        # edge overflow to inf here, as in the start and the loop; the certificate then refuses the slice).
+        with np.errstate(all="ignore"):
+            st.mu = _MU_START * np.abs(st.phi) / P.grid.length
+            st.phi = _merit(P, st.f, st.m, st.mu)
     out = _iterate(P, st, opts, run)
     if run.barrier:
         # The factorised Hessian was the barrier function's (more positive definite than

@@ -82,7 +82,9 @@ class Verdict(Mapping):
 
     T_b_fit, T_b_fit_err, blowup_rate : float or None
         The fitted blow-up time, its error bar and exponent (:func:`jko_cvx.blowup.fit_blowup`
-        on the certified records; None before the run ended or where no power law was fitted).
+        on the certified records); None before the run ended and where the fit locates no blow-up
+        time (:attr:`jko_cvx.blowup.BlowupFit.located`: no power law, its T at the horizon bound, or
+        ``no_finite_time``).  :attr:`blowup_reason` keeps the fit's numbers.
     blowup_kind : str or None
         ``"finite_time"``, ``"no_finite_time"`` or ``"undetermined"`` (None: not fitted yet).
     blowup_reason : str
@@ -189,11 +191,13 @@ class Verdict(Mapping):
         if rows and self.stop is StopReason.T_END:
             ratio = float(rows[-1]["max_f"]) / float(rows[0]["max_f"])
             growth = ratio if ratio >= UNFLAGGED_GROWTH else None
+        # a bound of the fit (T at the horizon) or the T of a rejected law is no blow-up time: the reason keeps it
+        T_b_fit, T_b_fit_err, rate = fit.estimate()
         return dataclasses.replace(
             self,
-            T_b_fit=fit.T_b_fit,
-            T_b_fit_err=fit.T_b_fit_err,
-            blowup_rate=fit.blowup_rate,
+            T_b_fit=T_b_fit,
+            T_b_fit_err=T_b_fit_err,
+            blowup_rate=rate,
             blowup_kind=fit.blowup_kind,
             blowup_reason=fit.reason,
             unflagged_growth=growth,

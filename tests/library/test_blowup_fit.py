@@ -207,3 +207,53 @@ def test_the_slow_rise_of_tab_g2bu_below_its_threshold_is_not_finite_time():
     v, d = run.verdict, run.diagnostics
     assert not run.blowup and d.failed.sum() == 0 and d.max_f.max() < 2
     assert v.blowup_kind != "finite_time", v.blowup_reason
+
+
+def test_a_concentration_that_relaxes_back_to_its_start_is_no_finite_time():
+    """The record above, relaxing further: max f rises tenfold to t = 0.45, then falls back below 1.5 times its first
+    value.  A deeper relaxation is stronger evidence against a singularity, not weaker: no_finite_time, with the
+    relaxation named; the same records from a run stopped early stay undetermined."""
+    t = np.linspace(0.0, 0.8, 161)
+    peak = 0.45
+    rise = 1 / (2 * (0.5 - np.minimum(t, peak)))
+    m = np.where(t <= peak, rise, rise * np.exp(-30 * (t - peak)))
+    assert m[-1] < 1.5 * m[0] < m.max()  # the premise: back below the window's start level
+    fit = fit_blowup(t, m)
+    assert fit.blowup_kind == "no_finite_time", fit.reason
+    assert "relaxed" in fit.reason and not fit.located
+    early = fit_blowup(t, m, stopped_early="collision solver failed")
+    assert early.blowup_kind == "undetermined" and "relaxed" in early.reason
+
+
+def test_a_power_law_whose_time_lies_past_the_horizon_is_undetermined_and_not_located():
+    """max f = (T - t)^-a with T beyond the record's reach (twice its length past its end): the power law fits
+    better than the exponential but its T sits at the horizon bound.  That is no evidence against a collapse
+    (undetermined), and the bound is no estimate of a time (not located: the verdict reports no T_b_fit)."""
+    t = np.linspace(0.0, 2.0, 200)
+    for T, a in ((5.0, 1.0), (4.5, 3.0)):
+        fit = fit_blowup(t, (T - t) ** -a)
+        assert "T at the horizon" in fit.reason
+        assert "exponential law fits as well" not in fit.reason, fit.reason
+        assert fit.blowup_kind == "undetermined", fit.reason
+        assert not fit.located
+    located = fit_blowup(t, (3.0 - t) ** -2.0)
+    assert located.blowup_kind == "finite_time" and located.located
+
+
+def test_the_verdict_reports_a_blowup_time_only_where_the_fit_locates_one():
+    """Exponential growth (gamma = 2's law): the power law's T sits at the horizon bound; the verdict must not carry
+    that bound as T_b_fit (a reader would take it for a blow-up time), only the kind and the reason with the numbers.
+    A finite-time record carries T_b_fit, its error bar and the rate."""
+    from jko_cvx.engine.verdict import Verdict
+
+    t = np.linspace(0.0, 3.0, 80)
+    rows = [{"t": ti, "max_f": 0.3 * np.exp(1.2 * ti), "failed": 0} for ti in t]
+    v = Verdict().with_fit(rows)
+    assert v.blowup_kind == "no_finite_time"
+    assert (v.T_b_fit, v.T_b_fit_err, v.blowup_rate) == (None, None, None)
+    assert "T = " in v.blowup_reason  # the fit's numbers stay in the reason
+    assert Verdict.from_dict(v.to_dict()) == v
+    t, m = power_law(T=0.7, a=1.5, C=2.0)
+    v = Verdict().with_fit([{"t": ti, "max_f": mi, "failed": 0} for ti, mi in zip(t, m, strict=True)])
+    assert v.blowup_kind == "finite_time" and v.T_b_fit == pytest.approx(0.7, abs=1e-6)
+    assert v.T_b_fit_err is not None and v.blowup_rate == pytest.approx(1.5, abs=1e-5)
