@@ -61,12 +61,23 @@ bounded rise fits a power law with a small :math:`a` as well), and no record aft
 :math:`T + \\sigma_T` has max f below :data:`RELAX_FACTOR` times the window's last value (the
 run went on past the fitted time and the concentration relaxed: a rise and relax, not a
 singularity; a grid that no longer resolves a real collapse holds max f at its cap instead).
-Otherwise ``"no_finite_time"`` -- unless the only failures are the width of the error bar or
-the window's growth (``"undetermined"``: the records neither show nor exclude the collapse),
-or the records are too few, too noisy (rms residual of the better law above ``noise``), show
-no concentration, or the run stopped early (``stopped_early``: a solver failure, no step,
+Otherwise ``"no_finite_time"`` -- unless the only failures are the width of the error bar,
+the window's growth, or a :math:`T` at the horizon where the power law beats the exponential
+(``"undetermined"``: the records neither show nor exclude the collapse; growth that accelerates
+as a power law's towards a time past the record's reach is no evidence against one), or the
+records are too few, too noisy (rms residual of the better law above ``noise``), show no
+concentration, or the run stopped early (``stopped_early``: a solver failure, no step,
 uncertified steps), in which case ``"undetermined"``; a truncated record cannot exclude a
-later collapse.
+later collapse.  A record whose max f peaked at :data:`WINDOW_GROWTH` :math:`\\rho \\max f(t_0)` or
+more and fell back below :math:`\\rho \\max f(t_0)` and below :data:`RELAX_FACTOR` times its peak by
+its end is ``"no_finite_time"`` (``"undetermined"`` when stopped early): the rise is fitted as
+above, and the fall back contradicts a singularity more strongly than a relaxation after
+:math:`T` does (a smaller dip below :math:`\\rho \\max f(t_0)` shows no concentration to fit).
+
+The fitted :math:`T` estimates a blow-up time only where :attr:`BlowupFit.located` holds (a
+power law with :math:`T` inside the horizon, records not too noisy, nothing in them against the
+singularity); a run's verdict carries ``T_b_fit`` there and nowhere else, and the reason keeps
+the numbers.
 """
 
 from __future__ import annotations
@@ -124,6 +135,14 @@ class BlowupFit:
     T_b_fit_spread, dt_last : float or None
         The error bar's unscaled parts: :math:`(\\sigma_{\\rm fit}^2 + \\delta_{\\rm end}^2 + \\ldots)^{1/2}` and the
         last time step of the window, :math:`\\sigma_T = k (\\ldots + (c\\,\\Delta t)^2)^{1/2}`.
+    at_horizon : bool
+        The power law's :math:`T` sits at the bound of the horizon (a bound of the fit, not an estimate).
+    located : bool
+        Whether :attr:`T_b_fit` estimates a blow-up time: a power law with :math:`T` inside the horizon,
+        records not too noisy, and nothing in them against the singularity (no exponential that fits as
+        well, no insignificant rate, no relaxation).  ``"finite_time"`` fits are located; an
+        ``"undetermined"`` one is where only the width of its bar, the size of its rise or an early stop
+        left the question open.  A run's verdict carries ``T_b_fit`` only where this holds.
     """
 
     T_b_fit: float | None
@@ -137,15 +156,7 @@ class BlowupFit:
     T_b_fit_spread: float | None = None
     dt_last: float | None = None
     at_horizon: bool = False
-
-    @property
-    def located(self) -> bool:
-        """Whether :attr:`T_b_fit` estimates a blow-up time.
-
-        False where no power law was fitted, where its :math:`T` sits at the horizon bound (a bound of the fit,
-        not an estimate), and for ``"no_finite_time"``: a verdict carries ``T_b_fit`` only where this holds.
-        """
-        return self.T_b_fit is not None and not self.at_horizon and self.blowup_kind != "no_finite_time"
+    located: bool = False
 
     def estimate(self) -> tuple[float | None, float | None, float | None]:
         """``(T_b_fit, T_b_fit_err, blowup_rate)`` where the fit is :attr:`located`, else three None."""
@@ -332,7 +343,8 @@ def fit_blowup(
     if not (np.all(np.isfinite(m)) and np.all(m > 0)):
         raise ValueError("max_f must be finite and > 0")
     above = m >= growth * m[0]
-    if above.any() and not above[-1]:
+    peak = float(m.max())
+    if not above[-1] and peak >= WINDOW_GROWTH * growth * m[0] and m[-1] < RELAX_FACTOR * peak:
         return _relaxed(t, m, above, cut, early, growth=growth, max_step_growth=max_step_growth,
                         min_points=min_points, horizon=horizon, noise=noise, rate_drop=rate_drop)  # fmt: skip
     win = _window(t, m, growth, max_step_growth, rate_drop)
@@ -405,23 +417,28 @@ def fit_blowup(
             f"end after the fitted T + error bar"
         )
     if not fails:
-        return BlowupFit(**out, blowup_kind="finite_time", reason=f"power law: {numbers}{cut}{early}", window=win)
+        return BlowupFit(**out, blowup_kind="finite_time", reason=f"power law: {numbers}{cut}{early}", window=win,
+                         located=True)  # fmt: skip
     # evidence against a collapse (no significant rate, an exponential that fits as well -- T then sits at the
     # horizon too --, a relaxation after T) makes no_finite_time; a bar too wide, a rise too small, or a power law
     # that beats the exponential towards a T past the horizon leaves the question open
     against = [f for f in fails if f not in open_question]
     kind = "undetermined" if early or not against else "no_finite_time"
-    return BlowupFit(**out, blowup_kind=kind, reason=f"{'; '.join(fails)}: {numbers}{cut}{early}", window=win)
+    located = not against and not out["at_horizon"]  # a T the records argue against is none, even stopped early
+    return BlowupFit(**out, blowup_kind=kind, reason=f"{'; '.join(fails)}: {numbers}{cut}{early}", window=win,
+                     located=located)  # fmt: skip
 
 
 def _relaxed(
     t: np.ndarray, m: np.ndarray, above: np.ndarray, cut: str, early: str, **options: Any
 ) -> BlowupFit:
-    """A record whose max f rose above ``growth`` times its first value and fell back below it by its end.
+    """A record whose max f peaked at :data:`WINDOW_GROWTH` x ``growth`` times its first value or more and fell
+    back below ``growth`` times it and below :data:`RELAX_FACTOR` times its peak by its end.
 
-    The rise (the records up to the last one above that level) is fitted as any record; the fall back is
-    evidence against a singularity (a blow-up law's max f only grows, and past the blow-up the grid holds it at
-    its cap): ``"no_finite_time"``, or ``"undetermined"`` for a run stopped early.
+    The rise (the records up to the last one above ``growth`` times the first) is fitted as any record; the
+    fall back is evidence against a singularity (a blow-up law's max f only grows, and past the blow-up the
+    grid holds it at its cap): ``"no_finite_time"``, or ``"undetermined"`` for a run stopped early; the fit
+    locates no time either way.
     """
     last = int(np.flatnonzero(above)[-1])
     peak = int(np.argmax(m))
@@ -431,7 +448,8 @@ def _relaxed(
         f"{m[-1] / m[0]:.3g} times its first value (below {options['growth']:g}) by t = {t[-1]:.6g}"
     )
     kind = "undetermined" if early else "no_finite_time"
-    return dataclasses.replace(rise, blowup_kind=kind, reason=f"{relax}; the rise: {rise.reason}{cut}{early}")
+    return dataclasses.replace(rise, blowup_kind=kind, reason=f"{relax}; the rise: {rise.reason}{cut}{early}",
+                               located=False)  # fmt: skip
 
 
 @dataclass(frozen=True)

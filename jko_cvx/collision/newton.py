@@ -885,12 +885,15 @@ def _cascade(P: CollisionProblem, m0: NDArray | None, opts: NewtonOptions) -> Co
             damped[np.flatnonzero(fallback)[better]] = False
     # NONCONVEX above tol: the iteration limit or a failed shift ended a slice that is no stationary point (a
     # minimiser on the vacuum boundary looks so to the interior iteration); a stationary non-minimiser is kept
-    unfinished = [s in _RETRY or s == Status.NOT_CERTIFIED or (s == Status.NONCONVEX and k > opts.tol)
-                  for s, k in zip(res.status, res.kkt_residual, strict=True)]  # fmt: skip
-    todo = np.array(unfinished) & np.all(P.f_star > 0, axis=-1)
+    # (a NaN residual is no stationary point either); such a slice keeps its NONCONVEX unless the barrier certifies
+    nonconvex = np.array([s == Status.NONCONVEX and not k <= opts.tol
+                          for s, k in zip(res.status, res.kkt_residual, strict=True)], dtype=bool)  # fmt: skip
+    unfinished = np.array([s in _RETRY or s == Status.NOT_CERTIFIED for s in res.status], dtype=bool) | nonconvex
+    todo = unfinished & np.all(P.f_star > 0, axis=-1)
     if todo.any():
         again = _attempt(P.rows(todo), _m0_rows(m0, todo), opts, _Attempt(False, False, barrier=True))
-        better = (again.status == Status.CONVERGED) | (again.kkt_residual < res.kkt_residual[todo])
+        smaller = (again.kkt_residual < res.kkt_residual[todo]) & ~nonconvex[todo]
+        better = (again.status == Status.CONVERGED) | smaller
         _merge(res, todo, again, better)
         barrier[np.flatnonzero(todo)[better]] = True
         damped[np.flatnonzero(todo)[better]] = False

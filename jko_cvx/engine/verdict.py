@@ -18,6 +18,7 @@ mapping ``run.verdict["T_b"]`` of earlier versions (keys ``blowup``, ``T_b``, ``
 from __future__ import annotations
 
 import dataclasses
+import itertools
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from enum import Enum
@@ -90,8 +91,9 @@ class Verdict(Mapping):
     blowup_reason : str
         Why that kind, with the fit's numbers.
     unflagged_growth : float or None
-        max f (last) / max f (initial) when it is at least :data:`UNFLAGGED_GROWTH` and no
-        blow-up rule fired: a concentration the mesh criterion did not see.
+        max f (its peak over the certified records) / max f (initial) when it is at least
+        :data:`UNFLAGGED_GROWTH` and no blow-up rule fired: a concentration the mesh criterion did
+        not see, even where it relaxed before the run ended.
 
     A run that never accepted a step (its first solve failed and stopped it) stops with
     :attr:`StopReason.NO_STEP`: not a blow-up, ``T_b`` None.
@@ -189,7 +191,10 @@ class Verdict(Mapping):
         fit = fit_rows(rows, self)
         growth = None
         if rows and self.stop is StopReason.T_END:
-            ratio = float(rows[-1]["max_f"]) / float(rows[0]["max_f"])
+            # the peak, not the last value: a concentration that formed and relaxed was missed all the same
+            # (certified records only, as the fit: a state carried on from a failed solve proves nothing)
+            certified = [float(r["max_f"]) for r in itertools.takewhile(lambda r: int(r["failed"]) == 0, rows)]
+            ratio = max(certified, default=float("nan")) / float(rows[0]["max_f"])
             growth = ratio if ratio >= UNFLAGGED_GROWTH else None
         # a bound of the fit (T at the horizon) or the T of a rejected law is no blow-up time: the reason keeps it
         T_b_fit, T_b_fit_err, rate = fit.estimate()

@@ -12,6 +12,8 @@ from jko_cvx.engine.run import load_run
 from jko_cvx.engine.verdict import StopReason, Verdict
 from jko_cvx.scene import shipped_scene
 
+from ._inject import failing
+
 
 def _rows(t, m, failed=None):
     failed = np.zeros(len(t), int) if failed is None else failed
@@ -37,6 +39,30 @@ def test_gamma2_is_no_finite_time_through_load_run(tmp_path):
     back = load_run(tmp_path / "r").verdict
     assert back.blowup_kind == "no_finite_time", back.blowup_reason
     assert "no_finite_time" in run.summary()
+    # the power law's T sits at the horizon bound: a bound, not a blow-up time, so the record carries none
+    assert (back.T_b_fit, back.T_b_fit_err, back.blowup_rate) == (None, None, None)
+    assert "T at the horizon" in back.blowup_reason
+
+
+def test_a_short_run_is_undetermined_through_load_run(tmp_path):
+    """tab_bu_g1 run for three steps: too few records to say anything, and the record says so."""
+    run = simulate(shipped_scene("tab_bu_g1", {"t_end": 0.03}), out=tmp_path / "r")
+    back = load_run(tmp_path / "r").verdict
+    assert back == run.verdict and back.stop is StopReason.T_END
+    assert back.blowup_kind == "undetermined" and "too few records" in back.blowup_reason
+    assert back.T_b_fit is None
+
+
+def test_a_run_stopped_by_a_solver_failure_is_undetermined_through_load_run(tmp_path):
+    """gamma = 2 (exponential contraction, no_finite_time when run through) stopped by a collision failure imposed
+    after 40 accepted steps (stop.on_solver_failure = true): the truncated record cannot exclude a later collapse."""
+    scene = shipped_scene("tab_bu_g1", {"gamma": 2.0, "time.dt": 0.02, "t_end": 1.5, "stop.on_solver_failure": True})
+    with failing(lambda attempt, accepted, dt: accepted >= 40):
+        run = simulate(scene, out=tmp_path / "r")
+    back = load_run(tmp_path / "r").verdict
+    assert back == run.verdict and back.stop is StopReason.SOLVER_FAILURE
+    assert back.blowup_kind == "undetermined", back.blowup_reason
+    assert "stopped early" in back.blowup_reason and back.T_b_fit is None
 
 
 def test_uncertified_records_never_feed_the_verdict_fit():
@@ -99,3 +125,16 @@ def test_the_warning_reaches_the_run_summary(tmp_path):
     v = load_run(tmp_path / "r").verdict
     assert v.blowup and v.blowup_kind == "no_finite_time", (v.reason, v.blowup_reason)
     assert "WARNING" in run.summary() and "no_finite_time" in run.summary()
+
+
+def test_a_concentration_that_no_rule_flagged_is_reported_after_it_relaxed():
+    """max f peaks 25-fold and falls back to 3-fold by t_end with no rule firing: the mesh criterion still missed a
+    concentration, so the warning reads the peak (the ratio of the last to the first value would hide it)."""
+    t = np.linspace(0, 1, 101)
+    peak = 0.5 - 0.5 / 30  # 0.5 / (0.5 - t) = 30 there
+    rise = 0.5 / (0.5 - np.minimum(t, peak))
+    m = np.where(t <= peak, rise, 3.0 + 27.0 * np.exp(-40 * (t - peak)))
+    v = Verdict().with_fit(_rows(t, m))
+    assert m.max() / m[0] > 20 > m[-1] / m[0]  # the premise: a peak above the warning's factor, an end below it
+    assert v.unflagged_growth == pytest.approx(m.max() / m[0], rel=1e-12)
+    assert f"WARNING: max f grew by a factor {m.max() / m[0]:.3g}" in v.describe()

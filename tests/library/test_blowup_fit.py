@@ -257,3 +257,40 @@ def test_the_verdict_reports_a_blowup_time_only_where_the_fit_locates_one():
     v = Verdict().with_fit([{"t": ti, "max_f": mi, "failed": 0} for ti, mi in zip(t, m, strict=True)])
     assert v.blowup_kind == "finite_time" and v.T_b_fit == pytest.approx(0.7, abs=1e-6)
     assert v.T_b_fit_err is not None and v.blowup_rate == pytest.approx(1.5, abs=1e-5)
+
+
+def test_a_small_dip_below_the_window_level_is_no_relaxation():
+    """A bounded rise to 1.6 x max f0 that ends at 1.499 x (or a single spike) is no concentration that relaxed:
+    the fall back is read as a relaxation only where max f peaked at least WINDOW_GROWTH x growth x max f0 and fell
+    below RELAX_FACTOR of its peak; otherwise the record shows no concentration to fit (undetermined)."""
+    t = np.linspace(0.0, 1.0, 60)
+    bounded = 1.0 + 0.6 * np.sin(np.pi * t) ** 0.5
+    bounded[-1] = 1.499
+    fit = fit_blowup(t, bounded)
+    assert fit.blowup_kind == "undetermined" and "no concentration" in fit.reason, fit.reason
+    spike = np.ones(20)
+    spike[7] = 1.6
+    fit = fit_blowup(np.linspace(0.0, 1.0, 20), spike)
+    assert fit.blowup_kind == "undetermined" and "no concentration" in fit.reason, fit.reason
+
+
+def test_a_law_the_records_argue_against_locates_no_time_even_in_a_run_stopped_early():
+    """A rise that relaxes after the fitted T (evidence against the singularity) in a run that a solver failure
+    stopped: the kind is undetermined (a truncated record cannot exclude a later collapse), but the rejected law's T
+    is no blow-up time, so the fit locates none; likewise for records too noisy to classify."""
+    t = np.linspace(0.0, 0.8, 161)
+    peak = 0.45
+    rise = 1 / (2 * (0.5 - np.minimum(t, peak)))
+    for m in (np.where(t <= peak, rise, rise * np.exp(-3 * (t - peak))),
+              np.where(t <= peak, rise, rise * np.exp(-30 * (t - peak)))):  # fmt: skip
+        early = fit_blowup(t, m, stopped_early="collision solver failed")
+        assert early.blowup_kind == "undetermined" and "relaxed" in early.reason
+        assert not early.located and early.estimate() == (None, None, None)
+    t, m = power_law(noise=0.2, n=200, seed=3)
+    noisy = fit_blowup(t, m)
+    assert noisy.blowup_kind == "undetermined"
+    assert noisy.T_b_fit is None or not noisy.located
+    # a fit left open only by its error bar or its rise keeps its located time
+    t = np.linspace(0.0, 0.85, 86)
+    small = fit_blowup(t, 0.4 * (1.0 - t) ** (-0.4))
+    assert small.blowup_kind == "undetermined" and small.located

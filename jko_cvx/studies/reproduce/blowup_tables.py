@@ -330,8 +330,8 @@ def fit_summary(df: pd.DataFrame) -> str:
     """The estimator's record on a table with ``exact``, ``T_b``, ``T_b_fit``, ``T_b_fit_err`` and ``blowup_kind``.
 
     Errors and coverage are counted over the ``finite_time`` entries only (the estimates the kind vouches
-    for); ``undetermined`` entries that still locate a time (an error bar too wide, a rise too small) are
-    counted apart, and the other kinds carry no T_b_fit.
+    for); ``undetermined`` entries that still locate a time (:attr:`jko_cvx.blowup.BlowupFit.located`: an
+    error bar too wide, a rise too small, a run stopped early) are counted apart; the others carry no T_b_fit.
     """
     kinds = df.blowup_kind.value_counts()
     text = (

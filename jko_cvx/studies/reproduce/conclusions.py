@@ -45,7 +45,13 @@ def _disc(root: Path, table: str) -> pd.Series:
 
 def _tab_bu(root: Path) -> dict[str, Any]:
     a = _disc(root, "tab_bu")
-    fit_ok = a["median |fit - analytic T|"] < 0.01
+    n_fit = int(a["fit finite_time entries"])
+    # the fit vouches for its finite_time entries only: it settles the claim where they are most of the table
+    fit_ok = 2 * n_fit >= a.entries and a["median |fit - analytic T|"] < 0.01
+    why_not = (
+        f"the fit classifies only {n_fit} of {a.entries} entries finite_time" if 2 * n_fit < a.entries
+        else "the fit's median error against the exact time is 0.01 or more"
+    )  # fmt: skip
     return {
         "claim": "tab:bu: the scheme reproduces the blow-up and captures the analytic time (gamma = 1, one bump)",
         "paper": "T_b within about 0.03 of T = 0.5, 0.25, 0.125; closer as eps_v and dt decrease",
@@ -61,7 +67,7 @@ def _tab_bu(root: Path) -> dict[str, Any]:
         "verdict": "supported" if fit_ok else "not settled",
         "why": (
             "errors against the exact time discriminate (the agreement count does not: the run-free answer "
-            "scores higher)" if fit_ok else "the fit's median error against the exact time is 0.01 or more"
+            "scores higher)" if fit_ok else why_not
         ),
     }
 
