@@ -106,18 +106,19 @@ def blowup_time(data: str, eps_v: float, dt: float, beta: float = TAB_BU_BETA) -
     }
 
 
-FIT_COLUMNS = ("T_b_fit", "T_b_fit_err", "blowup_kind")
+FIT_COLUMNS = ("T_b_fit", "T_b_fit_err", "blowup_rate", "blowup_kind")
 """The estimate of :mod:`jko_cvx.blowup` beside the paper's T_b (NaN where the fit locates no blow-up time)."""
 
 
 def fit_columns(v) -> dict[str, Any]:
-    """T_b_fit, its error bar and the kind of a verdict or a :class:`~jko_cvx.blowup.BlowupFit`."""
+    """T_b_fit, its error bar, the rate a and the kind of a verdict (or of a fit read as one, :class:`_FitView`)."""
 
     def num(x):
         return float("nan") if x is None else float(x)
 
     kind = v.blowup_kind
-    return {"T_b_fit": num(v.T_b_fit), "T_b_fit_err": num(v.T_b_fit_err), "blowup_kind": kind}
+    return {"T_b_fit": num(v.T_b_fit), "T_b_fit_err": num(v.T_b_fit_err), "blowup_rate": num(v.blowup_rate),
+            "blowup_kind": kind}  # fmt: skip
 
 
 def blowup_times(data: str, eps_v: Sequence[float], dt: float, beta: float = TAB_BU_BETA) -> dict[str, Any]:
@@ -183,7 +184,7 @@ class _FitView:
     """A :class:`~jko_cvx.blowup.BlowupFit` read as a verdict's fit fields."""
 
     def __init__(self, fit) -> None:
-        (self.T_b_fit, self.T_b_fit_err, _), self.blowup_kind = fit.estimate(), fit.blowup_kind
+        (self.T_b_fit, self.T_b_fit_err, self.blowup_rate), self.blowup_kind = fit.estimate(), fit.blowup_kind
 
 
 def mesh_rule_time(data: str, eps_v: float) -> float:

@@ -54,6 +54,7 @@ def test_each_entry_of_a_column_is_the_separate_runs(data, dt, beta, eps):
         # the fit of the records up to the replayed stop is the separate run's fit
         assert column["blowup_kind"][i] == alone["blowup_kind"]
         assert _same(column["T_b_fit"][i], alone["T_b_fit"]) and _same(column["T_b_fit_err"][i], alone["T_b_fit_err"])
+        assert _same(column["blowup_rate"][i], alone["blowup_rate"])  # the rate a stands beside T_b_fit
     # the column holds different stops, or the test would not tell a prefix from the whole run
     assert len(set(column["steps"])) > 1
 
