@@ -129,23 +129,21 @@ def _level_sets(d) -> tuple[str, ...]:
 
 
 def _g2bu_order(d: pd.DataFrame) -> tuple[str, ...]:
-    """tab:g2bu at N_v = 201: T_b at lambda = 220 and 310, the first lambda pair where T_b rises; 310 at 401."""
+    """tab:g2bu at N_v = 201: T_b at lambda = 220 and 310, whether it falls monotonically (else the first lambda pair
+    where it rises), and lambda = 310 at 401.  Which it is depends on the run's rounding (one kernel's run had 308
+    above 306, another's none): the differences are below the resolution of T_b, so the prose reads the file."""
     r = d[d.n_v == 201].sort_values("lambda")
     lam, tb = r["lambda"].to_numpy(), r.T_b.to_numpy()
     rises = np.flatnonzero(np.diff(tb) > 0)
-    if not rises.size:
-        raise ValueError("tab_g2bu.csv: T_b decreases monotonically in lambda at N_v = 201; the prose says it does not")
-    i = int(rises[0])
+    if rises.size:
+        i = int(rises[0])
+        order = (
+            f", but not monotonically: lambda = {lam[i]:g} gives {tb[i]:.5f}, below {lam[i + 1]:g} at {tb[i + 1]:.5f}"
+        )
+    else:
+        order = ", monotonically in lambda on this run"
     fine = d[(d.n_v == 401) & (d["lambda"] == 310)].T_b.iloc[0]
-    return (
-        f"{tb[0]:.5f}",
-        f"{tb[-1]:.5f}",
-        f"{lam[i]:g}",
-        f"{tb[i]:.5f}",
-        f"{lam[i + 1]:g}",
-        f"{tb[i + 1]:.5f}",
-        f"{fine:.5f}",
-    )
+    return f"{tb[0]:.5f}", f"{tb[-1]:.5f}", order, f"{fine:.5f}"
 
 
 def _seconds(df) -> tuple[str, ...]:
@@ -677,9 +675,8 @@ CLAIMS: tuple[Claim, ...] = (
         "tab_g2bu.order",
         "tab_g2bu.csv",
         _g2bu_order,
-        "T_b falls from {} (220) to {} (310), but not monotonically: lambda = {} gives {}, below {} at {}.  At "
-        "twice the velocity resolution (N_v = 401) lambda = 310 gives {}",
-        "T_b at lambda = 220, 310 (N_v = 201), the first pair out of order, and lambda = 310 at N_v = 401",
+        "T_b falls from {} (220) to {} (310){}.  At twice the velocity resolution (N_v = 401) lambda = 310 gives {}",
+        "T_b at lambda = 220, 310 (N_v = 201), the first pair out of order if any, and lambda = 310 at N_v = 401",
     ),
     Claim(
         "tab_g2bu.ratio",
@@ -1012,10 +1009,14 @@ def _gc_collapse(d: pd.DataFrame, case: str, grid: str) -> tuple[str, ...]:
 
 
 def _gc_certified(d: pd.DataFrame) -> tuple[str, ...]:
-    """The number of gamma = 3/2 runs; refused unless each stopped on the density criterion, no slice failed."""
-    if (d["failed slices"] > 0).any() or not d.stop.str.startswith("min spread_v").all():
+    """The gamma = 3/2 runs that stop on the density criterion and the continued ones that go on to t_end; refused
+    unless every run has no failed slice and stopped where its kind says."""
+    continued = d.grid == "continued uniform"
+    if (d["failed slices"] > 0).any() or not d[~continued].stop.str.startswith("min spread_v").all():
         raise ValueError("grid_convergence.csv: a run with failed slices or another stop than the density collapse")
-    return (str(len(d)),)
+    if not (d[continued].stop == "reached t_end").all():
+        raise ValueError("grid_convergence.csv: a continued run that stopped before t_end")
+    return str(int((~continued).sum())), str(int(continued.sum()))
 
 
 def _gc_g2bu(d: pd.DataFrame) -> tuple[str, ...]:
@@ -1048,8 +1049,9 @@ CLAIMS += (
         "grid_convergence.certified",
         "grid_convergence.csv",
         _gc_certified,
-        "all {} gamma = 3/2 runs reach the density collapse with every collision step certified",
-        "rows of grid_convergence.csv (failed slices 0, stop = the density criterion)",
+        "all {} gamma = 3/2 runs reach the density collapse with every collision step certified (and the {} "
+        "continued uniform runs reach t = 0.7 so)",
+        "rows of grid_convergence.csv (failed slices 0; stop = the density criterion, or t_end for the continued runs)",
     ),
     Claim(
         "grid_convergence.g2bu",
