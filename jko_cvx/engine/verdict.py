@@ -84,8 +84,9 @@ class Verdict(Mapping):
     T_b_fit, T_b_fit_err, blowup_rate : float or None
         The fitted blow-up time, its error bar and exponent (:func:`jko_cvx.blowup.fit_blowup`
         on the certified records); None before the run ended and where the fit locates no blow-up
-        time (:attr:`jko_cvx.blowup.BlowupFit.located`: no power law, its T at the horizon bound, or
-        ``no_finite_time``).  :attr:`blowup_reason` keeps the fit's numbers.
+        time (:attr:`jko_cvx.blowup.BlowupFit.located`: no power law, its T at the horizon bound,
+        records too noisy, or evidence in them against the singularity).  :attr:`blowup_reason`
+        keeps the fit's numbers.
     blowup_kind : str or None
         ``"finite_time"``, ``"no_finite_time"`` or ``"undetermined"`` (None: not fitted yet).
     blowup_reason : str
