@@ -120,6 +120,7 @@ PAGES: tuple[Page, ...] = (
             Entry("bench_scale_gamma4.md", data=("bench_scale_gamma4_newton.csv",)),
             Entry("bench_scale_loaded.md", data=("bench_scale_loaded_newton.csv", "bench_scale_loaded_step.csv")),
             Entry("bench_scale_ab.csv", title="Scale A/B runs of two commits, side by side"),
+            Entry("bench_chained_structured.md", data=("bench_chained_structured.csv",)),
             Entry("bench_threads.md", data=("bench_threads.csv",)),
             Entry(
                 "cost_growth.md",

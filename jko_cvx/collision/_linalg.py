@@ -9,6 +9,7 @@ from numpy.typing import NDArray
 from scipy.linalg import lapack
 
 __all__ = [
+    "banded_lu_solve_batch",
     "divergence",
     "divergence_adjoint",
     "pentadiagonal_cholesky",
@@ -241,3 +242,52 @@ def pentadiagonal_solve_batch(factors: NDArray[np.float64], rhs: NDArray[np.floa
         for b in np.flatnonzero(_neighbours(bad)):
             Y[b], _ = lapack.dpbtrs(factors[b].T, rhs[b], lower=1)
     return Y
+
+
+def banded_lu_solve_batch(ab: NDArray[np.float64], rhs: NDArray[np.float64], kl: int) -> tuple[NDArray, NDArray]:
+    """Solve a batch of banded systems by LU with partial pivoting, bitwise one LAPACK ``dgbsv`` call each.
+
+    ``ab`` has shape ``(B, n, 3 kl + 1)``: ``ab[b].T`` is matrix b in ``dgbsv``'s band storage
+    (``kl`` sub- and super-diagonals, rows ``2 kl`` to ``3 kl`` hold the diagonal and the
+    sub-diagonals, the first ``kl`` rows are workspace), every slot outside the matrix zero;
+    ``rhs`` has shape ``(B, n, k)``.  The B matrices are solved as one block-diagonal band
+    matrix: consecutive blocks are linked only by zero slots, so the pivot search never
+    leaves a block (a row of the next block holds a zero in the pivot column) and the
+    eliminations and substitutions add only exact zeros across a boundary.  ``dgbtrf`` runs
+    its unblocked ``dgbtf2`` for so few bands, and the BLAS kernels it calls take the same
+    scalar path for vectors of at most ``2 kl + 1`` entries, so each block's solution is the
+    one its own call gives.  Where the chained call meets a zero pivot (it then solves
+    nothing), every block is solved on its own; a block next to one with a non-finite
+    solution (which ``0 * inf`` could carry over) is solved again on its own.  ``ab`` is
+    overwritten.
+
+    Returns
+    -------
+    x : ndarray, shape (B, n, k)
+        The solutions; meaningful only where ``ok``.
+    ok : ndarray of bool, shape (B,)
+        ``info == 0`` of the matrix's own call.
+    """
+    B, n, width = ab.shape
+    k = rhs.shape[-1]
+    if width != 3 * kl + 1:
+        raise ValueError(f"ab must have 3 kl + 1 = {3 * kl + 1} columns, got {width}")
+    x = np.zeros(rhs.shape)
+    ok = np.zeros(B, dtype=bool)
+    if B == 0 or n == 0:
+        return x, ok
+    single = ab.copy()  # dgbsv overwrites the chain; a block solved again needs its own matrix
+    chain = ab.reshape(-1, width).T  # a view, Fortran-contiguous (3 kl + 1, B n)
+    _, _, sol, info = lapack.dgbsv(kl, kl, chain, np.asfortranarray(rhs.reshape(-1, k)), overwrite_ab=1)
+    if info < 0:
+        raise RuntimeError(f"LAPACK dgbsv: illegal argument {-info}")
+    if info == 0:
+        x[...] = sol.reshape(B, n, k)
+        ok[:] = True
+        redo = _neighbours(~np.isfinite(x).all(axis=(1, 2)))
+    else:
+        redo = np.ones(B, dtype=bool)
+    for b in np.flatnonzero(redo):
+        _, _, xb, info_b = lapack.dgbsv(kl, kl, single[b].T, rhs[b], overwrite_ab=1)
+        x[b], ok[b] = xb, info_b == 0
+    return x, ok

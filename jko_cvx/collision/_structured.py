@@ -69,7 +69,10 @@ solve and the same positive-definiteness verdict without the O(N^3) dense Choles
   ``newton._newton_direction``, bitwise the same, run in threads across slices.
 
 Every path runs under :func:`jko_cvx.threads.blas_limits`, in
-:func:`jko_cvx.threads.map_chunks` threads.  ``JKO_CVX_NEWTON_LINALG`` selects the path:
+:func:`jko_cvx.threads.map_chunks` threads.  A chunk of at least ``_CHAIN_MIN`` slices makes
+one chained LAPACK call per phase (:func:`~jko_cvx.collision._linalg.banded_lu_solve_batch`,
+:func:`~jko_cvx.collision._linalg.pentadiagonal_cholesky_batch`,
+:func:`~jko_cvx.collision._linalg.pentadiagonal_solve_batch`), bitwise the per-slice calls.  ``JKO_CVX_NEWTON_LINALG`` selects the path:
 ``auto`` (default: gamma = 3 and even gamma >= 4 exact, other gamma certified CG, dense fallback) or
 ``dense`` (dense Cholesky for every slice; for comparisons).
 """
@@ -78,12 +81,18 @@ from __future__ import annotations
 
 import os
 import weakref
+from collections.abc import Callable
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.linalg import lapack
 
-from jko_cvx.collision._linalg import pentadiagonal_cholesky
+from jko_cvx.collision._linalg import (
+    banded_lu_solve_batch,
+    pentadiagonal_cholesky,
+    pentadiagonal_cholesky_batch,
+    pentadiagonal_solve_batch,
+)
 from jko_cvx.kernels import EnergyOperator, FluxBlock
 from jko_cvx.threads import map_chunks
 
@@ -112,6 +121,15 @@ _CG_MAXIT = 60
 # with the C preconditioner; G halved CG's cost since, and a lower threshold is not measured).
 _CG_MIN_N = 300
 _CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+# From this many slices in a chunk the banded factorisations and solves are chained LAPACK
+# calls (one per chunk, bitwise those of one call per slice: jko_cvx.collision._linalg),
+# below it one call per slice (a chain's bookkeeping costs more than it saves for a few).
+_CHAIN_MIN = 8
+# gamma = 3 chains its interleaved LU only up to this many unknowns per slice: measured on
+# 16 blocks with 4 right-hand sides, the chained dgbsv takes 0.49x the time of one call per
+# block at 2n = 122, 0.94x at 242, 1.06x at 482 and 1.08x at 962 (the LU's own work
+# dominates there; studies/results/bench_chained_structured.md).
+_CHAIN_MAX_LU = 256
 
 
 def linalg_mode() -> str:
@@ -275,18 +293,30 @@ class Semiseparable3:
         decided[lo:hi] = True
         Y = np.zeros((b, n, k + 2))
         solved = np.zeros(b, dtype=bool)
-        R = np.zeros((2 * n, k + 2), order="F")
-        for j in np.flatnonzero(finite):
-            if pentadiagonal_cholesky(g_diag[j], off1[j], off2[j]) is None:
-                decided[lo + j] = False
-                continue
-            sx = sc[j, self.X, None]
-            R[:] = 0.0
-            R[self.X, :k] = rhs[lo + j] * sx
-            R[self.X, k:] = self.U * sx
-            _, _, sol, info = lapack.dgbsv(self.KL, self.KL, ab[j].T, R, overwrite_ab=1)
-            Y[j] = sol[self.X] * sx
-            solved[j] = info == 0
+        if b >= _CHAIN_MIN and 2 * n <= _CHAIN_MAX_LU:
+            rows = np.flatnonzero(finite)
+            _, g_pd = pentadiagonal_cholesky_batch(g_diag[rows], off1[rows], off2[rows])
+            decided[lo + rows[~g_pd]] = False
+            rows = rows[g_pd]
+            sx = sc[rows][:, self.X, None]
+            R = np.zeros((rows.size, 2 * n, k + 2))
+            R[:, self.X, :k] = rhs[lo + rows] * sx
+            R[:, self.X, k:] = self.U * sx
+            sol, solved[rows] = banded_lu_solve_batch(ab[rows], R, self.KL)
+            Y[rows] = sol[:, self.X] * sx
+        else:
+            R = np.zeros((2 * n, k + 2), order="F")
+            for j in np.flatnonzero(finite):
+                if pentadiagonal_cholesky(g_diag[j], off1[j], off2[j]) is None:
+                    decided[lo + j] = False
+                    continue
+                sx = sc[j, self.X, None]
+                R[:] = 0.0
+                R[self.X, :k] = rhs[lo + j] * sx
+                R[self.X, k:] = self.U * sx
+                _, _, sol, info = lapack.dgbsv(self.KL, self.KL, ab[j].T, R, overwrite_ab=1)
+                Y[j] = sol[self.X] * sx
+                solved[j] = info == 0
         # Woodbury, for the chunk at once: S = (-2 sigma Q)^-1 + V' H_c^-1 V (2 x 2 per slice)
         S = -self.q_inv / (2.0 * scale) + np.einsum("ni,bnj->bij", self.U, Y[..., k:])
         ok = solved & np.all(np.isfinite(Y), axis=(1, 2)) & np.all(np.isfinite(S), axis=(1, 2))
@@ -297,7 +327,11 @@ class Semiseparable3:
         pd[lo:hi] = good
         if good.any():
             t = np.linalg.solve(S[good], np.einsum("ni,bnj->bij", self.U, Y[good, :, :k]))
-            x[lo:hi][good] = Y[good, :, :k] - np.einsum("bni,bij->bnj", Y[good, :, k:], t)
+            # the two-term sum over the columns of V written out: the bits of einsum's, without its
+            # per-call cost (measured 118 against 33 us for a chunk of 16 slices at N_v = 121)
+            Yg = Y[good]
+            correction = Yg[:, :, k, None] * t[:, None, 0, :] + Yg[:, :, k + 1, None] * t[:, None, 1, :]
+            x[lo:hi][good] = Yg[:, :, :k] - correction
 
 
 class LowRankFlux:
@@ -337,7 +371,7 @@ class LowRankFlux:
     def solve(self, scale: float, bands: tuple, rhs: NDArray, pd_tol: float, out: tuple, lo: int, hi: int) -> None:
         """Solve slices ``lo:hi`` into ``out = (x, pd, decided)``; ``decided`` False where B is not PD."""
         diag, off1, off2 = (band[lo:hi] for band in bands)
-        x, pd, decided = out
+        decided = out[2]
         k = rhs.shape[-1]
         d = diag + scale * self.e_diag  # diag(H), as the dense path forms it
         b_diag = diag + pd_tol * d
@@ -345,22 +379,38 @@ class LowRankFlux:
         decided[lo:hi] = True
         finite = np.all(d > 0, axis=1) & np.all(np.isfinite(d), axis=1)
         finite &= np.all(np.isfinite(off1), axis=1) & np.all(np.isfinite(off2), axis=1)
-        for j in np.flatnonzero(finite):
+        rows = np.flatnonzero(finite)
+        if rows.size >= _CHAIN_MIN:
+            factors, ok = pentadiagonal_cholesky_batch(b_diag[rows], off1[rows], off2[rows])
+            decided[lo + rows[~ok]] = False
+            rows = rows[ok]
+            cols = np.concatenate([rhs[lo + rows], np.broadcast_to(self.U, (rows.size, *self.U.shape))], axis=-1)
+            Ys = pentadiagonal_solve_batch(factors[ok], cols)
+            for j, Y in zip(rows, Ys, strict=True):
+                # one slice's layout, as dpbtrs gives it: the products below round as they do there
+                self._finish(np.asfortranarray(Y), 0, k, s_inv, out, lo + j)
+            return
+        for j in rows:
             c = pentadiagonal_cholesky(b_diag[j], off1[j], off2[j])
             if c is None:
                 decided[lo + j] = False
                 continue
             Y, info = lapack.dpbtrs(c, np.concatenate([rhs[lo + j], self.U], axis=1), lower=1)
-            S = s_inv + self.U.T @ Y[:, k:]
-            S = 0.5 * (S + S.T)
-            if info != 0 or not (np.all(np.isfinite(Y)) and np.all(np.isfinite(S))):
-                decided[lo + j] = False
-                continue
-            eig = np.linalg.eigvalsh(S)
-            if np.any(eig == 0) or int(np.sum(eig < 0)) != self.negative:
-                continue  # indefinite: pd stays False
-            pd[lo + j] = True
-            x[lo + j] = Y[:, :k] - Y[:, k:] @ np.linalg.solve(S, self.U.T @ Y[:, :k])
+            self._finish(Y, info, k, s_inv, out, lo + j)
+
+    def _finish(self, Y: NDArray, info: int, k: int, s_inv: NDArray, out: tuple, i: int) -> None:
+        """Woodbury and the inertia test of slice ``i`` from ``Y = B^-1 [rhs, U]``."""
+        x, pd, decided = out
+        S = s_inv + self.U.T @ Y[:, k:]
+        S = 0.5 * (S + S.T)
+        if info != 0 or not (np.all(np.isfinite(Y)) and np.all(np.isfinite(S))):
+            decided[i] = False
+            return
+        eig = np.linalg.eigvalsh(S)
+        if np.any(eig == 0) or int(np.sum(eig < 0)) != self.negative:
+            return  # indefinite: pd stays False
+        pd[i] = True
+        x[i] = Y[:, :k] - Y[:, k:] @ np.linalg.solve(S, self.U.T @ Y[:, :k])
 
 
 class Certified:
@@ -390,25 +440,46 @@ class Certified:
         diag, off1, off2 = (band[lo:hi] for band in bands)
         x, pd, decided = out
         d, h_diag = _shifted_diagonal(diag, self.e_diag, scale, pd_tol)
-        factors = {}
-        for j in range(hi - lo):
-            if not (np.all(d[j] > 0) and np.all(np.isfinite(d[j]))):
-                decided[lo + j] = True  # not positive definite, as the dense test has it
-                continue
-            if pentadiagonal_cholesky(h_diag[j] - scale * self.radius, off1[j], off2[j]) is not None:
-                # certified; G >= C is positive definite too, and the closer preconditioner
-                # (measured, N_v = 481 / 1025: 30 / 50 CG iterations against 57 / 97 with C)
-                factors[j] = pentadiagonal_cholesky(h_diag[j], off1[j], off2[j])
-        if not factors:
+        usable = np.all(d > 0, axis=1) & np.all(np.isfinite(d), axis=1)
+        decided[lo + np.flatnonzero(~usable)] = True  # not positive definite, as the dense test has it
+        rows = np.flatnonzero(usable)
+        if rows.size >= _CHAIN_MIN:
+            _, cert = pentadiagonal_cholesky_batch(h_diag[rows] - scale * self.radius, off1[rows], off2[rows])
+            js = rows[cert]
+            factors, ok = pentadiagonal_cholesky_batch(h_diag[js], off1[js], off2[js])
+            js, factors = js[ok], factors[ok]
+
+            def precondition(Rm: NDArray) -> NDArray:
+                return pentadiagonal_solve_batch(factors, Rm)
+        else:
+            singles = {}
+            for j in rows:
+                if pentadiagonal_cholesky(h_diag[j] - scale * self.radius, off1[j], off2[j]) is not None:
+                    # certified; G >= C is positive definite too, and the closer preconditioner
+                    # (measured, N_v = 481 / 1025: 30 / 50 CG iterations against 57 / 97 with C)
+                    c = pentadiagonal_cholesky(h_diag[j], off1[j], off2[j])
+                    if c is not None:
+                        singles[j] = c
+            js = np.fromiter(singles, dtype=int, count=len(singles))
+            factor_list = [singles[j] for j in js]
+
+            def precondition(Rm: NDArray) -> NDArray:
+                return np.stack([lapack.dpbtrs(factor_list[j], Rm[j], lower=1)[0] for j in range(len(factor_list))])
+
+        if js.size == 0:
             return
-        js = np.fromiter(factors, dtype=int)
-        sol, ok = self._pcg(scale, (h_diag[js], off1[js], off2[js]), rhs[lo + js], [factors[j] for j in js])
+        sol, ok = self._pcg(scale, (h_diag[js], off1[js], off2[js]), rhs[lo + js], precondition)
         x[lo + js[ok]] = sol[ok]
         pd[lo + js[ok]] = True
         decided[lo + js[ok]] = True
 
-    def _pcg(self, scale: float, bands: tuple, rhs: NDArray, factors: list) -> tuple[NDArray, NDArray[np.bool_]]:
-        """Preconditioned CG on ``H_s X = rhs`` for a chunk (``rhs`` of shape ``(b, n, k)``), all columns at once."""
+    def _pcg(
+        self, scale: float, bands: tuple, rhs: NDArray, precondition: Callable[[NDArray], NDArray]
+    ) -> tuple[NDArray, NDArray[np.bool_]]:
+        """Preconditioned CG on ``H_s X = rhs`` for a chunk (``rhs`` of shape ``(b, n, k)``), all columns at once.
+
+        ``precondition(R)`` solves with the banded Cholesky factors of G, slice by slice.
+        """
         h_diag, off1, off2 = bands
         b, n, k = rhs.shape
         E, e_diag = self.E, self.e_diag
@@ -421,9 +492,6 @@ class Certified:
             Y[:, 2:] += off2[..., None] * X[:, :-2]
             EX = (E @ X.transpose(1, 0, 2).reshape(n, b * k)).reshape(n, b, k).transpose(1, 0, 2)
             return Y + scale * (EX - e_diag[:, None] * X)
-
-        def precondition(Rm: NDArray) -> NDArray:
-            return np.stack([lapack.dpbtrs(factors[j], Rm[j], lower=1)[0] for j in range(b)])
 
         X = np.zeros_like(rhs)
         R = rhs.copy()

@@ -150,9 +150,17 @@ def plot_records(run: Run, ax=None):
     quantities = f"{spacing} (smallest grid spacing); max f (largest density)"
     quantities += "; min spread_v" if sc.stop.spread_v > 0 else ""
     a.set_xlabel("time t"), a.set_ylabel(f"{quantities}, log scale", fontsize=8), a.legend(fontsize=7)
-    a.set_title(f"{sc.name}: {title}")
+    a.set_title(f"{sc.name}: {title}\n{_fit_line(v)}", fontsize=9)
     fig.tight_layout()
     return fig
+
+
+def _fit_line(v) -> str:
+    """The verdict's blow-up kind for the title: the fitted time with its bar where the fit locates one."""
+    kind = v.blowup_kind or "not fitted"
+    if v.T_b_fit is not None and v.T_b_fit_err is not None:
+        return f"max f(t) fit: {kind}, T_b_fit = {v.T_b_fit:.4g} +- {v.T_b_fit_err:.2g}"
+    return f"max f(t) fit: {kind}"
 
 
 def _draw_fit(run: Run, a) -> None:

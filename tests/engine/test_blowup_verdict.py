@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from jko_cvx.engine.loop import simulate
-from jko_cvx.engine.plot import save_figures
+from jko_cvx.engine.plot import plot_records, save_figures
 from jko_cvx.engine.run import load_run
 from jko_cvx.engine.verdict import StopReason, Verdict
 from jko_cvx.scene import shipped_scene
@@ -32,6 +32,12 @@ def test_a_gamma1_run_carries_its_fit_through_load_run(tmp_path):
     assert record["T_b"] == v.T_b  # the paper's threshold time stays beside it
     assert f"T_b_fit = {v.T_b_fit:.6g}" in run.summary()
     assert all(p.stat().st_size > 0 for p in save_figures(run, tmp_path))
+    title = plot_records(run).axes[-1].get_title()
+    assert "finite_time" in title and f"T_b_fit = {v.T_b_fit:.4g}" in title
+
+
+def _records_title(run) -> str:
+    return plot_records(run).axes[-1].get_title()
 
 
 def test_gamma2_is_no_finite_time_through_load_run(tmp_path):
@@ -42,6 +48,7 @@ def test_gamma2_is_no_finite_time_through_load_run(tmp_path):
     # the power law's T sits at the horizon bound: a bound, not a blow-up time, so the record carries none
     assert (back.T_b_fit, back.T_b_fit_err, back.blowup_rate) == (None, None, None)
     assert "T at the horizon" in back.blowup_reason
+    assert "no_finite_time" in _records_title(run)  # the figure names the kind the verdict holds
 
 
 def test_a_short_run_is_undetermined_through_load_run(tmp_path):
@@ -51,6 +58,7 @@ def test_a_short_run_is_undetermined_through_load_run(tmp_path):
     assert back == run.verdict and back.stop is StopReason.T_END
     assert back.blowup_kind == "undetermined" and "too few records" in back.blowup_reason
     assert back.T_b_fit is None
+    assert "undetermined" in _records_title(run)
 
 
 def test_a_run_stopped_by_a_solver_failure_is_undetermined_through_load_run(tmp_path):

@@ -33,7 +33,13 @@ import pandas as pd
 from jko_cvx.blowup import extrapolate_thresholds
 from jko_cvx.engine.loop import simulate
 from jko_cvx.environment import record_csv, write_markdown
-from jko_cvx.studies.reproduce.blowup_tables import TAB_BU_BETA, blowup_scene, fit_columns, replayed_entry
+from jko_cvx.studies.reproduce.blowup_tables import (
+    FIT_COLUMNS,
+    TAB_BU_BETA,
+    blowup_scene,
+    fit_columns,
+    replayed_entry,
+)
 from jko_cvx.studies.solvers.figures import finish_figure, pyplot
 from jko_cvx.studies.sweep import run_sweep
 
@@ -114,7 +120,7 @@ def _row(r: pd.Series) -> dict[str, Any]:
         except ValueError:
             pass
     row.update({"T_0 (eps -> 0)": T0, "T_0 err": err})
-    row.update({k: r[k] for k in ("T_b_fit", "T_b_fit_err", "blowup_kind")})
+    row.update({k: r[k] for k in FIT_COLUMNS})
     expected = "finite_time" if osgood_finite_time(r.gamma) else "no_finite_time"
     row["kind right"] = r.blowup_kind == expected
     row.update({"max f": r.max_f, "min dv": r.min_dv, "t end": r.t, "steps": int(r.steps),

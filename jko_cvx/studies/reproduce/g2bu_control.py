@@ -23,6 +23,7 @@ import pandas as pd
 
 from jko_cvx.engine.loop import simulate
 from jko_cvx.environment import record_csv, write_markdown
+from jko_cvx.studies.reproduce.blowup_tables import FIT_COLUMNS, fit_columns
 from jko_cvx.studies.reproduce.g2bu import RHO0, T, g2bu_scene
 from jko_cvx.studies.sweep import run_sweep
 
@@ -48,9 +49,7 @@ def g2bu_control_run(lam: float, n_x: int, n_v: int, t_end: float = 0.2) -> dict
         "direction": "x" if v["B_x"] else ("v" if v["B_v"] else "-"),
         "stop": v.stop.name,
         "reason": v["reason"],
-        "T_b_fit": _float(v["T_b_fit"]),
-        "T_b_fit_err": _float(v["T_b_fit_err"]),
-        "blowup_kind": v["blowup_kind"],
+        **fit_columns(v),
         "t": float(run.t),
         "steps": len(d) - 1,
         "max_f": float(d.max_f.max()),
@@ -59,10 +58,6 @@ def g2bu_control_run(lam: float, n_x: int, n_v: int, t_end: float = 0.2) -> dict
         "uncertified_steps": int(v.uncertified_steps),
         "seconds": time.perf_counter() - t0,
     }
-
-
-def _float(x: Any) -> float:
-    return float("nan") if x is None else float(x)
 
 
 def reproduce_tab_g2bu_control(out: Path, quick: bool = False, **sweep_opts: Any) -> pd.DataFrame:
@@ -77,9 +72,8 @@ def reproduce_tab_g2bu_control(out: Path, quick: bool = False, **sweep_opts: Any
     df = run_sweep(g2bu_control_run, points, out / "cache" / "tab_g2bu_control", desc="tab_g2bu_control", **sweep_opts)
     df = df.rename(columns={"lam": "lambda"})
     df["above threshold"] = df["lambda"] > THRESHOLD
-    cols = ["lambda", "n_x", "n_v", "above threshold", "verdict", "T_b", "direction", "stop", "T_b_fit",
-            "T_b_fit_err", "blowup_kind", "max_f", "min_dx", "min_dv", "steps", "uncertified_steps", "reason",
-            "seconds"]  # fmt: skip
+    cols = ["lambda", "n_x", "n_v", "above threshold", "verdict", "T_b", "direction", "stop", *FIT_COLUMNS, "max_f",
+            "min_dx", "min_dv", "steps", "uncertified_steps", "reason", "seconds"]  # fmt: skip
     table = df[cols]
     csv = out / "tab_g2bu_control.csv"
     table.to_csv(csv, index=False)

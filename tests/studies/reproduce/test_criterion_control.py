@@ -23,6 +23,10 @@ def test_the_quick_control_shows_the_criterion_firing_where_theory_forbids(tmp_p
     # the exponential law: T_b grows by about 1/(rate) per e-fold of 1/eps_v; here at least 0.3 per e-fold
     assert lin["drift dT_b/dln(1/eps)"] > 0.3
     assert not table.set_index("gamma").loc[1.5, "fires where theory forbids"]
+    # the rate a beside T_b_fit where the fit locates a time (gamma = 1.5), none for the contraction
+    g15 = table.set_index("gamma").loc[1.5]
+    assert np.isnan(lin["blowup_rate"]) and np.isnan(lin["T_b_fit"])
+    assert g15["blowup_kind"] != "finite_time" or g15["blowup_rate"] > 0
     shipped = pd.read_csv(tmp_path / "criterion_control.csv")
     pd.testing.assert_frame_equal(shipped, table.reset_index(drop=True), check_dtype=False)
     md = (tmp_path / "criterion_control.md").read_text()
