@@ -128,7 +128,7 @@ _CHAIN_MIN = 8
 # gamma = 3 chains its interleaved LU only up to this many unknowns per slice: measured on
 # 16 blocks with 4 right-hand sides, the chained dgbsv takes 0.49x the time of one call per
 # block at 2n = 122, 0.94x at 242, 1.06x at 482 and 1.08x at 962 (the LU's own work
-# dominates there; studies/results/bench_chained_structured.md).
+# dominates there).
 _CHAIN_MAX_LU = 256
 
 
