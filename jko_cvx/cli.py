@@ -6,8 +6,8 @@ run until the blow-up criterion min dv < eps_v fires; exact T = 0.5), writes the
 directory (refusing one that holds a run, unless ``--overwrite``) and prints the verdict;
 Ctrl-C (SIGINT) or SIGTERM writes a checkpoint, prints the command that resumes it and exits
 with status 130.  ``jko-cvx export RUN_DIR --netcdf FILE`` writes a run as netCDF.
-``jko-cvx verify SCENE [--reference conic|nlp] [--every K] [--slices all|N] [--trajectory]`` runs a scene and
-re-solves every K-th step's collision problems with a reference (:mod:`jko_cvx.engine.verify`).
+``jko-cvx verify SCENE [--reference conic|nlp] [--every K] [--slices all|N] [--workers W] [--trajectory]``
+runs a scene and re-solves every K-th step's collision problems with a reference (:mod:`jko_cvx.engine.verify`).
 ``jko-cvx solve [--method M ...] [--fisher perspective|log]`` solves one collision step with every
 method (or the given ones); ``jko-cvx solvers`` lists the installed conic solvers;
 ``jko-cvx scene template [--kind homogeneous|inhomogeneous]`` prints a commented scene template and
@@ -370,6 +370,8 @@ def _verify_parser(sub) -> None:
     p.add_argument("--slices", type=_slices, default="all",
                    help="x-slices compared: all, or N evenly spread (default %(default)s)")  # fmt: skip
     p.add_argument("--out", type=_directory, default=None, help="directory (default runs/<scene name>_verify)")
+    p.add_argument("--workers", type=_at_least(1), default=None,
+                   help="processes for a step's reference solves (default: the usable cores; 1: here)")  # fmt: skip
     p.add_argument("--trajectory", action="store_true",
                    help="also run the whole scene with the reference (into DIR/reference/) and compare T_b, the stop "
                         "reason and max f(t)")  # fmt: skip
@@ -390,12 +392,14 @@ def _verify(args) -> int:
     t0 = time.perf_counter()
     try:
         ver = verify(scene, args.reference, every=args.every, slices=args.slices, out=out, resume=args.resume,
-                     overwrite=args.overwrite, progress=not args.quiet, trajectory=args.trajectory)  # fmt: skip
+                     overwrite=args.overwrite, progress=not args.quiet, trajectory=args.trajectory,
+                     workers=args.workers)  # fmt: skip
     except RunInterrupted as exc:
         cmd = ["jko-cvx", "verify", str(args.scene), *_set_args(args.settings), "--out", str(out), "--resume",
                "--every", str(args.every), "--slices", str(args.slices)]  # fmt: skip
         cmd += [] if args.reference is None else ["--reference", args.reference]
         cmd += ["--trajectory"] if args.trajectory else []
+        cmd += [] if args.workers is None else ["--workers", str(args.workers)]
         print(f"\njko-cvx: interrupted ({signal.Signals(exc.signum).name}) at step {exc.step}, t = {exc.t:.6g}; "
               f"checkpoint written.\nResume with:\n  {shlex.join(cmd)}", file=sys.stderr)  # fmt: skip
         return 130

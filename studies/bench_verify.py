@@ -1,8 +1,11 @@
 """Benchmark of ``jko-cvx verify``: its cost against the scene's own run, and the conic reference against N.
 
-Part 1 (verify overhead).  Each scene is run twice side by side in one process: ``simulate``
-(the scene's own run) and ``verify`` (the same run, with every ``--every``-th step's slices
-re-solved by the reference); the ratio of the two wall times is the overhead.  Scenes:
+Part 1 (verify overhead).  Each scene is run three times side by side in one process: ``simulate``
+(the scene's own run) and ``verify`` (the same run, with every step's slices re-solved by the
+reference) with the reference solves in this process (``workers=1``: ``verify_1_s``, ``ratio_1``)
+and in ``usable_cores()`` worker processes (the default: ``verify_s``, ``ratio``); the ratio of
+the wall times to the run's is the overhead, and the two verifications' tables must be equal but
+for the solve times.  Scenes:
 
 * ``tab_bu_g1`` (homogeneous gamma = 1) at N = 121, perspective Fisher with beta = 30, 10
   steps, Newton against conic;
@@ -38,10 +41,10 @@ import pandas as pd
 
 from jko_cvx import CollisionProblem, Grid, PowerKernel, solve_collision
 from jko_cvx.engine.loop import simulate
-from jko_cvx.engine.verify import verify
+from jko_cvx.engine.verify import TIMES, verify
 from jko_cvx.scene import shipped_scene
 from jko_cvx.studies.sweep import code_provenance
-from jko_cvx.threads import thread_environment
+from jko_cvx.threads import thread_environment, usable_cores
 
 RESULTS = Path(__file__).parent / "results"
 
@@ -69,12 +72,18 @@ def overhead() -> pd.DataFrame:
         run = simulate(scene)
         own = time.perf_counter() - t0
         t0 = time.perf_counter()
-        ver = verify(scene, reference)
+        serial = verify(scene, reference, workers=1)
+        wall_1 = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        ver = verify(scene, reference)  # the default: the reference solves of a step in usable_cores() processes
         wall = time.perf_counter() - t0
         t = ver.table
+        keep = [c for c in t.columns if c not in TIMES]
+        assert serial.table[keep].equals(t[keep]), "the workers changed the table"
         rows.append({
             "scene": label, "method": scene.collision.method, "reference": reference, "steps": run.steps,
-            "run_s": own, "verify_s": wall, "ratio": wall / own, "slice_solves": len(t),
+            "run_s": own, "verify_1_s": wall_1, "ratio_1": wall_1 / own, "workers": usable_cores(),
+            "verify_s": wall, "ratio": wall / own, "slice_solves": len(t),
             "ref_median_s": float(t["seconds_ref"].median()) if len(t) else float("nan"),
             "outcomes": ", ".join(f"{n} {k}" for k, n in t["outcome"].value_counts().items()) if len(t) else "none",
             "max_df": float(t["df"].max()) if len(t) else float("nan"),

@@ -72,9 +72,10 @@ Every path runs under :func:`jko_cvx.threads.blas_limits`, in
 :func:`jko_cvx.threads.map_chunks` threads.  A chunk of at least ``_CHAIN_MIN`` slices makes
 one chained LAPACK call per phase (:func:`~jko_cvx.collision._linalg.banded_lu_solve_batch`,
 :func:`~jko_cvx.collision._linalg.pentadiagonal_cholesky_batch`,
-:func:`~jko_cvx.collision._linalg.pentadiagonal_solve_batch`), bitwise the per-slice calls.  ``JKO_CVX_NEWTON_LINALG`` selects the path:
-``auto`` (default: gamma = 3 and even gamma >= 4 exact, other gamma certified CG, dense fallback) or
-``dense`` (dense Cholesky for every slice; for comparisons).
+:func:`~jko_cvx.collision._linalg.pentadiagonal_solve_batch`), bitwise the per-slice calls.
+``JKO_CVX_NEWTON_LINALG`` selects the path: ``auto`` (default: gamma = 3 and even gamma >= 4
+exact, other gamma certified CG, dense fallback) or ``dense`` (dense Cholesky for every slice;
+for comparisons).
 """
 
 from __future__ import annotations

@@ -104,6 +104,7 @@ from jko_cvx.engine.run import Run
 from jko_cvx.engine.trackers import StepInfo, Tracker
 from jko_cvx.engine.verdict import StopReason
 from jko_cvx.scene.model import Scene
+from jko_cvx.threads import blas_limits, usable_cores
 
 __all__ = [
     "REFERENCES",
@@ -252,6 +253,18 @@ def _outcome(status: Status, kkt: float, ref: CollisionResult, df: float, dJ: fl
     return AGREE if (df <= tol and dJ <= tol) else DIFFER
 
 
+def _compare_slice(
+    problem: CollisionProblem, f: np.ndarray, m: np.ndarray, reference: str, options: dict[str, Any]
+) -> tuple[CollisionResult, float, float, float]:
+    """The reference's answer to one slice's problem, its solve time, and the error estimates in f of the tested
+    answer ``(f, m)`` and of the reference's (:func:`f_error_estimate`); in a worker process or in this one."""
+    with blas_limits():  # the same BLAS threads wherever it runs: the same bits
+        t0 = time.perf_counter()
+        ref = solve_reference(problem, reference, options)
+        seconds = time.perf_counter() - t0
+        return ref, seconds, f_error_estimate(problem, f, m), f_error_estimate(problem, ref.f, ref.m)
+
+
 def _at(value: Any, i: int, batched: bool) -> Any:
     return np.atleast_1d(value)[i] if batched else value
 
@@ -259,10 +272,11 @@ def _at(value: Any, i: int, batched: bool) -> Any:
 class VerifyTracker(Tracker):
     """Re-solves the compared slices of every K-th step with the reference and keeps the rows."""
 
-    def __init__(self, scene: Scene, settings: VerifySettings, rundir: RunDir | None) -> None:
-        self.scene, self.settings, self.rundir = scene, settings, rundir
+    def __init__(self, scene: Scene, settings: VerifySettings, rundir: RunDir | None, workers: int = 1) -> None:
+        self.scene, self.settings, self.rundir, self.workers = scene, settings, rundir, workers
         self.rows: list[dict[str, Any]] = []
         self.pending: list[dict[str, Any]] = []
+        self.pool = None
 
     # files ---------------------------------------------------------------
     def start(self, state: RunState) -> None:
@@ -307,14 +321,18 @@ class VerifyTracker(Tracker):
         indices = self.settings.slice_indices(problem.batch_size) if batched else np.array([0])
         share = result.seconds / (problem.batch_size if batched else 1)
         dt = float(problem.dt)
-        for i in indices:
-            sub = problem.slice(int(i)) if batched else problem
-            t0 = time.perf_counter()
-            ref = solve_reference(sub, self.settings.reference, self.settings.options)
-            ref_seconds = time.perf_counter() - t0
-            f = np.atleast_2d(result.f)[i] if batched else result.f
-            m = np.atleast_2d(result.m)[i] if batched else result.m
-            err, err_ref = f_error_estimate(sub, f, m), f_error_estimate(sub, ref.f, ref.m)
+        tasks = [
+            (
+                problem.slice(int(i)) if batched else problem,
+                np.atleast_2d(result.f)[i] if batched else result.f,
+                np.atleast_2d(result.m)[i] if batched else result.m,
+                self.settings.reference,
+                self.settings.options,
+            )
+            for i in indices
+        ]
+        for i, task, (ref, ref_seconds, err, err_ref) in zip(indices, tasks, self._map(tasks), strict=True):
+            f = task[1]
             status = _at(result.status, i, batched)
             kkt = float(_at(result.kkt_residual, i, batched))
             J = float(_at(result.objective, i, batched))
@@ -332,6 +350,29 @@ class VerifyTracker(Tracker):
                 "seconds": float(share), "seconds_ref": ref_seconds,
                 "outcome": _outcome(status, kkt, ref, df, dJ, err_ref, self.settings.tolerance),
             })  # fmt: skip
+
+    def _map(self, tasks: list[tuple]) -> list[tuple[CollisionResult, float, float, float]]:
+        """:func:`_compare_slice` of every task, in order: in worker processes where there are several tasks
+        and ``workers > 1`` (each solve is cold and deterministic, so the answers are the same bits)."""
+        if len(tasks) < 2 or self.workers <= 1:
+            return [_compare_slice(*task) for task in tasks]
+        if self.pool is None:
+            import multiprocessing
+            from concurrent.futures import ProcessPoolExecutor
+
+            if multiprocessing.get_start_method() != "fork":
+                # a spawned worker imports the main script again, which may be an unguarded script calling verify
+                self.workers = 1
+                return self._map(tasks)
+            self.pool = ProcessPoolExecutor(max_workers=min(self.workers, len(tasks)))
+        chunk = max(1, len(tasks) // (4 * self.workers))
+        return list(self.pool.map(_compare_slice, *zip(*tasks, strict=True), chunksize=chunk))
+
+    def close(self) -> None:
+        """Shut the reference solves' worker processes down (they are started at the first step that needs them)."""
+        if self.pool is not None:
+            self.pool.shutdown(wait=True, cancel_futures=True)
+            self.pool = None
 
     def handle(self, state: RunState, step: StepInfo) -> None:
         # saved at once (this tracker runs before the checkpoint tracker): never behind a checkpoint,
@@ -454,6 +495,7 @@ def verify(
     overwrite: bool = False,
     progress: bool = False,
     trajectory: bool = False,
+    workers: int | None = None,
 ) -> Verification:
     """Run ``scene`` and re-solve every ``every``-th step's collision problems with a reference.
 
@@ -478,6 +520,12 @@ def verify(
         ``out/reference/``, resumed and overwritten with the verification) and compare T_b, the
         stop reason and max f(t) (:mod:`jko_cvx.engine._trajectory`: common times, the same
         tolerance); ``trajectory.csv`` beside ``verify.csv``.
+    workers : int, optional
+        Processes for the reference solves of a step's slices (default: the usable cores; 1: in this
+        process).  They are forked workers, where ``fork`` is the platform's start method (Linux up to
+        Python 3.13); elsewhere the solves run in this process.  The slices are solved cold and
+        independently, so the table is the same whatever ``workers`` (but for the solve times), and
+        a resumed verification may use another value.
 
     Raises
     ------
@@ -502,6 +550,7 @@ def verify(
     settings = _check_settings(scene, reference, reference_options, every, slices, trajectory)
     for name, flag in (("resume", resume), ("overwrite", overwrite), ("progress", progress)):
         check_bool(name, flag)
+    workers = usable_cores() if workers is None else check_int("workers", workers, 1)
     sub = None if out is None else Path(out) / REFERENCE_DIR
     if sub is not None and (sub.is_symlink() or (sub.exists() and not sub.is_dir())):
         raise RunDirError(f"{sub} is a symbolic link or not a directory: a verification's reference run is never "
@@ -511,10 +560,14 @@ def verify(
     def observers(rd: RunDir | None) -> list[Tracker]:
         if rd is not None and rd.state is not None and not (rd.path / "verify.json").exists():
             raise RunDirError(f"cannot resume {rd.path} as a verification: it holds a run without verify.json")
-        holder.append(VerifyTracker(scene, settings, rd))
+        holder.append(VerifyTracker(scene, settings, rd, workers))
         return holder
 
-    run = simulate(scene, out=out, resume=resume, overwrite=overwrite, progress=progress, observers=observers)
+    try:
+        run = simulate(scene, out=out, resume=resume, overwrite=overwrite, progress=progress, observers=observers)
+    finally:
+        for t in holder:
+            t.close()
     tracker = holder[0]
     table = _frame(tracker.rows)
     result = Verification(run, table, settings)

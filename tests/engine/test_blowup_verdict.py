@@ -32,12 +32,18 @@ def test_a_gamma1_run_carries_its_fit_through_load_run(tmp_path):
     assert record["T_b"] == v.T_b  # the paper's threshold time stays beside it
     assert f"T_b_fit = {v.T_b_fit:.6g}" in run.summary()
     assert all(p.stat().st_size > 0 for p in save_figures(run, tmp_path))
-    title = plot_records(run).axes[-1].get_title()
+    title = _records_title(run)
     assert "finite_time" in title and f"T_b_fit = {v.T_b_fit:.4g}" in title
 
 
 def _records_title(run) -> str:
-    return plot_records(run).axes[-1].get_title()
+    import matplotlib.pyplot as plt
+
+    fig = plot_records(run)
+    try:
+        return fig.axes[-1].get_title()
+    finally:
+        plt.close(fig)
 
 
 def test_gamma2_is_no_finite_time_through_load_run(tmp_path):

@@ -122,6 +122,21 @@ def test_log_form_against_nlp_and_selected_slices_of_an_inhomogeneous_scene():
     assert ver.verified and ver.settings.reference == "nlp", ver.verdict
 
 
+def test_reference_solves_in_worker_processes_give_the_same_table():
+    """The slices of a step solved by two forked workers and in this process: the same table, bit for bit,
+    but for the solve times; the workers are gone when verify returns."""
+    import multiprocessing
+
+    inhom = shipped_scene("inhom_gamma3_lambda4").replace({"v.n": 21, "x.n": 9, "t_end": 0.1})
+    one = verify(inhom, every=2, workers=1)
+    two = verify(inhom, every=2, workers=2)
+    keep = [c for c in one.table.columns if c not in TIMES]
+    assert len(one.table) == 9 and one.verified, one.verdict
+    pd.testing.assert_frame_equal(one.table[keep], two.table[keep], check_exact=True)
+    if multiprocessing.get_start_method() == "fork":
+        assert not multiprocessing.active_children()
+
+
 def test_a_run_that_stops_before_any_comparison_is_unverified_and_says_why():
     # the tested method's first solve fails (imposed: MAX_ITERATIONS), so the run stops at step 0
     sc = shipped_scene("inhom_gamma3_lambda4").replace(
@@ -160,6 +175,8 @@ def test_a_run_stopped_by_the_tested_methods_failure_is_not_verified(tmp_path):
         ({}, {"slices": 0}, ValueError, "slices"),
         ({}, {"reference_options": {"max_iter": 3}}, TypeError, "reference_options"),
         ({}, {"reference_options": {"tol": 2.0}}, ValueError, "tol"),
+        ({}, {"workers": 0}, ValueError, "workers"),
+        ({}, {"workers": 1.5}, ValueError, "workers"),
     ],
 )
 def test_impossible_settings_are_refused_before_any_work(tmp_path, scene_changes, kwargs, error, names):
