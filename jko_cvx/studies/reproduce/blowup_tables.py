@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from jko_cvx.blowup import KINDS
+from jko_cvx.blowup import KINDS, extrapolate_thresholds
 from jko_cvx.engine.loop import simulate
 from jko_cvx.engine.trackers import EpsV
 from jko_cvx.engine.verdict import StopReason, Verdict, fit_rows
@@ -52,6 +52,7 @@ __all__ = [
     "FIT_COLUMNS",
     "TAB_BU_BETA",
     "TAB_BU_TB2_BETA",
+    "THRESHOLD_COLUMNS",
     "blowup_scene",
     "blowup_time",
     "blowup_times",
@@ -60,6 +61,7 @@ __all__ = [
     "reproduce_tab_bu_tb2",
     "table_entries",
     "table_points",
+    "threshold_columns",
 ]
 
 DATA = ("g1", "g2", "g3", "g4")
@@ -283,8 +285,54 @@ def _sweep(points, out: Path, name: str, **sweep_opts) -> pd.DataFrame:
     df["ours_minus_exact"] = df.T_b - df.exact
     if "T_b_fit" in df:
         df["fit_minus_exact"] = df.T_b_fit - df.exact
+    df = threshold_columns(df)
     df.attrs["wall_seconds"] = wall
     return df
+
+
+THRESHOLD_COLUMNS = ("T_0 (eps_v -> 0)", "T_0 err")
+"""The cross-check of T_b_fit: each column's threshold times extrapolated to eps_v -> 0."""
+
+
+def threshold_columns(df: pd.DataFrame) -> pd.DataFrame:
+    """``df`` with :data:`THRESHOLD_COLUMNS`: per (beta, data, dt), the threshold times of its eps_v extrapolated
+    to eps_v -> 0 (:func:`jko_cvx.blowup.extrapolate_thresholds`, the step's quantum in the bar), the same value
+    on every entry of the column; NaN where fewer than three thresholds fired or the law does not fit."""
+    out = df.copy()
+    T0 = np.full(len(out), np.nan)
+    err = np.full(len(out), np.nan)
+    for _, idx in out.groupby(["beta", "data", "dt"], sort=False).groups.items():
+        rows = out.loc[idx]
+        fired = rows.T_b.notna().to_numpy()
+        if fired.sum() < 3:
+            continue
+        try:
+            ex = extrapolate_thresholds(rows.eps_v.to_numpy()[fired], rows.T_b.to_numpy()[fired], rows.dt.iloc[0])
+        except ValueError:
+            continue
+        pos = out.index.get_indexer(idx)
+        T0[pos], err[pos] = ex.T, ex.T_err
+    out[THRESHOLD_COLUMNS[0]], out[THRESHOLD_COLUMNS[1]] = T0, err
+    return out
+
+
+def threshold_summary(df: pd.DataFrame) -> str:
+    """The cross-check in words: T_0 against the exact time and against the fit of the column's smallest eps_v."""
+    cols = df.dropna(subset=[THRESHOLD_COLUMNS[0]]).sort_values("eps_v").groupby(["beta", "data", "dt"], sort=False)
+    first = cols.head(1)  # one row per column: its smallest eps_v (the whole run)
+    if first.empty:
+        return "Threshold extrapolation (eps_v -> 0): no column with three fired thresholds."
+    T0, bar = first[THRESHOLD_COLUMNS[0]], first[THRESHOLD_COLUMNS[1]]
+    gap = (T0 - first.exact).abs()
+    fit = first[first.blowup_kind == "finite_time"] if "blowup_kind" in first else first.iloc[:0]
+    both = (fit[THRESHOLD_COLUMNS[0]] - fit.T_b_fit).abs() <= np.hypot(fit[THRESHOLD_COLUMNS[1]], fit.T_b_fit_err)
+    return (
+        f"Cross-check (jko_cvx.blowup.extrapolate_thresholds: each (data, dt) column's threshold times fitted by "
+        f"T_0 - c eps_v^p and extrapolated to eps_v -> 0; columns `{THRESHOLD_COLUMNS[0]}`, `{THRESHOLD_COLUMNS[1]}`): "
+        f"{len(first)} columns, |T_0 - exact| median {gap.median():.2g}, max {gap.max():.2g}; the bar covers the "
+        f"exact time in {int((gap <= bar).sum())} of {len(first)}; T_0 and the finite_time T_b_fit of the column's "
+        f"smallest eps_v agree within their combined bars in {int(both.sum())} of {len(fit)}."
+    )
 
 
 def _write(df: pd.DataFrame, out: Path, name: str) -> None:
@@ -322,6 +370,8 @@ def _write(df: pd.DataFrame, out: Path, name: str) -> None:
     )
     if "T_b_fit" in df:
         lines += ["", fit_summary(df)]
+    if THRESHOLD_COLUMNS[0] in df:
+        lines += ["", threshold_summary(df)]
     lines += ["", scores_markdown(scores(name, df))]  # beside the count: what a run-free answer scores
     write_markdown(out / f"{name}.md", "\n".join(lines) + "\n")
     _figure(df, out / f"{name}.png")

@@ -138,3 +138,23 @@ def test_a_bar_too_wide_leaves_the_kind_undetermined_not_no_finite_time():
     assert fit.blowup_kind == "undetermined", fit.reason
     assert fit.reason.startswith("error bar wider than a quarter of the horizon:")
     assert fit.T_b_fit_err > abs(fit.T_b_fit - 0.5)  # the honest bar covers the exact time
+
+
+def test_threshold_columns_extrapolate_each_column_to_eps_zero():
+    """Synthetic columns T_b = T0 - c eps^p (+ the step's rounding): T_0 is recovered per (beta, data, dt), the
+    same value on each entry of the column; a column with fewer than three fired thresholds gets NaN."""
+    eps = np.array([1e-3, 5e-4, 2.5e-4, 1.25e-4, 6.25e-5])
+    rows = []
+    for data, T0, c, p in (("g1", 0.5, 2.0, 0.5), ("g3", 0.125, 0.8, 0.7)):
+        for dt in (0.01, 0.005):
+            for e in eps:
+                rows.append({"beta": 6000.0, "data": data, "dt": dt, "eps_v": e, "T_b": T0 - c * e**p})
+    rows.append({"beta": 6000.0, "data": "g2", "dt": 0.01, "eps_v": 1e-3, "T_b": 0.2})
+    rows.append({"beta": 6000.0, "data": "g2", "dt": 0.01, "eps_v": 5e-4, "T_b": float("nan")})
+    df = blowup_tables.threshold_columns(pd.DataFrame(rows))
+    T0, err = blowup_tables.THRESHOLD_COLUMNS
+    for data, exact in (("g1", 0.5), ("g3", 0.125)):
+        for dt in (0.01, 0.005):
+            col = df[(df.data == data) & (df.dt == dt)]
+            assert col[T0].nunique() == 1 and abs(col[T0].iloc[0] - exact) < 1e-6 and col[err].iloc[0] > 0
+    assert df[df.data == "g2"][T0].isna().all()
