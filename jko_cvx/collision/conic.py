@@ -24,6 +24,16 @@ small the step, and the linear remainder (the Fisher gradient at :math:`f^*`) si
 :math:`\\ell` with the energy gradient.  The *raw* cone :math:`(f_{k+1}-f_k)^2 \\le s_k q_k`
 is better conditioned for larger steps on rough data; ``"auto"`` picks by step size.
 
+Edge units: an edge whose :math:`s^*_k = f^*_k + f^*_{k+1}` is below :math:`\\epsilon_e \\max s^*`
+(:math:`\\epsilon_e` = ``_EDGE_REF`` = 1e-3) enters both cones in units of
+:math:`a_k = s^*_k / (\\epsilon_e \\max s^*)` (the cone variables :math:`s_k/a_k` and
+:math:`(f_{k+1} - f_k)/a_k`, the objective weights multiplied back), and every flux in units
+of :math:`b_k = \\min(\\mu, s^*_k)` instead of :math:`\\mu` (:math:`m_k = b_k \\hat m_k`): on a
+near-vacuum x-slice (the density floor 1e-10 over half the grid next to cells of 0.03) the
+unscaled entries of those cones sit below the solver's absolute feasibility tolerance, and
+the inner solves end inaccurate.  The minimiser is the same; only the solver's view of it
+changes.
+
 The energy enters through the difference-of-convex split of :mod:`jko_cvx.kernels`
 (restricted to mass-free directions, exact on the feasible set): the convex part
 :math:`\\|P_+\\delta\\|^2` stays quadratic and the concave part is linearised at the
@@ -74,6 +84,11 @@ _CENTRE_BELOW = 1e-4
 # Default bound on one conic solve, all convex-concave passes together (seconds).  SCS
 # inside the loop had no bound at all: one call ran for more than 15 minutes.
 _TIME_LIMIT = 120.0
+# Cones whose s* = f*_k + f*_{k+1} is below this fraction of the largest are written in units
+# of their own s* (_edge_scales): on near-vacuum x-slices (floor 1e-10 next to O(1) cells) the
+# unscaled cone entries sat below Clarabel's absolute feasibility tolerance (0/18 certified;
+# 18/18 in edge units, the 64 others unchanged; 1e-2 and 1e-4 measured the same).
+_EDGE_REF = 1e-3
 
 
 def _cvxpy():
@@ -261,9 +276,14 @@ def _build_model(
     solver: str,
     momentum: bool = False,
     weighted: bool = False,
+    edge_units: bool = False,
 ) -> tuple[ConicModel, bool]:
-    """The cached model for this structure, and whether it was compiled by this call."""
-    key = (n, with_fisher, centred, r_plus, diagonal, solver, momentum, weighted)
+    """The cached model for this structure, and whether it was compiled by this call.
+
+    ``edge_units``: the cones and fluxes in the units of each edge (module docstring), else in
+    f units and the flux scale mu throughout.
+    """
+    key = (n, with_fisher, centred, r_plus, diagonal, solver, momentum, weighted, edge_units)
     model = _MODEL_CACHE.get(key)
     if model is not None:
         return model, False
@@ -279,11 +299,19 @@ def _build_model(
     m_hat = cp.Variable(n - 1, name="m_hat")
     t_hat = cp.Variable(n - 1, name="t_hat")
     f = p["f_star"] + p["mu"] * delta
-    s = f[:-1] + f[1:]
     D = sp.diags([np.ones(n - 1), -np.ones(n - 1)], [0, -1], shape=(n, n - 1)).tocsc()
+    if edge_units:  # (_edge_scales): s = (f_k + f_{k+1})/a_k, m = b_k m_hat_k (f units)
+        p["s0"] = cp.Parameter(n - 1, nonneg=True, name="s0")  # s*/a
+        p["mu_a"] = cp.Parameter(n - 1, nonneg=True, name="mu_a")  # mu/a
+        p["b"] = cp.Parameter(n - 1, nonneg=True, name="b")  # b/mu
+        s = p["s0"] + cp.multiply(p["mu_a"], delta[:-1] + delta[1:])
+        flux = D @ cp.multiply(p["b"], m_hat)
+    else:
+        s = f[:-1] + f[1:]
+        flux = D @ m_hat
     cons = [
         cp.SOC(s + t_hat, cp.vstack([s - t_hat, 2 * m_hat]), axis=0),
-        cp.multiply(p["h"], delta) + D @ m_hat == 0,
+        cp.multiply(p["h"], delta) + flux == 0,
         f >= 0,
     ]
     if momentum:  # sum_k m_k dv_k = 0: the step conserves momentum (CollisionProblem.conserve_momentum)
@@ -299,6 +327,9 @@ def _build_model(
             # linear remainder (the Fisher gradient at f*) joins "lin".
             p["ratio"] = cp.Parameter(n - 1, name="ratio")
             e = (delta[1:] - delta[:-1]) - cp.multiply(p["ratio"], delta[1:] + delta[:-1])
+        elif edge_units:  # (f_{k+1} - f_k)/a_k
+            p["d0"] = cp.Parameter(n - 1, name="d0")  # d*/a
+            e = p["d0"] + cp.multiply(p["mu_a"], delta[1:] - delta[:-1])
         else:
             e = f[1:] - f[:-1]
         cons.append(cp.SOC(s + q, cp.vstack([s - q, 2 * e]), axis=0))
@@ -354,6 +385,20 @@ def _flux_scale(problem: CollisionProblem) -> tuple[float, float]:
     return float(mu), float(cost)
 
 
+def _edge_scales(problem: CollisionProblem, mu: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """(a, b): the units of s (cone entries) and of the flux m on each edge.
+
+    a = 1 (f units, as before) where s* is at least ``_EDGE_REF`` of its largest, s* in
+    units of that threshold below it (floored at 1e-12 against underflow; 1 where s* = 0);
+    b = min(mu, s*): the flux through a near-vacuum edge is of the order of its mass.
+    """
+    s_star = problem.f_star[:-1] + problem.f_star[1:]
+    a = np.minimum(1.0, s_star / (_EDGE_REF * s_star.max()))
+    a = np.where(s_star > 0, np.maximum(a, 1e-12), 1.0)
+    b = np.where(s_star > 0, np.minimum(mu, s_star), mu)
+    return a, b
+
+
 @dataclass
 class _Filled:
     """A model with its parameters filled for one problem, and what the loop needs."""
@@ -367,7 +412,7 @@ class _Filled:
     fisher_cone: str | None
 
 
-def _fill(problem: CollisionProblem, opts: ConicOptions, fisher_cone: str) -> _Filled | None:
+def _fill(problem: CollisionProblem, opts: ConicOptions, fisher_cone: str, edge_units: bool = False) -> _Filled | None:
     """Fetch the model and fill its parameters; None where the data's scale gives non-finite values."""
     split = problem.energy.split()
     linearized = opts.energy == "linearized"
@@ -385,14 +430,25 @@ def _fill(problem: CollisionProblem, opts: ConicOptions, fisher_cone: str) -> _F
     ec, fs = problem.energy_coef, problem.f_star
     values: dict[str, Any] = {"f_star": fs, "h": problem.grid.h, "mu": float(mu)}
     with np.errstate(all="ignore"):
-        values["wass"] = problem.wass_coef * mu**2 / varsigma
-        if problem.conserve_momentum:
-            values["dv"] = problem.grid.dv / problem.grid.dv.max()
+        s_star, d_star = fs[:-1] + fs[1:], fs[1:] - fs[:-1]
+        if edge_units:
+            a, b = _edge_scales(problem, float(mu))
+            values.update(s0=s_star / a, mu_a=mu / a, b=b / mu)
+            values["wass"] = problem.wass_coef * b**2 / (a * varsigma)
+            if problem.conserve_momentum:
+                values["dv"] = problem.grid.dv * b / (problem.grid.dv * b).max()
+            if with_fisher and not centred:
+                values["d0"] = d_star / a
+            if with_fisher:  # centred: e in units of mu; raw: of a
+                values["fisher"] = 2 * problem.fisher_coef * (mu**2 if centred else a**2) / (a * varsigma)
+        else:
+            values["wass"] = problem.wass_coef * mu**2 / varsigma
+            if problem.conserve_momentum:
+                values["dv"] = problem.grid.dv / problem.grid.dv.max()
+            if with_fisher:
+                values["fisher"] = 2 * problem.fisher_coef * (mu**2 if centred else 1.0) / varsigma
         if centred:
-            s_star, d_star = fs[:-1] + fs[1:], fs[1:] - fs[:-1]
             values["ratio"] = np.divide(d_star, s_star, out=np.zeros_like(s_star), where=s_star > 0)
-        if with_fisher:
-            values["fisher"] = 2 * problem.fisher_coef * (mu**2 if centred else 1.0) / varsigma
         if r_plus:
             values["P_plus"] = np.sqrt(ec / varsigma) * mu * P_top
         if weighted:
@@ -407,7 +463,7 @@ def _fill(problem: CollisionProblem, opts: ConicOptions, fisher_cone: str) -> _F
     if not (finite and all(np.all(np.isfinite(v)) for v in values.values())):
         return None  # f* at the edge of the floating-point range (e.g. of order 1e-320): no O(1) scaling
     model, compiled_now = _build_model(
-        problem.n, with_fisher, centred, r_plus, diagonal, opts.solver, problem.conserve_momentum, weighted
+        problem.n, with_fisher, centred, r_plus, diagonal, opts.solver, problem.conserve_momentum, weighted, edge_units
     )
     for name, value in values.items():
         model.params[name].value = value
@@ -542,33 +598,55 @@ def _finish(
     return CollisionResult.from_certificate(problem, f, m, cert, "conic", loop.ipm_iterations, seconds, info)
 
 
-def _solve_form(problem: CollisionProblem, opts: ConicOptions, fisher_cone: str) -> CollisionResult:
-    """One conic solve with the Fisher cone in the given form."""
+def _solve_form(
+    problem: CollisionProblem, opts: ConicOptions, fisher_cone: str, edge_units: bool = False
+) -> CollisionResult:
+    """One conic solve with the Fisher cone in the given form (in edge units where asked)."""
     t_start = time.perf_counter()
-    filled = _fill(problem, opts, fisher_cone)
+    filled = _fill(problem, opts, fisher_cone, edge_units)
     if filled is None:
         return _finish(problem, None, _Loop(np.zeros(problem.n), Status.NUMERICAL_ERROR), opts, t_start)
     loop = _dc_loop(problem, filled, opts, t_start)
-    return _finish(problem, filled, loop, opts, t_start)
+    res = _finish(problem, filled, loop, opts, t_start)
+    if edge_units:
+        res.info["edge_units"] = True
+    return res
 
 
-def _solve_auto(problem: CollisionProblem, opts: ConicOptions) -> CollisionResult:
-    """Neither cone form wins everywhere (measured): try the one the step size favours,
-    fall back to the other when the first is not certified, keep the better result."""
+_SETTLED = (Status.CONVERGED, Status.NONCONVEX, Status.LINEARIZED, Status.TIME_LIMIT)
+
+
+def _solve_forms(problem: CollisionProblem, opts: ConicOptions, forms: list[str]) -> CollisionResult:
+    """The Fisher cone forms in order, in f units, then (where none settles) in edge units.
+
+    Neither cone form wins everywhere (measured); the edge units (module docstring) rescue the
+    near-vacuum slices whose cones sit below the solver's tolerance, but on data whose tails
+    fall to 1e-12 of the peak their 1/a_k coefficients may make an otherwise settled solve fail,
+    so they come last: a step that settles in f units is solved exactly as without them.  The
+    first settled attempt is returned, else the best (CONVERGED, NONCONVEX, then the smallest
+    KKT residual); ``info["fallback_from"]`` names the first of two forms where the second was
+    tried, ``info["edge_units"]`` is True where the answer comes from the edge units.
+    """
     t_start = time.perf_counter()
-    mu, _ = _flux_scale(problem)
-    first = "centred" if mu < _CENTRE_BELOW * float(problem.f_star.max()) else "raw"
-    res = _solve_form(problem, opts, first)
-    if res.status in (Status.CONVERGED, Status.NONCONVEX, Status.LINEARIZED, Status.TIME_LIMIT):
-        return res
-    left = opts.time_limit - (time.perf_counter() - t_start)
-    if left <= 0:
-        return res
-    other = _solve_form(problem, replace(opts, time_limit=left), "raw" if first == "centred" else "centred")
+    tried: list[CollisionResult] = []
+    for edge_units in (False, True):
+        for form in forms:
+            left = opts.time_limit - (time.perf_counter() - t_start)
+            if tried and left <= 0:
+                break
+            res = _solve_form(problem, replace(opts, time_limit=left) if tried else opts, form, edge_units)
+            tried.append(res)
+            if res.status in _SETTLED:
+                break
+        if tried[-1].status in _SETTLED:
+            break
     rank = {Status.CONVERGED: 0, Status.NONCONVEX: 1}
-    best = min((res, other), key=lambda r: (rank.get(r.status, 2), r.kkt_residual))
-    best.info["fallback_from"] = first
-    best.seconds = res.seconds + other.seconds
+    settled = tried[-1].status in _SETTLED
+    best = tried[-1] if settled else min(tried, key=lambda r: (rank.get(r.status, 2), r.kkt_residual))
+    if len(tried) > 1:
+        if len(forms) > 1:
+            best.info["fallback_from"] = forms[0]
+        best.seconds = sum(r.seconds for r in tried)
     return best
 
 
@@ -655,5 +733,7 @@ def solve_conic(
     options = {k: v for k, v in locals().items() if k != "problem"}
     opts = ConicOptions.checked(problem, **options)
     if opts.fisher_cone == "auto" and problem.fisher is not None:
-        return _solve_auto(problem, opts)
-    return _solve_form(problem, opts, opts.fisher_cone)
+        mu, _ = _flux_scale(problem)
+        first = "centred" if mu < _CENTRE_BELOW * float(problem.f_star.max()) else "raw"
+        return _solve_forms(problem, opts, [first, "raw" if first == "centred" else "centred"])
+    return _solve_forms(problem, opts, [opts.fisher_cone])

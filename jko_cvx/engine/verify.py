@@ -440,9 +440,8 @@ def _why(row: pd.Series) -> str:
 
 _OTHER_REFERENCE = {
     "conic": (
-        "the conic reference fails on some steps that nlp certifies (inhom_gamma3_lambda4, perspective, beta 30, "
-        "41 x 41: conic 19 of 82 slices, nlp none): verify with reference='nlp' (--reference nlp), which poses "
-        "the perspective form too"
+        "where the conic reference is not certified, verify with reference='nlp' (--reference nlp), an independent "
+        "formulation that poses the perspective form too"
     ),
     "nlp": "try reference='conic' (--reference conic) where the scene's Fisher form is not the log form",
 }
