@@ -20,7 +20,9 @@ Part B -- ``verify`` of ``inhom_gamma3_lambda4`` at 61 x 61 with the perspective
 30, against conic (both splits), every step, against the scene's own run (the issue's target:
 at most 10x): medians of ``--repeats`` - 1 runs each after one warm-up of both (the warm-up pays
 CVXPY's import and the model compiles, reported apart), then one verification under cProfile
-with its time split by where it goes.
+with its time split by where it goes.  Every verification solves its references in this process
+(``workers=1``): the CPU time of this process is then all of it (``studies/bench_verify.py``
+measures the worker processes).
 
 Run: ``OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 python studies/bench_conic_split.py`` (about
 3 minutes on 2 shared cores; ``--sizes 61 121`` for a quick look).  Writes
@@ -141,7 +143,7 @@ def verify_overhead(t_end: float, repeats: int) -> tuple[pd.DataFrame, dict[str,
     prof = cProfile.Profile()
     t0 = time.process_time()
     prof.enable()
-    verify(scene, "conic", every=1)
+    verify(scene, "conic", every=1, workers=1)
     prof.disable()
     profiled = time.process_time() - t0
     return pd.DataFrame(rows), buckets(pstats.Stats(prof)), profiled
@@ -149,14 +151,14 @@ def verify_overhead(t_end: float, repeats: int) -> tuple[pd.DataFrame, dict[str,
 
 def _verify_row(scene: object, t_end: float, repeats: int, split_name: str) -> dict[str, object]:
     ref_opts = {"dc_split": split_name}
-    cold_verify, _ = cpu(lambda: verify(scene, "conic", every=1, reference_options=ref_opts))
+    cold_verify, _ = cpu(lambda: verify(scene, "conic", every=1, reference_options=ref_opts, workers=1))
     cold_run, _ = cpu(lambda: simulate(scene))
     runs, vers, ver = [], [], None
     for _ in range(repeats):
         t, run = cpu(lambda: simulate(scene))
         runs.append(t)
         clear_operator_cache()
-        t, ver = cpu(lambda: verify(scene, "conic", every=1, reference_options=ref_opts))
+        t, ver = cpu(lambda: verify(scene, "conic", every=1, reference_options=ref_opts, workers=1))
         vers.append(t)
     operators = operator_cache_info()["entries"]
     table = ver.table
