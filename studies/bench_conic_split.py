@@ -7,8 +7,8 @@ this process (``time.process_time``: the machine is shared, so wall time says mo
 neighbours than about the code), side by side in one run:
 
 Part A -- one conic solve at gamma = 3, N = 121, 241, 481: f* = exp(-2 v^2) on [-2, 2],
-dt = 0.01, perspective Fisher beta = 10, with the default ``dc_split = "eigen"`` and with
-``"truncated"`` (the leading eigenvalues exactly, a diagonal majorant of the rest).  ``first``:
+dt = 0.01, perspective Fisher beta = 10, with ``dc_split = "eigen"`` (the exact convex part) and with
+``"truncated"`` (the default: the leading eigenvalues exactly, a diagonal majorant of the rest).  ``first``:
 the first solve at this N in the process (the split and CVXPY's DPP compile of the model
 included); ``split``: the operator and its split alone, from an empty cache; then alternating
 repeats on new grid objects with equal points,

@@ -1,4 +1,4 @@
-"""The conic reference's ``dc_split = "truncated"`` against the default ``"eigen"`` on 72 varied steps.
+"""The conic reference's ``dc_split = "truncated"`` (the default) against ``"eigen"`` on 72 varied steps.
 
 Each collision step is solved by ``method="conic"`` with both splits, side by side in one
 process: gamma in {2.5, 3, 4}, N = 41 (random non-uniform grid on [-3, 3]) and 121 (uniform),

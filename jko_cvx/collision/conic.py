@@ -24,13 +24,14 @@ small the step, and the linear remainder (the Fisher gradient at :math:`f^*`) si
 :math:`\\ell` with the energy gradient.  The *raw* cone :math:`(f_{k+1}-f_k)^2 \\le s_k q_k`
 is better conditioned for larger steps on rough data; ``"auto"`` picks by step size.
 
-Edge units: an edge whose :math:`s^*_k = f^*_k + f^*_{k+1}` is below :math:`\\epsilon_e \\max s^*`
-(:math:`\\epsilon_e` = ``_EDGE_REF`` = 1e-3) enters both cones in units of
-:math:`a_k = s^*_k / (\\epsilon_e \\max s^*)` (the cone variables :math:`s_k/a_k` and
-:math:`(f_{k+1} - f_k)/a_k`, the objective weights multiplied back), and every flux in units
-of :math:`b_k = \\min(\\mu, s^*_k)` instead of :math:`\\mu` (:math:`m_k = b_k \\hat m_k`): on a
-near-vacuum x-slice (the density floor 1e-10 over half the grid next to cells of 0.03) the
-unscaled entries of those cones sit below the solver's absolute feasibility tolerance, and
+Edge units (a fallback, :func:`_solve_forms`): a step that does not settle in f units is solved
+again with each edge whose :math:`s^*_k = f^*_k + f^*_{k+1}` is below :math:`\\epsilon_e \\max s^*`
+(:math:`\\epsilon_e` = ``_EDGE_REF`` = 1e-3) in units of :math:`a_k = s^*_k / (\\epsilon_e \\max s^*)`
+in both cones (the variable :math:`s_k/a_k`, the raw cone's :math:`(f_{k+1} - f_k)/a_k`; the
+centred cone's entry keeps its units), the objective weights multiplied back, and every flux
+in units of :math:`b_k = \\min(\\mu, s^*_k)` instead of :math:`\\mu` (:math:`m_k = b_k \\hat m_k`):
+on a near-vacuum x-slice (the density floor 1e-10 over half the grid next to cells of 0.03)
+the unscaled entries of those cones sit below the solver's absolute feasibility tolerance, and
 the inner solves end inaccurate.  The minimiser is the same; only the solver's view of it
 changes.
 
@@ -390,12 +391,12 @@ def _edge_scales(problem: CollisionProblem, mu: float) -> tuple[NDArray[np.float
 
     a = 1 (f units, as before) where s* is at least ``_EDGE_REF`` of its largest, s* in
     units of that threshold below it (floored at 1e-12 against underflow; 1 where s* = 0);
-    b = min(mu, s*): the flux through a near-vacuum edge is of the order of its mass.
+    b = min(mu, s*), at least 1e-12 mu: the flux through a near-vacuum edge is of the order of its mass.
     """
     s_star = problem.f_star[:-1] + problem.f_star[1:]
     a = np.minimum(1.0, s_star / (_EDGE_REF * s_star.max()))
     a = np.where(s_star > 0, np.maximum(a, 1e-12), 1.0)
-    b = np.where(s_star > 0, np.minimum(mu, s_star), mu)
+    b = np.where(s_star > 0, np.minimum(mu, np.maximum(s_star, 1e-12 * mu)), mu)  # b^2 must not underflow
     return a, b
 
 
@@ -614,6 +615,7 @@ def _solve_form(
 
 
 _SETTLED = (Status.CONVERGED, Status.NONCONVEX, Status.LINEARIZED, Status.TIME_LIMIT)
+_RANK = {Status.CONVERGED: 0, Status.LINEARIZED: 0, Status.NONCONVEX: 1}
 
 
 def _solve_forms(problem: CollisionProblem, opts: ConicOptions, forms: list[str]) -> CollisionResult:
@@ -622,27 +624,31 @@ def _solve_forms(problem: CollisionProblem, opts: ConicOptions, forms: list[str]
     Neither cone form wins everywhere (measured); the edge units (module docstring) rescue the
     near-vacuum slices whose cones sit below the solver's tolerance, but on data whose tails
     fall to 1e-12 of the peak their 1/a_k coefficients may make an otherwise settled solve fail,
-    so they come last: a step that settles in f units is solved exactly as without them.  The
-    first settled attempt is returned, else the best (CONVERGED, NONCONVEX, then the smallest
-    KKT residual); ``info["fallback_from"]`` names the first of two forms where the second was
-    tried, ``info["edge_units"]`` is True where the answer comes from the edge units.
+    so they come last.  The first attempt is returned where it settles (CONVERGED, NONCONVEX,
+    LINEARIZED, TIME_LIMIT); otherwise the attempts go on until one is CONVERGED, NONCONVEX or
+    LINEARIZED or the time is spent, and the best of them is returned (CONVERGED or LINEARIZED,
+    then NONCONVEX, then the smallest KKT residual): a step that the first form settles, or the
+    second converges, in f units gets the answer it had without the edge units.  The time limit covers every
+    attempt but not the models' compilation (a worker process compiles its own, so the budget
+    does not depend on which process solves the step).  ``info["fallback_from"]`` names the
+    first of two forms where another attempt ran, ``info["edge_units"]`` is True where the answer
+    comes from the edge units.
     """
     t_start = time.perf_counter()
     tried: list[CollisionResult] = []
-    for edge_units in (False, True):
-        for form in forms:
-            left = opts.time_limit - (time.perf_counter() - t_start)
-            if tried and left <= 0:
-                break
-            res = _solve_form(problem, replace(opts, time_limit=left) if tried else opts, form, edge_units)
-            tried.append(res)
-            if res.status in _SETTLED:
-                break
-        if tried[-1].status in _SETTLED:
+    attempts = [(edge_units, form) for edge_units in (False, True) for form in forms]
+    for edge_units, form in attempts:
+        compiled = sum(r.info.get("compile_seconds", 0.0) for r in tried if r.info.get("compiled_now"))
+        left = opts.time_limit - (time.perf_counter() - t_start - compiled)
+        if tried and left <= 0:
             break
-    rank = {Status.CONVERGED: 0, Status.NONCONVEX: 1}
-    settled = tried[-1].status in _SETTLED
-    best = tried[-1] if settled else min(tried, key=lambda r: (rank.get(r.status, 2), r.kkt_residual))
+        res = _solve_form(problem, replace(opts, time_limit=left) if tried else opts, form, edge_units)
+        tried.append(res)
+        if len(tried) == 1 and res.status in _SETTLED:
+            return res
+        if res.status in _RANK or res.status is Status.TIME_LIMIT:
+            break
+    best = min(tried, key=lambda r: (_RANK.get(r.status, 2), r.kkt_residual))
     if len(tried) > 1:
         if len(forms) > 1:
             best.info["fallback_from"] = forms[0]
@@ -701,7 +707,9 @@ def solve_conic(
         centred form first when the explicit flux is below 1e-4 of max f* and the raw one
         otherwise, and falls back to the other when the first is not certified (``info``
         then has ``fallback_from``): raw is better conditioned on rough data, centred on
-        smooth data with a strong Fisher term (beta = 1: KKT 3e-9 against 1.5e-6).
+        smooth data with a strong Fisher term (beta = 1: KKT 3e-9 against 1.5e-6).  A step
+        that neither form settles (nor the given form) is solved again in edge units (module
+        docstring; ``info["edge_units"]`` is True where the answer comes from them).
     max_passes : int, default 50
         Limit on convex-concave passes (status ``MAX_ITERATIONS`` when reached).
     dc_tol : float, optional

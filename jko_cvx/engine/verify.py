@@ -82,6 +82,9 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import signal
+import sys
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -253,6 +256,27 @@ def _outcome(status: Status, kkt: float, ref: CollisionResult, df: float, dJ: fl
     return AGREE if (df <= tol and dJ <= tol) else DIFFER
 
 
+def _worker_start(parent: int, lock_fd: int | None) -> None:
+    """Start of a reference worker (forked from the run): it lets the run handle Ctrl-C and SIGTERM (the
+    checkpoint is the run's), holds no copy of the run directory's lock, and dies with the run."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    if lock_fd is not None:
+        try:
+            os.close(lock_fd)  # the flock stays with the run's descriptor; a killed run then frees it
+        except OSError:
+            pass
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        try:
+            ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGKILL))  # PR_SET_PDEATHSIG: killed with the run
+        except (OSError, AttributeError):
+            pass
+    if os.getppid() != parent:  # the run died before the line above took effect
+        os._exit(1)
+
+
 def _compare_slice(
     problem: CollisionProblem, f: np.ndarray, m: np.ndarray, reference: str, options: dict[str, Any]
 ) -> tuple[CollisionResult, float, float, float]:
@@ -360,13 +384,21 @@ class VerifyTracker(Tracker):
             import multiprocessing
             from concurrent.futures import ProcessPoolExecutor
 
-            if multiprocessing.get_start_method() != "fork":
-                # a spawned worker imports the main script again, which may be an unguarded script calling verify
+            # the start method in force, without fixing it (the first of all methods is the platform's default)
+            method = multiprocessing.get_start_method(allow_none=True) or multiprocessing.get_all_start_methods()[0]
+            if method != "fork" or multiprocessing.current_process().daemon:
+                # a spawned worker imports the main script again (which may be an unguarded script calling
+                # verify); a daemonic process (a pool's worker) may not start children
                 self.workers = 1
                 return self._map(tasks)
-            self.pool = ProcessPoolExecutor(max_workers=min(self.workers, len(tasks)))
-        chunk = max(1, len(tasks) // (4 * self.workers))
-        return list(self.pool.map(_compare_slice, *zip(*tasks, strict=True), chunksize=chunk))
+            lock = getattr(self.rundir, "_lock_fd", None)
+            self.pool = ProcessPoolExecutor(
+                max_workers=min(self.workers, len(tasks)),
+                mp_context=multiprocessing.get_context("fork"),
+                initializer=_worker_start,
+                initargs=(os.getpid(), lock),
+            )
+        return list(self.pool.map(_compare_slice, *zip(*tasks, strict=True)))
 
     def close(self) -> None:
         """Shut the reference solves' worker processes down (they are started at the first step that needs them)."""

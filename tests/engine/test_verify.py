@@ -222,6 +222,37 @@ def _small_g1_file(tmp_path):
     return scene_file
 
 
+def _small_inhom_file(tmp_path):
+    """inhom_gamma3_lambda4 at 21 x 21 to t = 0.5 (10 steps), a checkpoint every 2 steps."""
+    scene_file = tmp_path / "inhom.toml"
+    src = resources.files("jko_cvx.scene").joinpath("shipped/inhom_gamma3_lambda4.toml").read_text()
+    scene_file.write_text(
+        src.replace("n = 121", "n = 21").replace("t_end = 4.0", "t_end = 0.5")
+        .replace("checkpoint_every = 10", "checkpoint_every = 2")
+    )  # fmt: skip
+    return scene_file
+
+
+@pytest.mark.parametrize("signum", [signal.SIGKILL, signal.SIGINT], ids=["SIGKILL", "SIGINT"])
+def test_a_verification_killed_while_its_workers_solve_frees_its_directory_and_resumes(tmp_path, signum):
+    """The reference workers die with the run (SIGKILL to the run alone) and hold no copy of its lock, and leave
+    Ctrl-C to it: the directory is free at once and the resumed table is the uninterrupted one."""
+    scene_file = _small_inhom_file(tmp_path)
+    out = tmp_path / "v"
+    ck = out / "checkpoint.npz"
+    signal_cli_when(["verify", str(scene_file), "--out", str(out), "--quiet", "--workers", "2"], ck, signum,
+                    settle=0.3)  # fmt: skip
+    killed_at = int(np.load(ck)["step"])
+    assert 0 < killed_at < 10, "the verification must have been killed mid-way"
+    scene = load_scene(scene_file)
+    resumed = verify(scene, out=out, resume=True, workers=2)  # refused while an orphan held the lock
+    fresh = verify(scene, workers=1)
+    assert len(fresh.table) == 10 * 21
+    pd.testing.assert_frame_equal(
+        resumed.table.drop(columns=list(TIMES)), fresh.table.drop(columns=list(TIMES)), check_exact=True
+    )
+
+
 @pytest.mark.parametrize("signum", [signal.SIGKILL, signal.SIGTERM], ids=["SIGKILL", "SIGTERM"])
 def test_killed_verification_resumes_to_the_uninterrupted_table(tmp_path, signum):
     scene_file = _small_g1_file(tmp_path)

@@ -297,7 +297,7 @@ THRESHOLD_COLUMNS = ("T_0 (eps_v -> 0)", "T_0 err")
 def threshold_columns(df: pd.DataFrame) -> pd.DataFrame:
     """``df`` with :data:`THRESHOLD_COLUMNS`: per (beta, data, dt), the threshold times of its eps_v extrapolated
     to eps_v -> 0 (:func:`jko_cvx.blowup.extrapolate_thresholds`, the step's quantum in the bar), the same value
-    on every entry of the column; NaN where fewer than three thresholds fired or the law does not fit."""
+    on every entry of the column; NaN where too few thresholds fired for the fit or the law does not fit."""
     out = df.copy()
     T0 = np.full(len(out), np.nan)
     err = np.full(len(out), np.nan)
@@ -308,7 +308,7 @@ def threshold_columns(df: pd.DataFrame) -> pd.DataFrame:
             continue
         try:
             ex = extrapolate_thresholds(rows.eps_v.to_numpy()[fired], rows.T_b.to_numpy()[fired], rows.dt.iloc[0])
-        except ValueError:
+        except (ValueError, RuntimeError):  # too few distinct thresholds, or the law did not fit
             continue
         pos = out.index.get_indexer(idx)
         T0[pos], err[pos] = ex.T, ex.T_err

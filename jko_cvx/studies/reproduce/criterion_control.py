@@ -117,7 +117,7 @@ def _row(r: pd.Series) -> dict[str, Any]:
         try:
             ex = extrapolate_thresholds(eps[fired], tb[fired], DT)
             T0, err = ex.T, ex.T_err
-        except ValueError:
+        except (ValueError, RuntimeError):  # too few distinct thresholds, or the law did not fit
             pass
     row.update({"T_0 (eps -> 0)": T0, "T_0 err": err})
     row.update({k: r[k] for k in FIT_COLUMNS})

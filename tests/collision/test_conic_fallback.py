@@ -1,0 +1,93 @@
+"""The conic reference's sequence of attempts (``conic._solve_forms``): the cone forms in f units, then in edge
+units where none settled; which attempt's answer is returned."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from jko_cvx import CollisionProblem, Grid, PowerKernel, Status, solve_collision
+from jko_cvx.collision import conic
+from jko_cvx.collision.conic import ConicOptions
+
+
+def _fake(outcomes):
+    """A stand-in for one attempt: the (status, kkt) of each call in turn, recording (form, edge_units)."""
+    calls = []
+
+    def solve_form(problem, opts, form, edge_units=False):
+        status, kkt = outcomes[len(calls)]
+        calls.append((form, edge_units))
+        return SimpleNamespace(status=status, kkt_residual=kkt, info={"edge_units": edge_units}, seconds=1.0)
+
+    return solve_form, calls
+
+
+@pytest.mark.parametrize(
+    ("outcomes", "calls", "picked"),
+    [
+        # the first form settles: returned alone, as without the fallbacks
+        ([(Status.CONVERGED, 1e-9)], [("raw", False)], 0),
+        ([(Status.TIME_LIMIT, 0.3)], [("raw", False)], 0),
+        # the second form converges: it is the answer
+        ([(Status.NOT_CERTIFIED, 1e-5), (Status.CONVERGED, 1e-9)], [("raw", False), ("centred", False)], 1),
+        # the second runs out of time: the better of the two by the residual (the first)
+        ([(Status.NOT_CERTIFIED, 1e-5), (Status.TIME_LIMIT, 0.5)], [("raw", False), ("centred", False)], 0),
+        # neither settles in f units: the edge units, the first form's settles
+        (
+            [(Status.NOT_CERTIFIED, 1e-5), (Status.SOLVER_ERROR, 0.2), (Status.CONVERGED, 1e-8)],
+            [("raw", False), ("centred", False), ("raw", True)],
+            2,
+        ),
+        # nothing settles: the smallest residual of all four
+        (
+            [
+                (Status.NOT_CERTIFIED, 1e-5),
+                (Status.SOLVER_ERROR, 0.2),
+                (Status.INACCURATE, 3e-6),
+                (Status.MAX_ITERATIONS, 1e-4),
+            ],
+            [("raw", False), ("centred", False), ("raw", True), ("centred", True)],
+            2,
+        ),
+    ],
+)
+def test_the_attempts_and_the_answer(monkeypatch, outcomes, calls, picked):
+    fake, seen = _fake(outcomes)
+    monkeypatch.setattr(conic, "_solve_form", fake)
+    g = Grid.uniform(-2.0, 2.0, 21)
+    prob = CollisionProblem(g, PowerKernel(1.0), np.exp(-2 * g.points**2), 0.01, beta=10.0)
+    res = conic._solve_forms(prob, ConicOptions.checked(prob), ["raw", "centred"])
+    assert seen == calls
+    assert res.kkt_residual == outcomes[picked][1] and res.status is outcomes[picked][0]
+    assert ("fallback_from" in res.info) == (len(calls) > 1)
+    assert res.info["edge_units"] == calls[picked][1]
+
+
+def test_an_explicit_form_falls_back_to_its_own_edge_units(monkeypatch):
+    fake, seen = _fake([(Status.INACCURATE, 1e-3), (Status.CONVERGED, 1e-9)])
+    monkeypatch.setattr(conic, "_solve_form", fake)
+    g = Grid.uniform(-2.0, 2.0, 21)
+    prob = CollisionProblem(g, PowerKernel(1.0), np.exp(-2 * g.points**2), 0.01, beta=10.0)
+    res = conic._solve_forms(prob, ConicOptions.checked(prob, fisher_cone="centred"), ["centred"])
+    assert seen == [("centred", False), ("centred", True)] and res.status is Status.CONVERGED
+    assert "fallback_from" not in res.info
+
+
+def test_edge_units_give_the_f_unit_answer_where_both_settle():
+    """The same minimiser in either units (a floor of 1e-7 under a bump, both cone forms, with and without the
+    momentum constraint)."""
+    g = Grid.uniform(-3.0, 3.0, 41)
+    f = np.exp(-4 * g.points**2) + 1e-7
+    for cone in ("raw", "centred"):
+        for momentum in (False, True):
+            prob = CollisionProblem(g, PowerKernel(3.0), f, 0.02, 2.0, 30.0, "perspective", momentum)
+            opts = ConicOptions.checked(prob, fisher_cone=cone)
+            plain = conic._solve_form(prob, opts, cone, edge_units=False)
+            edge = conic._solve_form(prob, opts, cone, edge_units=True)
+            assert plain.success and edge.success, (plain.message, edge.message)
+            assert np.abs(plain.f - edge.f).max() <= 1e-6 * plain.f.max()
+            assert edge.info["edge_units"] and not plain.info.get("edge_units")
+    assert solve_collision(prob, method="conic").success
