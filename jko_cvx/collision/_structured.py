@@ -89,6 +89,9 @@ from numpy.typing import NDArray
 from scipy.linalg import lapack
 
 from jko_cvx.collision._linalg import (
+    CHAIN_MIN as _CHAIN_MIN,  # slices from which the chained calls pay
+)
+from jko_cvx.collision._linalg import (
     banded_lu_solve_batch,
     pentadiagonal_cholesky,
     pentadiagonal_cholesky_batch,
@@ -122,10 +125,6 @@ _CG_MAXIT = 60
 # with the C preconditioner; G halved CG's cost since, and a lower threshold is not measured).
 _CG_MIN_N = 300
 _CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
-# From this many slices in a chunk the banded factorisations and solves are chained LAPACK
-# calls (one per chunk, bitwise those of one call per slice: jko_cvx.collision._linalg),
-# below it one call per slice (a chain's bookkeeping costs more than it saves for a few).
-_CHAIN_MIN = 8
 # gamma = 3 chains its interleaved LU only up to this many unknowns per slice: measured on
 # 16 blocks with 4 right-hand sides, the chained dgbsv takes 0.49x the time of one call per
 # block at 2n = 122, 0.94x at 242, 1.06x at 482 and 1.08x at 962 (the LU's own work

@@ -58,6 +58,9 @@ from numpy.typing import NDArray
 from scipy.linalg import lapack
 
 from jko_cvx.collision._linalg import (
+    CHAIN_MIN as _CHAIN_MIN,  # slices from which the chained calls pay
+)
+from jko_cvx.collision._linalg import (
     divergence,
     divergence_adjoint,
     pentadiagonal_cholesky,
@@ -158,10 +161,6 @@ def _fused(
     return g, reduced_bands(problem.grid, xx, yy, xy, wd.h_sm, wd.h_mm), parts
 
 
-# From this many slices the chained banded factorisation (one LAPACK call for the batch) beats
-# one call per slice (measured, N - 1 = 120 to 400: 2x slower at 1 slice, even at 4, 1.2-1.4x
-# faster at 32); both give the same bits, so the choice cannot change a result.
-_CHAIN_MIN = 8
 
 
 def _sherman_morrison(fb: FluxBlock, scale: float, y: NDArray, k: int) -> NDArray | None:

@@ -62,6 +62,7 @@ __all__ = [
     "table_entries",
     "table_points",
     "threshold_columns",
+    "threshold_limit",
 ]
 
 DATA = ("g1", "g2", "g3", "g4")
@@ -304,16 +305,22 @@ def threshold_columns(df: pd.DataFrame) -> pd.DataFrame:
     for _, idx in out.groupby(["beta", "data", "dt"], sort=False).groups.items():
         rows = out.loc[idx]
         fired = rows.T_b.notna().to_numpy()
-        if fired.sum() < 3:
-            continue
-        try:
-            ex = extrapolate_thresholds(rows.eps_v.to_numpy()[fired], rows.T_b.to_numpy()[fired], rows.dt.iloc[0])
-        except (ValueError, RuntimeError):  # too few distinct thresholds, or the law did not fit
-            continue
         pos = out.index.get_indexer(idx)
-        T0[pos], err[pos] = ex.T, ex.T_err
+        T0[pos], err[pos] = threshold_limit(rows.eps_v.to_numpy()[fired], rows.T_b.to_numpy()[fired], rows.dt.iloc[0])
     out[THRESHOLD_COLUMNS[0]], out[THRESHOLD_COLUMNS[1]] = T0, err
     return out
+
+
+def threshold_limit(eps_v: np.ndarray, T_b: np.ndarray, dt: float) -> tuple[float, float]:
+    """``(T_0, T_0 err)`` of :func:`jko_cvx.blowup.extrapolate_thresholds` on the thresholds that fired, or two
+    NaN where fewer than three fired, too few are distinct, or the law does not fit (a table's cell, not an error)."""
+    if len(eps_v) < 3:
+        return float("nan"), float("nan")
+    try:
+        ex = extrapolate_thresholds(eps_v, T_b, dt)
+    except (ValueError, RuntimeError):
+        return float("nan"), float("nan")
+    return ex.T, ex.T_err
 
 
 def threshold_summary(df: pd.DataFrame) -> str:

@@ -30,7 +30,6 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from jko_cvx.blowup import extrapolate_thresholds
 from jko_cvx.engine.loop import simulate
 from jko_cvx.environment import record_csv, write_markdown
 from jko_cvx.studies.reproduce.blowup_tables import (
@@ -39,6 +38,7 @@ from jko_cvx.studies.reproduce.blowup_tables import (
     blowup_scene,
     fit_columns,
     replayed_entry,
+    threshold_limit,
 )
 from jko_cvx.studies.solvers.figures import finish_figure, pyplot
 from jko_cvx.studies.sweep import run_sweep
@@ -112,13 +112,7 @@ def _row(r: pd.Series) -> dict[str, Any]:
         "fires where theory forbids": bool(fired.any() and not osgood_finite_time(r.gamma)),
         "drift dT_b/dln(1/eps)": _drift(eps[fired], tb[fired]),
     }
-    T0 = err = float("nan")
-    if fired.sum() >= 3:
-        try:
-            ex = extrapolate_thresholds(eps[fired], tb[fired], DT)
-            T0, err = ex.T, ex.T_err
-        except (ValueError, RuntimeError):  # too few distinct thresholds, or the law did not fit
-            pass
+    T0, err = threshold_limit(eps[fired], tb[fired], DT)
     row.update({"T_0 (eps -> 0)": T0, "T_0 err": err})
     row.update({k: r[k] for k in FIT_COLUMNS})
     expected = "finite_time" if osgood_finite_time(r.gamma) else "no_finite_time"
