@@ -86,6 +86,7 @@ PAGES: tuple[Page, ...] = (
             Entry("newton_single_path.md"),
             Entry("newton_certification.md", data=("newton_certification.csv",)),
             Entry("newton_single_call.md", data=("newton_single_call.csv",)),
+            Entry("bench_cli_run.md", data=("bench_cli_run.csv",)),
             Entry("conic_defaults.md", data=("conic_defaults.csv",)),
             Entry("extremes.md", data=("extremes.csv",)),
         ),

@@ -1,0 +1,95 @@
+"""CPU time of the default ``jko-cvx run``: a baseline commit against this tree, side by side.
+
+Each round runs, in fresh interpreters and interleaved, the baseline (exported with
+``git archive`` and imported as ``jko_cvx_base``, as in ``studies/newton_single_call.py``) and
+this tree: the whole command (``main(["run", "--out", DIR])`` on the built-in default scene, its
+figures included) and the interpreter with the command's imports alone.  CPU time is the child
+processes' user + system time (``resource.getrusage``), median over ``--repeats`` rounds, in
+the package's default thread setting (recorded).  The package's target for the whole command is
+2 s.
+
+Run::
+
+    OPENBLAS_NUM_THREADS=1 python studies/bench_cli_run.py --base f0dcb29
+
+Writes ``studies/results/bench_cli_run.{csv,md}`` with the environment.
+"""
+
+from __future__ import annotations
+
+import argparse
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import pandas as pd
+from newton_single_call import import_baseline
+
+from jko_cvx.environment import git_state, record_csv, write_markdown
+from jko_cvx.threads import thread_environment
+
+RESULTS = Path(__file__).parent / "results"
+TARGET_S = 2.0
+
+
+def _child_cpu(code: str, path: str) -> float:
+    """User + system CPU seconds of ``python -c code`` with ``path`` first on sys.path."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    script = f"import sys; sys.path.insert(0, {path!r}); {code}"
+    subprocess.run([sys.executable, "-c", script], check=True, capture_output=True)
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+
+
+def _tree() -> str:
+    commit, dirty = git_state()
+    return f"{(commit or 'unknown')[:12]}{' (modified)' if dirty else ''}"
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--base", required=True, help="baseline commit")
+    ap.add_argument("--repeats", type=int, default=7)
+    args = ap.parse_args(argv)
+    times: dict[tuple[str, str], list[float]] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp) / "base"
+        import_baseline(args.base, folder)
+        sides = {"base": ("jko_cvx_base", str(folder)), "tree": ("jko_cvx", "")}
+        for r in range(args.repeats):
+            for side, (pkg, path) in sides.items():
+                out = Path(tmp) / f"{side}{r}"
+                run = f"from {pkg}.cli import main; main(['run', '--out', {str(out)!r}])"
+                times.setdefault((side, "jko-cvx run"), []).append(_child_cpu(run, path))
+                times.setdefault((side, "imports"), []).append(_child_cpu(f"import {pkg}.cli, {pkg}.engine.plot", path))
+            print(f"round {r + 1}/{args.repeats}", flush=True)
+    rows = []
+    for what in ("jko-cvx run", "imports"):
+        base, tree = statistics.median(times[("base", what)]), statistics.median(times[("tree", what)])
+        rows.append({"what": what, "base_cpu_s": base, "tree_cpu_s": tree, "tree/base": tree / base,
+                     "tree_min_s": min(times[("tree", what)]), "tree_max_s": max(times[("tree", what)])})  # fmt: skip
+    df = pd.DataFrame(rows)
+    print(df.to_string(index=False))
+    out = RESULTS / "bench_cli_run.csv"
+    df.to_csv(out, index=False)
+    record_csv(out)
+    run_s = float(df.tree_cpu_s[0])
+    write_markdown(
+        RESULTS / "bench_cli_run.md",
+        "# CPU time of the default `jko-cvx run`\n\n"
+        f"Baseline {args.base}, tree {_tree()}; {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}.  "
+        f"Threads: {thread_environment()}.  User + system CPU seconds of a fresh interpreter, median of "
+        f"{args.repeats} rounds with the versions interleaved: the whole command on the built-in default scene "
+        "(simulation, run directory, figures), and the interpreter with the command's imports alone.  "
+        f"Target: under {TARGET_S:g} s for the whole command ({'met' if run_s < TARGET_S else 'not met'}: "
+        f"{run_s:.2f} s).\n\n" + df.to_markdown(index=False, floatfmt=".3g") + "\n",
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
