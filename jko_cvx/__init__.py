@@ -7,7 +7,8 @@ equation".  What a researcher imports is here; the subpackages hold the rest
 * the discrete problem: :class:`Grid`, :class:`PeriodicGrid`, :class:`PowerKernel`,
   :class:`CollisionProblem` (``eqn:non-uniform JKO`` with ``eqn:linear_constraint``);
 * its solvers and their judge: :func:`solve_collision` (methods ``"conic"``, ``"newton"``,
-  ``"nlp"``, ``"sqp"``), :func:`certify`, :func:`explicit_step`, :func:`conic_solvers`, and the
+  ``"nlp"``, ``"sqp"``), :func:`certify`, :func:`f_error_estimate` (an answer's distance in f
+  to the minimiser), :func:`explicit_step`, :func:`conic_solvers`, and the
   results :class:`CollisionResult`, :class:`Status`, :class:`KKTResidual`, :class:`Certificate`;
 * the homogeneous equation on a fixed grid: :func:`evolve_fixed_grid`;
 * scenes and runs: :class:`Scene`, :func:`load_scene`, :func:`shipped_scene`,
@@ -42,6 +43,7 @@ from jko_cvx.collision import (
     certify,
     conic_solvers,
     explicit_step,
+    f_error_estimate,
     solve_collision,
 )
 from jko_cvx.evolve import evolve_fixed_grid
@@ -91,6 +93,7 @@ __all__ = [
     "default_scene",
     "evolve_fixed_grid",
     "explicit_step",
+    "f_error_estimate",
     "load_run",
     "load_scene",
     "load_verification",

@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from jko_cvx._version import __version__
-from jko_cvx.collision import CollisionProblem, conic_solvers, solve_collision
+from jko_cvx.collision import CollisionProblem, conic_solvers, f_error_estimate, solve_collision
 from jko_cvx.grid import Grid
 from jko_cvx.kernels import PowerKernel
 
@@ -191,12 +191,21 @@ def _solve_one(args) -> int:
     print(prob)
     for method in methods:
         res = solve_collision(prob, method=method)
-        print(f"  {res!r}\n    {res.message}")
+        print(f"  {res!r}\n    {res.message}\n    {_error_line(prob, res)}")
     if not asked and prob.fisher == "log":
         print("  conic: not run (the log Fisher form is not conic-representable)")
     if not asked and "nlp" not in methods:
         print('  nlp: not installed (pip install "jko_cvx[nlp]")')
     return 0
+
+
+def _error_line(prob: CollisionProblem, res) -> str:
+    """The answer's a posteriori distance in f to the minimiser (one Newton step on the constraint's null space)."""
+    err = f_error_estimate(prob, res.f, res.m)
+    label = "error in f (a posteriori estimate, relative to max f)"
+    if not np.isfinite(err):
+        return f"{label}: not available (the reduced Hessian is not positive definite at this point)"
+    return f"{label}: {err:.1e}"
 
 
 def _compare(args) -> int:
@@ -216,7 +225,9 @@ def _compare(args) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     df.to_csv(args.out / f"{name}.csv", index=False)
     text = (
-        f"# Solver comparison: {prob!r}\n\nReference: {df.attrs['reference']}.\n\n"
+        f"# Solver comparison: {prob!r}\n\nReference: {df.attrs['reference']}.  f_error: distance to it "
+        "in f (max-norm, relative to max f); f_error_est: each row's own a posteriori estimate of that "
+        "distance, cells weighted by f / max f (near-vacuum tails count less).\n\n"
         + df.to_markdown(index=False, floatfmt=".3g")
         + "\n"
     )

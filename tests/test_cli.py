@@ -1,6 +1,7 @@
 """The command line on tiny inputs: ``jko-cvx run SCENE`` writes the run of that scene, ``solve`` every method."""
 
 import json
+import re
 
 import numpy as np
 import pandas as pd
@@ -51,6 +52,15 @@ def test_solve_command_prints_every_method_converged(capsys):
     out = capsys.readouterr().out
     for method in ("conic", "sqp", "newton"):
         assert f"method='{method}', status=CONVERGED" in out
+
+
+def test_solve_command_prints_each_answers_error_estimate_in_f(capsys):
+    """Beside each certified answer, the a posteriori estimate of its distance in f to the minimiser."""
+    assert main(["solve", "--n", "31", "--beta", "30"]) == 0
+    out = capsys.readouterr().out
+    found = re.findall(r"error in f \(a posteriori estimate, relative to max f\): ([0-9.e+-]+)", out)
+    answers = out.count("CollisionResult(")  # conic, sqp, newton, and nlp where IPOPT is installed
+    assert answers >= 3 and len(found) == answers and all(float(e) < 1e-6 for e in found), out
 
 
 def test_run_command_refuses_to_resume_a_checkpoint_of_another_scene(tmp_path, capsys):

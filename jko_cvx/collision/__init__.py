@@ -2,6 +2,7 @@
 
 from jko_cvx.collision.certify import Certificate, certify
 from jko_cvx.collision.conic import conic_solvers, solve_conic
+from jko_cvx.collision.estimate import f_error_estimate
 from jko_cvx.collision.newton import solve_newton
 from jko_cvx.collision.nlp import solve_nlp
 from jko_cvx.collision.problem import CollisionProblem, KKTResidual
@@ -19,6 +20,7 @@ __all__ = [
     "certify",
     "conic_solvers",
     "explicit_step",
+    "f_error_estimate",
     "solve_collision",
     "solve_conic",
     "solve_newton",

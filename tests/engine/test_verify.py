@@ -97,6 +97,19 @@ def test_the_error_estimate_is_the_distance_to_the_minimiser():
             assert gap > 1e-9 and f_error_estimate(prob, loose.f, loose.m) == pytest.approx(gap, rel=0.3)
 
 
+def test_the_error_estimate_refuses_a_batch_and_mismatched_shapes():
+    from jko_cvx import CollisionProblem, Grid, PowerKernel, f_error_estimate
+
+    g = Grid.uniform(-2.0, 2.0, 21)
+    f0 = np.exp(-2 * g.points**2)
+    batch = CollisionProblem(g, PowerKernel(1.0), np.stack([f0, f0]), 0.01, beta=10.0)
+    with pytest.raises(ValueError, match=r"problem\.slice"):
+        f_error_estimate(batch, f0, np.zeros(20))
+    one = batch.slice(0)
+    with pytest.raises(ValueError, match=r"shapes \(21,\) and \(20,\)"):
+        f_error_estimate(one, f0[:-1], np.zeros(20))
+
+
 def _weighted_gap(f, exact):
     """max_j w_j |f_j - exact_j| / max f with the certificate's weights w_j = f_j / max f."""
     return float(np.max(f / f.max() * np.abs(f - exact)) / f.max())

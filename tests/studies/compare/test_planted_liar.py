@@ -26,3 +26,19 @@ def test_a_planted_liar_is_reported_silently_wrong():
     assert bool(df.loc["liar", "silently_wrong"]) and not bool(df.loc["liar", "certified"])
     assert df.loc["liar", "kkt"] == true_kkt
     assert bool(df.loc["tol=1e-12", "certified"]) and not bool(df.loc["tol=1e-12", "silently_wrong"])
+
+
+def test_every_row_carries_its_own_error_estimate_that_finds_the_liar():
+    """The a posteriori estimate of each row's distance in f to the minimiser (no reference needed)
+    tells the liar's error, within a factor 2 of its error against the tight Newton reference, and
+    puts the honest row at rounding level."""
+    grid = Grid.uniform(-2.0, 2.0, 41)
+    prob = CollisionProblem(grid, PowerKernel(1.0), np.exp(-2 * grid.points**2), 0.01, beta=3.0)
+    configs = [
+        Configuration("sqp:banded", "sqp", "liar", {"tol": 1e-2, "kkt_tol": 0.5}),
+        Configuration("newton", "newton", "tol=1e-12", {"tol": 1e-12}),
+    ]
+    df = compare_solvers(prob, configs, repeats=1).set_index("setting")
+    liar, honest = df.loc["liar"], df.loc["tol=1e-12"]
+    assert liar.f_error > 1e-6 and liar.f_error / 2 <= liar.f_error_est <= 2 * liar.f_error
+    assert honest.f_error_est < 1e-10
