@@ -10,9 +10,13 @@ The package therefore
 
 * limits BLAS/LAPACK to :func:`blas_threads` threads (default 1) around its batched
   linear algebra (:func:`blas_limits`, threadpoolctl), and
-* runs the slices' factorisations in :func:`slice_workers` threads instead
+* can run the slices' factorisations in :func:`slice_workers` threads instead
   (:func:`map_chunks`: contiguous chunks of slices; the LAPACK routines called there release
-  the GIL), so that ``blas_threads() * slice_workers()`` never exceeds the usable cores.
+  the GIL, the NumPy code around them does not).  One thread is the default: the chained
+  LAPACK calls leave a chunk's Python and NumPy work larger than its LAPACK work, and two
+  threads were slower in wall time than one on every batch measured on 2 cores (the
+  benchmark of slice threads on the results pages: gamma 1 to 4, N_v 121 to 961, 32 and
+  121 slices, the dense Cholesky included).
 
 Settings (environment variables, read at every call, so a process may change them):
 
@@ -21,9 +25,8 @@ Settings (environment variables, read at every call, so a process may change the
     the BLAS library's own setting alone (OpenBLAS: one thread per core, or
     ``OPENBLAS_NUM_THREADS``).
 ``JKO_CVX_THREADS``
-    Threads across slices: an integer >= 1.  Default: the usable cores divided by
-    ``JKO_CVX_BLAS_THREADS`` (1 where that is 0), and 1 inside a worker process of a
-    process pool (a sweep's points already occupy the cores).
+    Threads across slices: an integer >= 1 (default 1).  Keep ``JKO_CVX_BLAS_THREADS``
+    times this within the usable cores.
 
 Results do not depend on ``JKO_CVX_THREADS``: each slice is solved by the same sequence of
 operations whatever thread runs it (tested bitwise).  The BLAS thread count can change the
@@ -36,7 +39,6 @@ from __future__ import annotations
 
 import functools
 import itertools
-import multiprocessing
 import os
 import threading
 from collections.abc import Callable, Iterator
@@ -101,10 +103,8 @@ def blas_threads() -> int:
 
 
 def slice_workers() -> int:
-    """Threads across slices (``JKO_CVX_THREADS``; default: cores / BLAS threads, 1 in a pool worker)."""
-    blas = blas_threads()
-    default = 1 if blas == 0 or multiprocessing.parent_process() is not None else max(1, usable_cores() // blas)
-    return _env_int(THREADS_ENV, default, 1)
+    """Threads across slices (``JKO_CVX_THREADS``, default 1)."""
+    return _env_int(THREADS_ENV, 1, 1)
 
 
 @contextmanager

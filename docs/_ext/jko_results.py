@@ -123,6 +123,7 @@ PAGES: tuple[Page, ...] = (
             Entry("bench_scale_ab.csv", title="Scale A/B runs of two commits, side by side"),
             Entry("bench_chained_structured.md", data=("bench_chained_structured.csv",)),
             Entry("bench_threads.md", data=("bench_threads.csv",)),
+            Entry("bench_slice_threads.md", data=("bench_slice_threads.csv",)),
             Entry(
                 "cost_growth.md",
                 figures=("cost_growth.png",),

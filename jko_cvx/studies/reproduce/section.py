@@ -42,7 +42,6 @@ import pandas as pd
 from jko_cvx.environment import record_csv, write_markdown
 from jko_cvx.studies.reproduce import REPRODUCTIONS
 from jko_cvx.studies.sweep import check_main_guard, code_provenance, holding, shared_points
-from jko_cvx.threads import THREADS_ENV
 
 __all__ = ["NEEDS", "SECTION", "reproduce_section"]
 
@@ -208,12 +207,6 @@ def reproduce_section(
             shared = stack.enter_context(ProcessPoolExecutor(max_workers=workers))
         if not isinstance(shared, str):
             stack.enter_context(shared_points())  # a point two entries share runs once
-            if THREADS_ENV not in os.environ:
-                # the pool's workers use the cores: an entry's own runs (here, in the main
-                # process) take one slice thread instead of one per core (results do not
-                # depend on it, see jko_cvx.threads)
-                os.environ[THREADS_ENV] = "1"
-                stack.callback(os.environ.pop, THREADS_ENV, None)
         call = {"out": out, "quick": quick, "executor": shared, "scheduler": scheduler, "workers": workers}
         call.update(progress=False, fresh=fresh, **({"audit": audit} if audit else {}))
         threads = executor != "serial" or scheduler is not None

@@ -151,7 +151,7 @@ def test_a_point_two_entries_share_runs_once(monkeypatch, tmp_path):
     second = pd.read_csv(tmp_path / "out" / "second.csv")
     assert list(second.y) == [x * x + 0.1 for x in (2.0, 3.0, 4.0)]
     assert len(list((tmp_path / "out" / "cache" / "second").glob("*.json"))) == 3
-    assert os.environ.get("JKO_CVX_THREADS") == before  # the section's one-thread setting is undone
+    assert os.environ.get("JKO_CVX_THREADS") == before  # the section leaves the thread setting alone
 
 
 def test_shared_points_blocks_do_not_nest():
