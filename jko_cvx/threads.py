@@ -14,9 +14,9 @@ The package therefore
   (:func:`map_chunks`: contiguous chunks of slices; the LAPACK routines called there release
   the GIL, the NumPy code around them does not).  One thread is the default: the chained
   LAPACK calls leave a chunk's Python and NumPy work larger than its LAPACK work, and two
-  threads were slower in wall time than one on every batch measured on 2 cores (the
-  benchmark of slice threads on the results pages: gamma 1 to 4, N_v 121 to 961, 32 and
-  121 slices, the dense Cholesky included).
+  threads were slower in wall time than one on 12 of 13 batches measured on 2 cores, 4-44 %
+  (the benchmark of slice threads on the results pages: gamma 1 to 4, N_v 121 to 961, 32 and
+  121 slices, the dense Cholesky included; the 13th, gamma = 1, 1 % faster).
 
 Settings (environment variables, read at every call, so a process may change them):
 
