@@ -24,8 +24,10 @@ small the step, and the linear remainder (the Fisher gradient at :math:`f^*`) si
 :math:`\\ell` with the energy gradient.  The *raw* cone :math:`(f_{k+1}-f_k)^2 \\le s_k q_k`
 is better conditioned for larger steps on rough data; ``"auto"`` picks by step size.
 
-Edge units (a fallback, :func:`_solve_forms`): a step that does not settle in f units is solved
-again with each edge whose :math:`s^*_k = f^*_k + f^*_{k+1}` is below :math:`\\epsilon_e \\max s^*`
+Edge units (:func:`_solve_forms`; a fallback, or the first attempt where the smallest
+:math:`s^*_k` lies between 1e-12 and 1e-6 of the largest, a run's density floor): a step that
+does not settle in f units is solved again with each edge whose
+:math:`s^*_k = f^*_k + f^*_{k+1}` is below :math:`\\epsilon_e \\max s^*`
 (:math:`\\epsilon_e` = ``_EDGE_REF`` = 1e-3) in units of :math:`a_k = s^*_k / (\\epsilon_e \\max s^*)`
 in both cones (the variable :math:`s_k/a_k`, the raw cone's :math:`(f_{k+1} - f_k)/a_k`; the
 centred cone's entry keeps its units), the objective weights multiplied back, and every flux
@@ -90,6 +92,16 @@ _TIME_LIMIT = 120.0
 # unscaled cone entries sat below Clarabel's absolute feasibility tolerance (0/18 certified;
 # 18/18 in edge units, the 64 others unchanged; 1e-2 and 1e-4 measured the same).
 _EDGE_REF = 1e-3
+# A step whose smallest edge sum s* lies in this range relative to the largest (a run's density
+# floor under a populated slice) is tried in edge units first: its f-unit cones sit below the
+# solver's feasibility tolerance.  Measured on inhom_gamma3_lambda4 (perspective, beta = 30):
+# 41 x 41 after one step, the raw form in edge units settled on 15 of 15 such slices, the f units
+# failed in both forms on 1 and in the first form on 8; 61 x 61 over five steps (the reference
+# in units of max f*), 75 of 140 such slices failed in both forms in f units, and verifying the
+# run took 9.3 s against 17.9 s.  Far below the range (tails that fall to 1e-70 of the peak, as in
+# an initial datum) the units' floors make the edge units fail where the centred f-unit form
+# settles, and above it the f units settle.
+_EDGE_FIRST = (1e-12, 1e-6)
 
 
 def _cvxpy():
@@ -619,24 +631,26 @@ _RANK = {Status.CONVERGED: 0, Status.LINEARIZED: 0, Status.NONCONVEX: 1}
 
 
 def _solve_forms(problem: CollisionProblem, opts: ConicOptions, forms: list[str]) -> CollisionResult:
-    """The Fisher cone forms in order, in f units, then (where none settles) in edge units.
+    """The Fisher cone forms in order, in f units, then (where none settles) in edge units; edge units first at a floor.
 
     Neither cone form wins everywhere (measured); the edge units (module docstring) rescue the
     near-vacuum slices whose cones sit below the solver's tolerance, but on data whose tails
-    fall to 1e-12 of the peak their 1/a_k coefficients may make an otherwise settled solve fail,
-    so they come last.  The first attempt is returned where it settles (CONVERGED, NONCONVEX,
-    LINEARIZED, TIME_LIMIT); otherwise the attempts go on until one is CONVERGED, NONCONVEX or
-    LINEARIZED or the time is spent, and the best of them is returned (CONVERGED or LINEARIZED,
-    then NONCONVEX, then the smallest KKT residual): a step that the first form settles, or the
-    second converges, in f units gets the answer it had without the edge units.  The time limit covers every
-    attempt but not the models' compilation (a worker process compiles its own, so the budget
-    does not depend on which process solves the step).  ``info["fallback_from"]`` names the
-    first of two forms where another attempt ran, ``info["edge_units"]`` is True where the answer
-    comes from the edge units.
+    fall to 1e-12 of the peak or below their coefficients may make an otherwise settled solve
+    fail, so they come last, except where the smallest edge sum lies in ``_EDGE_FIRST`` (a
+    run's density floor under a populated slice), where they come first and the f units after
+    them.  The first attempt is returned where it settles (CONVERGED, NONCONVEX, LINEARIZED,
+    TIME_LIMIT); otherwise the attempts go on until one is CONVERGED, NONCONVEX or LINEARIZED
+    or the time is spent, and the best of them is returned (CONVERGED or LINEARIZED, then
+    NONCONVEX, then the smallest KKT residual).  The time limit covers every attempt but not
+    the models' compilation (a worker process compiles its own, so the budget does not depend
+    on which process solves the step).  ``info["fallback_from"]`` names the first of two forms
+    where another attempt ran, ``info["edge_units"]`` is True where the answer comes from the
+    edge units, ``info["attempts"]`` counts the attempts.
     """
     t_start = time.perf_counter()
     tried: list[CollisionResult] = []
-    attempts = [(edge_units, form) for edge_units in (False, True) for form in forms]
+    units = (True, False) if _near_vacuum(problem) else (False, True)
+    attempts = [(edge_units, form) for edge_units in units for form in forms]
     for edge_units, form in attempts:
         compiled = sum(r.info.get("compile_seconds", 0.0) for r in tried if r.info.get("compiled_now"))
         left = opts.time_limit - (time.perf_counter() - t_start - compiled)
@@ -645,6 +659,7 @@ def _solve_forms(problem: CollisionProblem, opts: ConicOptions, forms: list[str]
         res = _solve_form(problem, replace(opts, time_limit=left) if tried else opts, form, edge_units)
         tried.append(res)
         if len(tried) == 1 and res.status in _SETTLED:
+            res.info["attempts"] = 1
             return res
         if res.status in _RANK or res.status is Status.TIME_LIMIT:
             break
@@ -653,7 +668,18 @@ def _solve_forms(problem: CollisionProblem, opts: ConicOptions, forms: list[str]
         if len(forms) > 1:
             best.info["fallback_from"] = forms[0]
         best.seconds = sum(r.seconds for r in tried)
+    best.info["attempts"] = len(tried)
     return best
+
+
+def _near_vacuum(problem: CollisionProblem) -> bool:
+    """Whether the smallest edge sum s* = f*_k + f*_k+1 lies in ``_EDGE_FIRST`` relative to the largest."""
+    s = problem.f_star[:-1] + problem.f_star[1:]
+    top = float(s.max())
+    if not (np.isfinite(top) and top > 0):
+        return False
+    rel = float(s.min()) / top
+    return _EDGE_FIRST[0] <= rel <= _EDGE_FIRST[1]
 
 
 def solve_conic(
@@ -709,7 +735,9 @@ def solve_conic(
         then has ``fallback_from``): raw is better conditioned on rough data, centred on
         smooth data with a strong Fisher term (beta = 1: KKT 3e-9 against 1.5e-6).  A step
         that neither form settles (nor the given form) is solved again in edge units (module
-        docstring; ``info["edge_units"]`` is True where the answer comes from them).
+        docstring; ``info["edge_units"]`` is True where the answer comes from them); a step at a
+        density floor (the smallest edge sum between 1e-12 and 1e-6 of the largest) is tried in
+        edge units first, then in f units.
     max_passes : int, default 50
         Limit on convex-concave passes (status ``MAX_ITERATIONS`` when reached).
     dc_tol : float, optional
@@ -739,7 +767,8 @@ def solve_conic(
     -------
     CollisionResult
         ``info``: ``passes``, ``solver_status`` (CVXPY's, last pass), ``compile_seconds``,
-        ``solver_seconds``.  Every solve starts cold: the answer does not depend on earlier solves.
+        ``solver_seconds``, ``attempts`` (cone forms and units tried).  Every solve starts cold:
+        the answer does not depend on earlier solves.
     """
     options = {k: v for k, v in locals().items() if k != "problem"}
     opts = ConicOptions.checked(problem, **options)

@@ -91,3 +91,51 @@ def test_edge_units_give_the_f_unit_answer_where_both_settle():
             assert np.abs(plain.f - edge.f).max() <= 1e-6 * plain.f.max()
             assert edge.info["edge_units"] and not plain.info.get("edge_units")
     assert solve_collision(prob, method="conic").success
+
+
+def _near_vacuum_problem():
+    """A bump over a floor of 1e-10 of its peak: the cones of the floor's edges sit below the solver's tolerance."""
+    g = Grid.uniform(-4.0, 4.0, 41)
+    return CollisionProblem(g, PowerKernel(3.0), np.exp(-6 * (g.points - 1) ** 2) + 1e-10, 0.02, 2.0, 30.0,
+                            "perspective")  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("outcomes", "calls", "picked"),
+    [
+        # near vacuum, the edge units first: where they settle, the answer alone
+        ([(Status.CONVERGED, 1e-9)], [("raw", True)], 0),
+        # neither form settles in edge units: the f units after them
+        (
+            [(Status.SOLVER_ERROR, 0.2), (Status.NOT_CERTIFIED, 1e-5), (Status.CONVERGED, 1e-9)],
+            [("raw", True), ("centred", True), ("raw", False)],
+            2,
+        ),
+    ],
+)
+def test_a_near_vacuum_step_tries_the_edge_units_first(monkeypatch, outcomes, calls, picked):
+    fake, seen = _fake(outcomes)
+    monkeypatch.setattr(conic, "_solve_form", fake)
+    prob = _near_vacuum_problem()
+    res = conic._solve_forms(prob, ConicOptions.checked(prob), ["raw", "centred"])
+    assert seen == calls and res.status is outcomes[picked][0]
+    assert res.info["edge_units"] == calls[picked][1] and res.info["attempts"] == len(calls)
+
+
+def test_a_slice_of_the_papers_gamma3_scene_at_its_density_floor_goes_straight_to_the_edge_units():
+    """inhom_gamma3_lambda4 at 41 x 41 (perspective, beta = 30) after one step: x-slice 24, max f 0.10 over the run's
+    floor 1e-10 (smallest edge sum 1e-9 of the largest).  Measured before: both cone forms fail in f units
+    (SOLVER_ERROR), and the raw form in edge units converges; now the edge units come first."""
+    from jko_cvx.collision.estimate import solve_reference
+    from jko_cvx.engine.loop import simulate
+    from jko_cvx.scene import shipped_scene
+
+    over = {"v.n": 41, "x.n": 41, "collision.fisher": "perspective", "collision.beta": 30.0, "t_end": 0.05}
+    sc = shipped_scene("inhom_gamma3_lambda4", over)
+    run = simulate(sc)
+    prob = CollisionProblem(run.vgrid, PowerKernel(3.0), run.f[24], sc.time.dt, sc.strength, 30.0, "perspective",
+                            sc.collision.conserve_momentum)  # fmt: skip
+    res = solve_reference(prob, "conic", {})
+    ref = solve_collision(prob, method="newton", tol=1e-12)
+    assert res.success and res.info["edge_units"] and res.info["attempts"] <= 2, res.message  # no f-unit attempt
+    assert np.abs(res.f - ref.f).max() <= 1e-6 * ref.f.max()
