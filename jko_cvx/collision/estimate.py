@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from jko_cvx.collision._linalg import divergence, divergence_adjoint
 from jko_cvx.collision.certify import certify
 from jko_cvx.collision.problem import CollisionProblem
 from jko_cvx.collision.result import CollisionResult, Status
@@ -113,8 +114,8 @@ def f_error_estimate(problem: CollisionProblem, f: np.ndarray, m: np.ndarray) ->
         raise ValueError(f"f and m must have shapes ({problem.n},) and ({problem.n - 1},), got {f.shape} and {m.shape}")
     with np.errstate(all="ignore"):
         gf, gm = problem.gradient(f, m)
-        Z = problem.null_space_basis()
-        g = Z.T @ np.concatenate([gf, gm])
+        h = problem.grid.h
+        g = gm - divergence_adjoint(gf / h)  # Z' grad J, Z = [-D/h; I] (CollisionProblem.null_space_basis)
         H = problem.reduced_hessian(f, m)
     d = np.diag(H)
     keep = np.isfinite(d) & (d > 0)
@@ -143,6 +144,6 @@ def f_error_estimate(problem: CollisionProblem, f: np.ndarray, m: np.ndarray) ->
     # tried (conic at tol 1e-12 and 1e-13, Newton at 1e-14: all within 3e-8 of one another).  So the
     # correction is cut at +-f_j and weighted by f_j / max f, the certificate's weights.
     fpos = np.maximum(f, 0.0)
-    delta = np.clip(Z[: problem.n] @ full, -fpos, fpos) * (fpos / f.max())
+    delta = np.clip(-divergence(full) / h, -fpos, fpos) * (fpos / f.max())
     est = float(np.abs(delta).max() / f.max())
     return est if np.isfinite(est) else np.inf
