@@ -204,7 +204,7 @@ def _error_line(prob: CollisionProblem, res) -> str:
     err = f_error_estimate(prob, res.f, res.m)
     label = "error in f (a posteriori estimate, relative to max f)"
     if not np.isfinite(err):
-        return f"{label}: not available (the reduced Hessian is not positive definite at this point)"
+        return f"{label}: not available (a non-finite point, or a reduced Hessian not positive definite there)"
     return f"{label}: {err:.1e}"
 
 

@@ -139,7 +139,7 @@ def thread_environment() -> str:
     The variables of ``THREAD_ENV_KEYS`` (``unset`` where absent), the BLAS threads the
     loaded libraries report inside :func:`blas_limits` (where every solve runs) and the
     slice threads, e.g. ``"JKO_CVX_BLAS_THREADS=unset, ..., OPENBLAS_NUM_THREADS=1; BLAS
-    threads [1] inside solves, 2 slice threads"``.
+    threads [1] inside solves, 1 slice threads"``.
     """
     from threadpoolctl import threadpool_info
 

@@ -25,7 +25,7 @@ small the step, and the linear remainder (the Fisher gradient at :math:`f^*`) si
 is better conditioned for larger steps on rough data; ``"auto"`` picks by step size.
 
 Edge units (:func:`_solve_forms`; a fallback, or the first attempt where the smallest
-:math:`s^*_k` lies between 1e-12 and 1e-6 of the largest, a run's density floor): a step that
+:math:`s^*_k` lies between 1e-11 and 1e-6 of the largest, a run's density floor): a step that
 does not settle in f units is solved again with each edge whose
 :math:`s^*_k = f^*_k + f^*_{k+1}` is below :math:`\\epsilon_e \\max s^*`
 (:math:`\\epsilon_e` = ``_EDGE_REF`` = 1e-3) in units of :math:`a_k = s^*_k / (\\epsilon_e \\max s^*)`
@@ -98,10 +98,11 @@ _EDGE_REF = 1e-3
 # 41 x 41 after one step, the raw form in edge units settled on 15 of 15 such slices, the f units
 # failed in both forms on 1 and in the first form on 8; 61 x 61 over five steps (the reference
 # in units of max f*), 75 of 140 such slices failed in both forms in f units, and verifying the
-# run took 9.3 s against 17.9 s.  Far below the range (tails that fall to 1e-70 of the peak, as in
-# an initial datum) the units' floors make the edge units fail where the centred f-unit form
-# settles, and above it the f units settle.
-_EDGE_FIRST = (1e-12, 1e-6)
+# run took 9.3 s against 17.9 s.  Below the range the edge units' coefficients fail more often
+# (Gaussians over floors of 1e-12 to 5e-12 of the peak, gamma 1 and 2: both forms failed, the f
+# units settled; tails that fall to 1e-70 of the peak, as in an initial datum: the centred f-unit
+# form settles where the edge units fail), and above it the f units settle.
+_EDGE_FIRST = (1e-11, 1e-6)
 
 
 def _cvxpy():
@@ -736,7 +737,7 @@ def solve_conic(
         smooth data with a strong Fisher term (beta = 1: KKT 3e-9 against 1.5e-6).  A step
         that neither form settles (nor the given form) is solved again in edge units (module
         docstring; ``info["edge_units"]`` is True where the answer comes from them); a step at a
-        density floor (the smallest edge sum between 1e-12 and 1e-6 of the largest) is tried in
+        density floor (the smallest edge sum between 1e-11 and 1e-6 of the largest) is tried in
         edge units first, then in f units.
     max_passes : int, default 50
         Limit on convex-concave passes (status ``MAX_ITERATIONS`` when reached).

@@ -80,7 +80,8 @@ def plot_solution(run: Run, ax=None):
 
     Homogeneous runs use two axes (give a pair as ``ax``): f(t, v) and f0(v), and a zoom at the
     maximum.  Inhomogeneous runs: f(t, x, v) in colour (the colorbar names it) under the contours
-    of f0(x, v).
+    of f0(x, v).  A figure created here is laid out (``tight_layout``); one whose axes are passed
+    in keeps the caller's layout.
     """
     xg0, vg0, f0 = initial_datum(run)
     start = "initial datum f0 (t = 0)"
@@ -113,7 +114,11 @@ def plot_solution(run: Run, ax=None):
 
 
 def plot_records(run: Run, ax=None):
-    """The blow-up records against t with thresholds, refinement switches, T_b and the exact law; returns the figure."""
+    """The blow-up records against t with thresholds, refinement switches, T_b and the exact law; returns the figure.
+
+    A figure created here is laid out (``tight_layout``); one whose axes are passed in keeps the
+    caller's layout.
+    """
     fig, a = _new_axes(ax)
     d, sc = run.diagnostics, run.scene
     t = d["t"].to_numpy()
@@ -148,7 +153,7 @@ def plot_records(run: Run, ax=None):
     else:
         title = "no blow-up" if v.stop is StopReason.T_END else v.reason
     spacing = "min dv, min dx" if run.xgrid is not None else "min dv"
-    spread = "; min spread_v" if sc.stop.spread_v > 0 else ""
+    spread = "\nmin spread_v: smallest velocity spread" if sc.stop.spread_v > 0 else ""
     quantities = f"{spacing}: smallest grid spacing\nmax f: largest density{spread} (log scale)"
     a.set_xlabel("time t"), a.set_ylabel(quantities, fontsize=8), a.legend(fontsize=7)
     a.set_title(f"{sc.name}: {title}\n{_fit_line(v)}", fontsize=9)
@@ -185,7 +190,7 @@ def _draw_fit(run: Run, a) -> None:
 # tick labels of a log axis, the axis labels and the records' two-line title.
 _MARGINS = {"left": 0.11, "right": 0.97, "bottom": 0.12, "top": 0.91}
 _MARGINS_PAIR = {"left": 0.07, "right": 0.985, "bottom": 0.12, "top": 0.91, "wspace": 0.22}
-_MARGINS_RECORDS = {"left": 0.13, "right": 0.97, "bottom": 0.12, "top": 0.87}
+_MARGINS_RECORDS = {"left": 0.16, "right": 0.97, "bottom": 0.12, "top": 0.87}
 
 
 def save_figures(run: Run, out: str | Path, dpi: int = 110) -> list[Path]:

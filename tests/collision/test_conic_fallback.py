@@ -1,5 +1,5 @@
 """The conic reference's sequence of attempts (``conic._solve_forms``): the cone forms in f units, then in edge
-units where none settled; which attempt's answer is returned."""
+units where none settled (edge units first at a density floor); which attempt's answer is returned."""
 
 from __future__ import annotations
 
@@ -139,3 +139,16 @@ def test_a_slice_of_the_papers_gamma3_scene_at_its_density_floor_goes_straight_t
     ref = solve_collision(prob, method="newton", tol=1e-12)
     assert res.success and res.info["edge_units"] and res.info["attempts"] <= 2, res.message  # no f-unit attempt
     assert np.abs(res.f - ref.f).max() <= 1e-6 * ref.f.max()
+
+
+@pytest.mark.parametrize(("floor", "edge_first"), [(1e-13, False), (3e-12, False), (3e-11, True), (1e-7, True),
+                                                   (3e-6, False)])  # fmt: skip
+def test_the_density_floors_that_go_to_the_edge_units_first(monkeypatch, floor, edge_first):
+    """The range of the smallest edge sum relative to the largest (about the floor here) that starts in edge units:
+    1e-11 to 1e-6; below it the edge units failed in both forms on Gaussians over floors of 1e-12 to 5e-12."""
+    fake, seen = _fake([(Status.CONVERGED, 1e-9)])
+    monkeypatch.setattr(conic, "_solve_form", fake)
+    g = Grid.uniform(-4.0, 4.0, 41)
+    prob = CollisionProblem(g, PowerKernel(1.0), np.exp(-6 * g.points**2) + floor, 0.02, 2.0, 30.0, "perspective")
+    conic._solve_forms(prob, ConicOptions.checked(prob), ["raw", "centred"])
+    assert seen == [("raw", edge_first)]

@@ -110,6 +110,25 @@ def test_the_error_estimate_refuses_a_batch_and_mismatched_shapes():
         f_error_estimate(one, f0[:-1], np.zeros(20))
 
 
+def test_the_error_estimate_is_inf_where_it_cannot_be_formed_never_zero():
+    """A non-finite point, or one where no flux has a finite curvature (f* a single populated cell), has no
+    estimate: inf, not the 0 that an empty set of movable fluxes would give."""
+    import warnings
+
+    from jko_cvx import CollisionProblem, Grid, PowerKernel, f_error_estimate
+
+    g = Grid.uniform(-2.0, 2.0, 21)
+    prob = CollisionProblem(g, PowerKernel(1.0), np.exp(-2 * g.points**2), 0.01, beta=10.0)
+    res = solve_collision(prob, method="newton")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # and quietly
+        nan_m, inf_f = np.where(np.arange(20) == 3, np.nan, res.m), np.where(res.f > 0.5, np.inf, res.f)
+        assert f_error_estimate(prob, res.f, nan_m) == np.inf and f_error_estimate(prob, inf_f, res.m) == np.inf
+    g5 = Grid.uniform(-1.0, 1.0, 5)
+    delta = CollisionProblem(g5, PowerKernel(1.0), np.array([0.0, 0.0, 1.0, 0.0, 0.0]), 0.01, beta=10.0)
+    assert f_error_estimate(delta, delta.f_star, np.zeros(4)) == np.inf
+
+
 def _weighted_gap(f, exact):
     """max_j w_j |f_j - exact_j| / max f with the certificate's weights w_j = f_j / max f."""
     return float(np.max(f / f.max() * np.abs(f - exact)) / f.max())

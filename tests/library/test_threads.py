@@ -1,7 +1,6 @@
 """Thread control (jko_cvx.threads): settings, the BLAS limit, and work split across slices."""
 
 import threading
-from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 import pytest
@@ -43,14 +42,6 @@ def test_the_recorded_thread_environment_names_every_setting(monkeypatch):
     assert text.startswith("JKO_CVX_BLAS_THREADS=1, JKO_CVX_THREADS=2, OPENBLAS_NUM_THREADS=")
     assert "MKL_NUM_THREADS=unset" in text
     assert text.endswith("; BLAS threads [1] inside solves, 2 slice threads")  # what the libraries report
-
-
-def test_one_slice_thread_inside_a_process_pool_worker(monkeypatch):
-    """A sweep's worker processes already occupy the cores: no threads on top by default."""
-    monkeypatch.delenv(THREADS_ENV, raising=False)
-    monkeypatch.delenv(BLAS_THREADS_ENV, raising=False)
-    with ProcessPoolExecutor(max_workers=1) as pool:
-        assert pool.submit(slice_workers).result() == 1
 
 
 @pytest.mark.parametrize("name, value", [(BLAS_THREADS_ENV, "-1"), (BLAS_THREADS_ENV, "two"), (THREADS_ENV, "0")])
