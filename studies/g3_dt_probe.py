@@ -56,7 +56,9 @@ def _report(df: pd.DataFrame) -> str:
         "",
         "The shipped scenes `inhom_gamma3_lambda4` and `_lambda10` (eps_x = eps_v = 1e-5, beta = 1000, log Fisher "
         "form, Newton), on N x N grids, to t_end = 4 with the step dt halved from the shipped 0.05; everything else "
-        "as shipped.  `python studies/g3_dt_probe.py` (one BLAS thread).",
+        "as shipped.  `python studies/g3_dt_probe.py` (one BLAS thread).  Rows were added over several sessions: "
+        "each row's `commit` names the code that ran it, and rows of earlier sessions may come from another machine "
+        "or BLAS kernel (the environment lines are those of the last write).",
         "",
         df.sort_values(["lambda", "n", "dt"], ascending=[True, True, False]).to_markdown(index=False, floatfmt=".4g"),
         "",

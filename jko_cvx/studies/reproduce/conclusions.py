@@ -210,6 +210,16 @@ def _gamma3(root: Path) -> dict[str, Any]:
                 f"{g.max_f_peak.iloc[-1]:.3g} at dt = {g.dt.iloc[-1]:g}, min dx {g.min_dx.iloc[-1]:.2g}"
             )
     fired = probe[probe.blowup.astype(str).str.lower().eq("true")]
+    coarse = probe[probe["dt"] == probe["dt"].max()]
+    grids = []
+    for lam, g in coarse.groupby("lambda"):
+        g = g.sort_values("n")
+        if len(g) > 1:
+            grids.append(f"lambda = {lam:g}: " + ", ".join(f"{p:.3g}" for p in g.max_f_peak) + " on "
+                         + ", ".join(f"{n}^2" for n in g.n))  # fmt: skip
+    grid_text = f" (at dt = {coarse['dt'].iloc[0]:g}, peak max f: " + "; ".join(grids) + ")" if grids else ""
+    swept = max(n for (_lam, n), g in probe.groupby(["lambda", "n"]) if g["dt"].nunique() > 1)
+    fired_text = ", ".join(f"lambda = {r['lambda']:g} on {r['n']}^2 at dt = {r['dt']:g}" for _, r in fired.iterrows())
     return {
         "claim": "sec:sp_inhom_gamma_3: no blow-up for gamma = 3 inhomogeneous (lambda = 2 to 10)",
         "paper": "the experiments firmly support no blow-up for gamma = 3",
@@ -223,9 +233,12 @@ def _gamma3(root: Path) -> dict[str, Any]:
         "evidence": "inhom_gamma3.csv; g3_dt_probe.csv",
         "verdict": "not settled",
         "why": (
-            "the watched quantities do not converge in dt: the peak of max f keeps growing as dt is halved "
-            "(g3_dt_probe.md), so the shipped dt = 0.05 does not resolve the concentration the verdict rests on, "
-            "and whether eps_x = 1e-5 is reached depends on dt and the grid; no grid study refines beyond 121^2"
+            "the watched quantities do not converge in dt: the peak of max f keeps growing as dt is halved, on every "
+            f"grid where dt was halved (up to {swept}^2, g3_dt_probe.md), while at the shipped dt it moves little "
+            "with the grid"
+            f"{grid_text}, so the shipped dt = 0.05 does not resolve the concentration the verdict rests on; "
+            f"eps_x = 1e-5 is reached only at smaller dt ({fired_text or 'none'}), and whether that is a "
+            "blow-up or a concentration resolved below the threshold is open"
         ),
     }
 
