@@ -1,6 +1,7 @@
 """Benchmark of ``jko-cvx verify``: its cost against the scene's own run, and the conic reference against N.
 
-Part 1 (verify overhead).  Each scene is run three times side by side in one process: ``simulate``
+Part 1 (verify overhead).  Each scene is run three ways side by side in one process, in each of
+``--rounds`` rounds (medians reported, and the range of the ratio with workers): ``simulate``
 (the scene's own run) and ``verify`` (the same run, with every step's slices re-solved by the
 reference) with the reference solves in this process (``workers=1``: ``verify_1_s``, ``ratio_1``)
 and in ``usable_cores()`` worker processes (the default: ``verify_s``, ``ratio``); the ratio of
@@ -66,26 +67,31 @@ def scenes() -> list[tuple[str, object, str]]:
     ]
 
 
-def overhead() -> pd.DataFrame:
+def overhead(rounds: int) -> pd.DataFrame:
     rows = []
     for label, scene, reference in scenes():
-        t0 = time.perf_counter()
-        run = simulate(scene)
-        own = time.perf_counter() - t0
         verify(scene.replace({"t_end": scene.time.dt}), reference, workers=1)  # compile the reference's model
-        t0 = time.perf_counter()
-        serial = verify(scene, reference, workers=1)
-        wall_1 = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        ver = verify(scene, reference)  # the default: the reference solves of a step in usable_cores() processes
-        wall = time.perf_counter() - t0
-        t = ver.table
-        keep = [c for c in t.columns if c not in TIMES]
-        assert serial.table[keep].equals(t[keep]), "the workers changed the table"
+        own, wall_1, wall = [], [], []
+        for _ in range(rounds):  # the three timings side by side in every round; medians over the rounds
+            t0 = time.perf_counter()
+            run = simulate(scene)
+            own.append(time.perf_counter() - t0)
+            t0 = time.perf_counter()
+            serial = verify(scene, reference, workers=1)
+            wall_1.append(time.perf_counter() - t0)
+            t0 = time.perf_counter()
+            ver = verify(scene, reference)  # the default: the reference solves of a step in usable_cores() processes
+            wall.append(time.perf_counter() - t0)
+            t = ver.table
+            keep = [c for c in t.columns if c not in TIMES]
+            assert serial.table[keep].equals(t[keep]), "the workers changed the table"
+        ratios = np.array(wall) / np.array(own)
         rows.append({
             "scene": label, "method": scene.collision.method, "reference": reference, "steps": run.steps,
-            "run_s": own, "verify_1_s": wall_1, "ratio_1": wall_1 / own, "workers": usable_cores(),
-            "verify_s": wall, "ratio": wall / own, "slice_solves": len(t),
+            "run_s": float(np.median(own)), "verify_1_s": float(np.median(wall_1)),
+            "ratio_1": float(np.median(np.array(wall_1) / np.array(own))), "workers": usable_cores(),
+            "verify_s": float(np.median(wall)), "ratio": float(np.median(ratios)),
+            "ratio_min": float(ratios.min()), "ratio_max": float(ratios.max()), "slice_solves": len(t),
             "ref_median_s": float(t["seconds_ref"].median()) if len(t) else float("nan"),
             "outcomes": ", ".join(f"{n} {k}" for k, n in t["outcome"].value_counts().items()) if len(t) else "none",
             "max_df": float(t["df"].max()) if len(t) else float("nan"),
@@ -122,10 +128,11 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--sizes", type=int, nargs="+", default=[61, 121, 241, 481])
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--rounds", type=int, default=3, help="rounds of the verify-against-run timings (medians)")
     args = ap.parse_args()
     code = code_provenance(verify)
     load0 = os.getloadavg()[0]
-    ov = overhead()
+    ov = overhead(args.rounds)
     cg = conic_growth(args.sizes, args.repeats)
     RESULTS.mkdir(exist_ok=True)
     ov.to_csv(RESULTS / "bench_verify.csv", index=False)
@@ -138,7 +145,8 @@ def main() -> None:
         f"{code['jko_cvx_modified']}); threads: {thread_environment()}; 1-minute load {load0:.2f} before, "
         f"{os.getloadavg()[0]:.2f} after.",
         "",
-        "## Verify against the scene's own run (wall seconds, one run each, side by side)",
+        f"## Verify against the scene's own run (wall seconds, side by side in each of {args.rounds} rounds; "
+        "medians, and the range of the ratio with workers)",
         "",
         ov.drop(columns=["verdict"]).to_markdown(index=False, floatfmt=".3g"),
         "",
