@@ -68,7 +68,7 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 
 from jko_cvx.collision._checks import check_options_dict
-from jko_cvx.collision.certify import certify
+from jko_cvx.collision.certify import Certificate, certify
 from jko_cvx.collision.options import Options, Spec, option
 from jko_cvx.collision.problem import LOG_FORM_METHODS, CollisionProblem, methods_text
 from jko_cvx.collision.result import CollisionResult, Status
@@ -511,6 +511,7 @@ class _Loop:
     ipm_iterations: int = 0
     solver_seconds: float = 0.0
     last_move: float = np.inf
+    certificate: Certificate | None = None  # where the certificate stopped the loop: the result's
 
 
 def _raw_to_status(raw: str) -> Status | None:
@@ -599,19 +600,30 @@ def _dc_loop(problem: CollisionProblem, filled: _Filled, opts: ConicOptions, t_s
             break
         loop.last_move = float(np.abs(new - (loop.delta if at is None else at)).max())
         loop.delta = new
-        if at is None or loop.last_move <= opts.dc_tol or _accepted(problem, filled, new, opts):
+        if at is None or loop.last_move <= opts.dc_tol:
+            loop.claimed = Status.CONVERGED
+            break
+        loop.certificate = _accepted(problem, filled, new, opts)
+        if loop.certificate is not None:
             loop.claimed = Status.CONVERGED
             break
         at = new
     return loop
 
 
-def _accepted(problem: CollisionProblem, filled: _Filled, delta: NDArray[np.float64], opts: ConicOptions) -> bool:
-    """Whether the certificate accepts a pass's answer (a KKT point of the full problem to ``kkt_tol``)."""
+def _projected(problem: CollisionProblem, filled: _Filled, delta: NDArray[np.float64]) -> tuple[NDArray, NDArray]:
+    """The loop's point ``f* + mu delta`` projected onto the constraint, ``(f, m)``."""
     with np.errstate(all="ignore"):
-        f, m = problem.project_feasible(problem.f_star + filled.mu * delta)
+        return problem.project_feasible(problem.f_star + filled.mu * delta)
+
+
+def _accepted(
+    problem: CollisionProblem, filled: _Filled, delta: NDArray[np.float64], opts: ConicOptions
+) -> Certificate | None:
+    """The certificate of a pass's answer where it accepts it (a KKT point of the full problem to ``kkt_tol``)."""
+    f, m = _projected(problem, filled, delta)
     cert = certify(problem, f, m, kkt_tol=opts.kkt_tol, check_convexity=opts.check_convexity)
-    return cert.status is Status.CONVERGED
+    return cert if cert.status is Status.CONVERGED else None
 
 
 def _finish(
@@ -619,16 +631,21 @@ def _finish(
 ) -> CollisionResult:
     """Project the loop's point onto the constraint and certify it."""
     usable = filled is not None and loop.claimed not in (Status.SOLVER_ERROR, Status.NUMERICAL_ERROR)
-    with np.errstate(all="ignore"):
-        f_raw = problem.f_star + filled.mu * loop.delta if usable else problem.f_star.copy()
-        f, m = problem.project_feasible(f_raw)
+    if usable:
+        f, m = _projected(problem, filled, loop.delta)
+    else:
+        with np.errstate(all="ignore"):
+            f, m = problem.project_feasible(problem.f_star.copy())
     claimed = loop.claimed
     inaccurate = claimed is Status.CONVERGED and loop.raw_status == _cvxpy().OPTIMAL_INACCURATE
     if inaccurate and not opts.accept_inaccurate:
         claimed = Status.INACCURATE
     elif claimed is Status.CONVERGED and opts.energy == "linearized":
         claimed = Status.LINEARIZED
-    cert = certify(problem, f, m, kkt_tol=opts.kkt_tol, check_convexity=opts.check_convexity, claimed=claimed)
+    if loop.certificate is not None and claimed is Status.CONVERGED:  # the loop's own, of this very point
+        cert = loop.certificate
+    else:
+        cert = certify(problem, f, m, kkt_tol=opts.kkt_tol, check_convexity=opts.check_convexity, claimed=claimed)
     if inaccurate and cert.status is Status.NOT_CERTIFIED:
         cert = replace(cert, status=Status.INACCURATE)  # the solver said so, and the certificate agrees
     compile_s = filled.model.compile_seconds if filled is not None else 0.0

@@ -27,3 +27,22 @@ def test_a_pass_the_certificate_rejects_is_followed_by_another():
     ref = solve_collision(prob, method="newton", tol=1e-12)
     assert res.success and res.info["passes"] >= 2, (res.message, res.info["passes"])
     assert np.abs(res.f - ref.f).max() <= 1e-5 * ref.f.max()
+
+
+def test_an_answer_accepted_inside_the_loop_is_certified_once(monkeypatch):
+    """The certificate that stops the loop is the result's: no second certificate of the same point."""
+    from jko_cvx.collision import conic
+
+    calls = []
+    real = conic.certify
+
+    def counting(*args, **kwargs):
+        calls.append(1)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(conic, "certify", counting)
+    g = Grid.uniform(-2.0, 2.0, 61)
+    prob = CollisionProblem(g, PowerKernel(3.0), np.exp(-2 * g.points**2), 0.01, 1.0, 10.0, "perspective")
+    res = solve_collision(prob, method="conic")
+    assert res.success and res.info["passes"] == 1 and len(calls) == 1
+    assert res.kkt_residual == real(prob, res.f, res.m, kkt_tol=1e-6).residual
