@@ -192,7 +192,7 @@ class ConicOptions(Options):
 
     Fields are checked in this order.  ``solver`` accepts any installed conic solver; a scene
     may name only the ``choices`` of its spec.  ``dc_tol=None`` is resolved from ``tol``
-    (``min(1e-2, 10 * sqrt(tol))``).  Problem-dependent checks: :meth:`checked`.
+    (``min(1e-2, 0.01 * sqrt(tol))``).  Problem-dependent checks: :meth:`checked`.
     """
 
     solver: str = option("CLARABEL", Spec("str", choices=("CLARABEL", "SCS", "ECOS"), check_with=_check_solver))
@@ -214,8 +214,8 @@ class ConicOptions(Options):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        if self.dc_tol is None:  # the solver resolves f to about sqrt(tol): a tighter threshold chases noise
-            object.__setattr__(self, "dc_tol", min(1e-2, 10 * self.tol**0.5))
+        if self.dc_tol is None:  # see solve_conic's dc_tol: below the solver's resolution in f, sqrt(tol)
+            object.__setattr__(self, "dc_tol", min(1e-2, 0.01 * self.tol**0.5))
         if self.solver_options is None:
             object.__setattr__(self, "solver_options", {})
         if self.solver == "CLARABEL" and self.solver_options:
@@ -795,9 +795,15 @@ def solve_conic(
         Limit on convex-concave passes (status ``MAX_ITERATIONS`` when reached).
     dc_tol : float, optional
         Stopping threshold of the loop: the largest change of :math:`(f - f^*)/\\mu` between
-        the linearisation point and the pass's answer (:math:`\\mu` = explicit flux).  Default
-        ``min(1e-2, 10 * sqrt(tol))``: the solver resolves f only to about ``sqrt(tol)``.  The loop
-        also stops where the certificate (``kkt_tol``) accepts a pass's answer.
+        the linearisation point and the pass's answer (:math:`\\mu` = explicit flux).  The loop
+        stops first where the certificate (``kkt_tol``) accepts a pass's answer, so this threshold
+        only ends loops that no pass certifies.  Default ``min(1e-2, 0.01 * sqrt(tol))``, three
+        orders below the ``10 * sqrt(tol)`` that matched the solver's resolution in f: that one
+        declared a fixed point before the certificate could accept it on large steps (measured on
+        the random families of the Newton certification study, the steps conic can pose: with it,
+        7 of 45 held-out and 12 of 44 development steps ended NOT_CERTIFIED at KKT 1.2e-6 to
+        5.4e-6, explicit CFL 26 to 8643; with this one every step that IPOPT certifies is
+        certified and the others are NONCONVEX, as IPOPT's, in 22 % less solve time).
     kkt_tol : float, default 1e-6
         Certification threshold (the same for every method,
         :func:`~jko_cvx.collision.certify.certify`): a settled loop is ``CONVERGED`` only
