@@ -192,7 +192,7 @@ class ConicOptions(Options):
 
     Fields are checked in this order.  ``solver`` accepts any installed conic solver; a scene
     may name only the ``choices`` of its spec.  ``dc_tol=None`` is resolved from ``tol``
-    (``min(1e-2, 0.01 * sqrt(tol))``).  Problem-dependent checks: :meth:`checked`.
+    (``min(1e-2, 10 * sqrt(tol))``).  Problem-dependent checks: :meth:`checked`.
     """
 
     solver: str = option("CLARABEL", Spec("str", choices=("CLARABEL", "SCS", "ECOS"), check_with=_check_solver))
@@ -214,8 +214,8 @@ class ConicOptions(Options):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        if self.dc_tol is None:  # see solve_conic's dc_tol: below the solver's resolution in f, sqrt(tol)
-            object.__setattr__(self, "dc_tol", min(1e-2, 0.01 * self.tol**0.5))
+        if self.dc_tol is None:  # the solver resolves f to about sqrt(tol): a tighter threshold chases noise
+            object.__setattr__(self, "dc_tol", min(1e-2, 10 * self.tol**0.5))
         if self.solver_options is None:
             object.__setattr__(self, "solver_options", {})
         if self.solver == "CLARABEL" and self.solver_options:
@@ -544,12 +544,13 @@ def _linearise_first_at(problem: CollisionProblem, mu: float) -> NDArray[np.floa
 
 
 def _dc_loop(problem: CollisionProblem, filled: _Filled, opts: ConicOptions, t_start: float) -> _Loop:
-    """Convex-concave passes: one conic solve each, until the iterate moves less than ``dc_tol`` or is certified.
+    """Convex-concave passes: one conic solve each, until the answer is certified or at a fixed point.
 
     The first pass linearises the concave part at the explicit step (:func:`_linearise_first_at`),
-    every later one at the previous pass's answer.  The loop stops where the answer moves less
-    than ``dc_tol`` (a fixed point: a KKT point of the full problem) or where the certificate
-    already accepts the pass's answer (projected onto the constraint, as :func:`_finish` does):
+    every later one at the previous pass's answer.  The loop stops where the certificate accepts
+    the pass's answer (projected onto the constraint, as :func:`_finish` does), or where the
+    answer moves less than ``dc_tol`` (a fixed point: a KKT point of the full problem) and its
+    KKT residual no longer falls:
     measured on ``inhom_gamma3_lambda4`` at 61 x 61 (perspective, beta = 30, five steps of
     verification), 471 passes for 336 solves against 813 linearised first at f* and run to the
     fixed point, every answer within 1.6e-7 of Newton's.
@@ -559,6 +560,7 @@ def _dc_loop(problem: CollisionProblem, filled: _Filled, opts: ConicOptions, t_s
     t_start += model.compile_seconds if filled.compiled_now else 0.0  # compiling is not solving
     loop = _Loop(np.zeros(problem.n), Status.MAX_ITERATIONS)
     at = None if filled.concave is None else _linearise_first_at(problem, mu)
+    residual = np.inf  # the previous pass's KKT residual
     while loop.passes < opts.max_passes:
         left = opts.time_limit - (time.perf_counter() - t_start)
         if left <= 0:
@@ -600,14 +602,19 @@ def _dc_loop(problem: CollisionProblem, filled: _Filled, opts: ConicOptions, t_s
             break
         loop.last_move = float(np.abs(new - (loop.delta if at is None else at)).max())
         loop.delta = new
-        if at is None or loop.last_move <= opts.dc_tol:
+        if at is None:
             loop.claimed = Status.CONVERGED
             break
-        loop.certificate = _accepted(problem, filled, new, opts)
-        if loop.certificate is not None:
+        cert = _certificate(problem, filled, new, opts)
+        if cert.status is Status.CONVERGED:
+            loop.certificate, loop.claimed = cert, Status.CONVERGED
+            break
+        # A fixed point to dc_tol ends the loop unless the residual is still falling: a large step
+        # converges slowly, and its moves drop below dc_tol passes before the certificate accepts
+        if loop.last_move <= opts.dc_tol and not cert.residual < residual:
             loop.claimed = Status.CONVERGED
             break
-        at = new
+        residual, at = cert.residual, new
     return loop
 
 
@@ -617,13 +624,12 @@ def _projected(problem: CollisionProblem, filled: _Filled, delta: NDArray[np.flo
         return problem.project_feasible(problem.f_star + filled.mu * delta)
 
 
-def _accepted(
+def _certificate(
     problem: CollisionProblem, filled: _Filled, delta: NDArray[np.float64], opts: ConicOptions
-) -> Certificate | None:
-    """The certificate of a pass's answer where it accepts it (a KKT point of the full problem to ``kkt_tol``)."""
+) -> Certificate:
+    """The certificate of a pass's answer (``CONVERGED``: a KKT point of the full problem to ``kkt_tol``)."""
     f, m = _projected(problem, filled, delta)
-    cert = certify(problem, f, m, kkt_tol=opts.kkt_tol, check_convexity=opts.check_convexity)
-    return cert if cert.status is Status.CONVERGED else None
+    return certify(problem, f, m, kkt_tol=opts.kkt_tol, check_convexity=opts.check_convexity)
 
 
 def _finish(
@@ -794,16 +800,16 @@ def solve_conic(
     max_passes : int, default 50
         Limit on convex-concave passes (status ``MAX_ITERATIONS`` when reached).
     dc_tol : float, optional
-        Stopping threshold of the loop: the largest change of :math:`(f - f^*)/\\mu` between
-        the linearisation point and the pass's answer (:math:`\\mu` = explicit flux).  The loop
-        stops first where the certificate (``kkt_tol``) accepts a pass's answer, so this threshold
-        only ends loops that no pass certifies.  Default ``min(1e-2, 0.01 * sqrt(tol))``, three
-        orders below the ``10 * sqrt(tol)`` that matched the solver's resolution in f: that one
-        declared a fixed point before the certificate could accept it on large steps (measured on
-        the random families of the Newton certification study, the steps conic can pose: with it,
-        7 of 45 held-out and 12 of 44 development steps ended NOT_CERTIFIED at KKT 1.2e-6 to
-        5.4e-6, explicit CFL 26 to 8643; with this one every step that IPOPT certifies is
-        certified and the others are NONCONVEX, as IPOPT's, in 22 % less solve time).
+        Fixed-point threshold of the loop: the largest change of :math:`(f - f^*)/\\mu` between
+        the linearisation point and the pass's answer (:math:`\\mu` = explicit flux).  Default
+        ``min(1e-2, 10 * sqrt(tol))``: the solver resolves f only to about ``sqrt(tol)``.  The loop
+        stops first at a pass the certificate (``kkt_tol``) accepts, and at a fixed point only once
+        the KKT residual stops falling: a large step converges slowly, and its moves fell below
+        the threshold passes before a pass was certified (measured on the random families of the
+        Newton certification study, the steps conic can pose: stopped at the threshold, 7 of 45
+        held-out and 12 of 44 development steps ended NOT_CERTIFIED at KKT 1.2e-6 to 5.4e-6,
+        explicit CFL 26 to 8643; going on while the residual falls, every step that IPOPT
+        certifies is certified and the others are NONCONVEX, as IPOPT's are).
     kkt_tol : float, default 1e-6
         Certification threshold (the same for every method,
         :func:`~jko_cvx.collision.certify.certify`): a settled loop is ``CONVERGED`` only
