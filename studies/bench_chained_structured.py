@@ -36,10 +36,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 from bench_threads import inhom_batch
-from newton_single_call import _same, import_baseline
+from newton_single_call import _same, import_baseline, tree_label
 
 import jko_cvx
-from jko_cvx.environment import git_state, record_csv, write_markdown
+from jko_cvx.environment import record_csv, write_markdown
 from jko_cvx.threads import thread_environment
 
 RESULTS = Path(__file__).parent / "results"
@@ -59,11 +59,6 @@ def _cpu(pkg, problem, inner: int) -> tuple[float, object]:
     for _ in range(inner):
         res = pkg.solve_collision(problem, "newton", tol=1e-8)
     return (time.process_time() - c0) / inner, res
-
-
-def _tree() -> str:
-    commit, dirty = git_state()
-    return f"{(commit or 'unknown')[:12]}{' (modified)' if dirty else ''}"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -102,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
     write_markdown(
         RESULTS / "bench_chained_structured.md",
         "# Structured Newton directions: chained LAPACK calls against one call per slice\n\n"
-        f"Baseline {args.base}, tree {_tree()}; {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}.  "
+        f"Baseline {args.base}, tree {tree_label()}; {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}.  "
         f"Threads: {thread_environment()}.  The batch of `studies/bench_threads.py` ({args.slices} slices of the "
         "inhom_gamma3_lambda4 datum on its refined v-grid, log Fisher beta = 1000, dt = 0.02, tol = 1e-8); CPU "
         f"time per batched solve, median of {args.repeats} rounds, the versions interleaved.  "

@@ -27,9 +27,9 @@ import time
 from pathlib import Path
 
 import pandas as pd
-from newton_single_call import import_baseline
+from newton_single_call import import_baseline, tree_label
 
-from jko_cvx.environment import git_state, record_csv, write_markdown
+from jko_cvx.environment import record_csv, write_markdown
 from jko_cvx.threads import thread_environment
 
 RESULTS = Path(__file__).parent / "results"
@@ -43,11 +43,6 @@ def _child_cpu(code: str, path: str) -> float:
     subprocess.run([sys.executable, "-c", script], check=True, capture_output=True)
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     return (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
-
-
-def _tree() -> str:
-    commit, dirty = git_state()
-    return f"{(commit or 'unknown')[:12]}{' (modified)' if dirty else ''}"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -81,7 +76,7 @@ def main(argv: list[str] | None = None) -> int:
     write_markdown(
         RESULTS / "bench_cli_run.md",
         "# CPU time of the default `jko-cvx run`\n\n"
-        f"Baseline {args.base}, tree {_tree()}; {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}.  "
+        f"Baseline {args.base}, tree {tree_label()}; {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}.  "
         f"Threads: {thread_environment()}.  User + system CPU seconds of a fresh interpreter, median of "
         f"{args.repeats} rounds with the versions interleaved: the whole command on the built-in default scene "
         "(simulation, run directory, figures), and the interpreter with the command's imports alone.  "

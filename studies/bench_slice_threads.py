@@ -29,9 +29,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 from bench_threads import inhom_batch
+from newton_single_call import tree_label
 
 import jko_cvx
-from jko_cvx.environment import git_state, record_csv, write_markdown
+from jko_cvx.environment import record_csv, write_markdown
 from jko_cvx.threads import THREADS_ENV, thread_environment, usable_cores
 
 RESULTS = Path(__file__).parent / "results"
@@ -88,12 +89,11 @@ def main(argv: list[str] | None = None) -> int:
     out = RESULTS / "bench_slice_threads.csv"
     df.to_csv(out, index=False)
     record_csv(out)
-    commit, dirty = git_state()
     faster = int((df["wall_2/1"] < 1).sum())
     write_markdown(
         RESULTS / "bench_slice_threads.md",
         "# Batched Newton: one slice thread against two\n\n"
-        f"Code {(commit or 'unknown')[:12]}{' (modified)' if dirty else ''}; "
+        f"Code {tree_label()}; "
         f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; {usable_cores()} usable cores.  Threads (besides "
         f"`{THREADS_ENV}`, set per row): {thread_environment()}.  The batch of `studies/bench_threads.py`; wall and "
         f"CPU milliseconds per batched solve, median of {args.repeats} rounds with the two settings interleaved.  "

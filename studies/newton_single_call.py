@@ -41,11 +41,17 @@ import numpy as np
 import pandas as pd
 
 import jko_cvx
-from jko_cvx.environment import record_csv, write_markdown
+from jko_cvx.environment import git_state, record_csv, write_markdown
 from jko_cvx.threads import thread_environment
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "studies" / "results"
+
+
+def tree_label() -> str:
+    """This checkout's commit for a benchmark's report: 12 digits, ``(modified)`` where the package differs."""
+    commit, dirty = git_state()
+    return f"{(commit or 'unknown')[:12]}{' (modified)' if dirty else ''}"
 
 
 def import_baseline(commit: str, folder: Path):
