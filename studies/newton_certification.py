@@ -170,16 +170,16 @@ def main() -> None:
         fh.write((TITLE if fh.tell() == 0 else "\n") + "## " + text)
 
 
-def _append(rows: list[dict]) -> None:
-    """Append ``rows`` to :data:`OUT`, rewriting it with the union of the columns where they differ."""
+def _append(rows: list[dict], out: Path = OUT) -> None:
+    """Append ``rows`` to ``out``, rewriting it with the union of the columns where they differ."""
     old: list[dict] = []
     fields = list(rows[0])
-    if OUT.exists():
-        with OUT.open(newline="") as fh:
+    if out.exists():
+        with out.open(newline="") as fh:
             reader = csv.DictReader(fh)
             old = list(reader)
             fields = list(dict.fromkeys([*(reader.fieldnames or []), *fields]))
-    with OUT.open("w", newline="") as fh:
+    with out.open("w", newline="") as fh:
         writer = csv.DictWriter(fh, fieldnames=fields, restval="")
         writer.writeheader()
         writer.writerows([*old, *rows])

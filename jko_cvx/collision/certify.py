@@ -33,9 +33,11 @@ from numpy.typing import ArrayLike, NDArray
 from jko_cvx._numbers import real_array
 from jko_cvx.collision._checks import check_bool, check_unit
 from jko_cvx.collision.problem import CollisionProblem, KKTResidual
-from jko_cvx.collision.result import Status
+from jko_cvx.collision.result import CollisionResult, Status
 
-__all__ = ["Certificate", "certify", "certify_validated"]
+__all__ = ["Certificate", "certify", "certify_rescaled", "certify_validated"]
+
+_JUDGED = (Status.CONVERGED, Status.NOT_CERTIFIED, Status.NONCONVEX)  # the certificate's outcomes, judged again
 
 
 @dataclass(frozen=True)
@@ -173,6 +175,22 @@ def certify_validated(
             problem, f[i], m[i], total[i], objective[i], kkt_tol, check_convexity, claims[i], orders[i], i, finite[i]
         )
     return Certificate(status, np.asarray(total, dtype=float).copy(), np.asarray(objective, dtype=float), kkt)
+
+
+def certify_rescaled(
+    problem: CollisionProblem, scaled: CollisionResult, c: float, *, kkt_tol: float, check_convexity: bool
+) -> CollisionResult:
+    """The answer ``scaled`` to ``problem.in_units_of_max()`` (unit ``c``), scaled back and certified against
+    ``problem`` itself (:meth:`~jko_cvx.collision.CollisionProblem.in_units_of_max`).
+
+    A failure status the solver claimed (iteration or time limit, solver error, ...) is kept; a
+    certificate's outcome is judged again on the original problem.  ``info`` gains ``scaled_by = c``.
+    """
+    f, m = scaled.f * c, scaled.m * c
+    claimed = None if scaled.status in _JUDGED else scaled.status
+    cert = certify(problem, f, m, kkt_tol=kkt_tol, check_convexity=check_convexity, claimed=claimed)
+    return CollisionResult.from_certificate(problem, f, m, cert, scaled.method, scaled.iterations, scaled.seconds,
+                                            {**scaled.info, "scaled_by": c})  # fmt: skip
 
 
 def _per_row(value, rows: int):

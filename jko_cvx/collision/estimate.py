@@ -14,14 +14,12 @@ from typing import Any
 import numpy as np
 
 from jko_cvx.collision._linalg import divergence, divergence_adjoint
-from jko_cvx.collision.certify import certify
+from jko_cvx.collision.certify import certify_rescaled
 from jko_cvx.collision.problem import CollisionProblem
-from jko_cvx.collision.result import CollisionResult, Status
+from jko_cvx.collision.result import CollisionResult
 from jko_cvx.collision.solve import OPTIONS, solve_collision
 
 __all__ = ["f_error_estimate", "solve_reference"]
-
-_JUDGED = (Status.CONVERGED, Status.NOT_CERTIFIED, Status.NONCONVEX)  # the certificate's outcomes, judged again
 
 
 def solve_reference(problem: CollisionProblem, reference: str, options: dict[str, Any]) -> CollisionResult:
@@ -39,18 +37,12 @@ def solve_reference(problem: CollisionProblem, reference: str, options: dict[str
     MAX_ITERATIONS with KKT residuals 0.08-0.8 on all 10 such slices sampled; in units of max f*
     all 10 reach 1e-8 to 1e-10, within 2e-10 of Newton.
     """
-    c = float(np.max(problem.f_star))
-    if not (np.isfinite(c) and c > 0) or c == 1.0:
-        return solve_collision(problem, method=reference, **options)
-    scaled = CollisionProblem(problem.grid, problem.kernel, problem.f_star / c, problem.dt, problem.strength * c,
-                              problem.beta, problem.fisher, problem.conserve_momentum)  # fmt: skip
+    scaled, c = problem.in_units_of_max()
     res = solve_collision(scaled, method=reference, **options)
+    if c == 1.0:
+        return res
     opts = OPTIONS[reference](**options)
-    f, m = res.f * c, res.m * c
-    cert = certify(problem, f, m, kkt_tol=opts.kkt_tol, check_convexity=opts.check_convexity,
-                   claimed=None if res.status in _JUDGED else res.status)  # fmt: skip
-    return CollisionResult.from_certificate(problem, f, m, cert, reference, res.iterations, res.seconds,
-                                            {**res.info, "scaled_by": c})  # fmt: skip
+    return certify_rescaled(problem, res, c, kkt_tol=opts.kkt_tol, check_convexity=opts.check_convexity)
 
 
 def f_error_estimate(problem: CollisionProblem, f: np.ndarray, m: np.ndarray) -> float:

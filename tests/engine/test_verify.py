@@ -374,7 +374,8 @@ def test_trajectories_of_newton_and_conic_agree(tmp_path):
     assert np.array_equal(ver.reference_run.diagnostics["max_f"], conic.diagnostics["max_f"])
     assert tr.table["matched"].all() and len(tr.table) == 6
     assert np.array_equal(tr.table["max_f"], simulate(sc).diagnostics["max_f"])
-    assert tr.table["dmax_f"].max() < 1e-6  # one step agrees to ~1e-7 in f: five steps stay far below 1e-4
+    # a run under conic is certified at its kkt_tol 1e-6 (loop.CONIC_RUN_KKT): 1.5e-6 after five steps, far below 1e-4
+    assert tr.table["dmax_f"].max() < 1e-5
     out = tmp_path / "v"
     assert (out / "reference" / "verdict.json").exists() and (out / "trajectory.csv").exists()
     assert "## Trajectory" in (out / "verify.md").read_text()
