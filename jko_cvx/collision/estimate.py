@@ -13,9 +13,10 @@ from typing import Any
 
 import numpy as np
 
-from jko_cvx.collision._linalg import divergence, divergence_adjoint
+from jko_cvx.collision._linalg import divergence
 from jko_cvx.collision.certify import certify_rescaled
 from jko_cvx.collision.problem import CollisionProblem
+from jko_cvx.collision.refine import newton_correction
 from jko_cvx.collision.result import CollisionResult
 from jko_cvx.collision.solve import OPTIONS, solve_collision
 
@@ -35,7 +36,9 @@ def solve_reference(problem: CollisionProblem, reference: str, options: dict[str
     on the near-vacuum x-slices of ``inhom_gamma3_lambda4`` (perspective form, beta = 30,
     41 x 41, first step; max f* from 1e-10 to 5e-3) the conic reference returned SOLVER_ERROR or
     MAX_ITERATIONS with KKT residuals 0.08-0.8 on all 10 such slices sampled; in units of max f*
-    all 10 reach 1e-8 to 1e-10, within 2e-10 of Newton.
+    all 10 reach 1e-8 to 1e-10, within 2e-10 of Newton.  The conic method now solves in those units
+    itself (:mod:`jko_cvx.collision.conic`); IPOPT, which settled these slices either way, gets the same
+    treatment here so that both references see one problem.
     """
     scaled, c = problem.in_units_of_max()
     res = solve_collision(scaled, method=reference, **options)
@@ -103,47 +106,20 @@ def f_error_estimate(problem: CollisionProblem, f: np.ndarray, m: np.ndarray) ->
     >>> bool(0.5 < f_error_estimate(prob, loose.f, loose.m) / gap < 2)
     True
     """
-    import scipy.linalg as sla
-
     if problem.batched:
         raise ValueError("f_error_estimate takes one problem; pass problem.slice(i) and that slice's f, m")
     f, m = np.asarray(f, dtype=float), np.asarray(m, dtype=float)
     if f.shape != (problem.n,) or m.shape != (problem.n - 1,):
         raise ValueError(f"f and m must have shapes ({problem.n},) and ({problem.n - 1},), got {f.shape} and {m.shape}")
-    if not (np.all(np.isfinite(f)) and np.all(np.isfinite(m))) or f.max() <= 0:
-        return np.inf
-    with np.errstate(all="ignore"):
-        gf, gm = problem.gradient(f, m)
-        h = problem.grid.h
-        g = gm - divergence_adjoint(gf / h)  # Z' grad J, Z = [-D/h; I] (CollisionProblem.null_space_basis)
-        H = problem.reduced_hessian(f, m)
-    d = np.diag(H)
-    keep = np.isfinite(d) & (d > 0)
-    Hk, gk = H[np.ix_(keep, keep)], g[keep]
-    if not keep.any() or not (np.all(np.isfinite(Hk)) and np.all(np.isfinite(gk))):
-        return np.inf  # no flux with a finite curvature: nothing to estimate from
-    s = 1 / np.sqrt(np.diag(Hk))  # Jacobi scaling: near-vacuum cells put 1e90 on the diagonal
-    try:
-        chol = sla.cho_factor(Hk * s[:, None] * s[None, :])
-    except np.linalg.LinAlgError:
-        return np.inf
-
-    def solve(r: np.ndarray) -> np.ndarray:
-        return s * sla.cho_solve(chol, s * r)
-
-    p = solve(gk)
-    if problem.conserve_momentum and keep.sum() > 1:
-        a = problem.grid.dv[keep]
-        q = solve(a)
-        p = p - q * (a @ p) / (a @ q)
-    full = np.zeros(problem.n - 1)
-    full[keep] = p
+    dm = newton_correction(problem, f, m)
+    if dm is None:
+        return np.inf  # not finite, no flux with a finite curvature, or H_r not positive definite
     # Near vacuum J is far from quadratic (the Fisher and kinetic terms curve like 1/s_k) and the
     # Newton step means nothing there: on tab_bu_g1 (61 points, beta = 30, step 5) it asked for
     # +3.7e-5 max f at the end cell, where f = 7e-10, and 1.8e-5 at its neighbours, at every point
     # tried (conic at tol 1e-12 and 1e-13, Newton at 1e-14: all within 3e-8 of one another).  So the
     # correction is cut at +-f_j and weighted by f_j / max f, the certificate's weights.
     fpos = np.maximum(f, 0.0)
-    delta = np.clip(-divergence(full) / h, -fpos, fpos) * (fpos / f.max())
+    delta = np.clip(-divergence(dm) / problem.grid.h, -fpos, fpos) * (fpos / f.max())
     est = float(np.abs(delta).max() / f.max())
     return est if np.isfinite(est) else np.inf

@@ -25,6 +25,9 @@ def _fake(outcomes):
     return solve_form, calls
 
 
+_ROUND = [("raw", False), ("centred", False), ("raw", True), ("centred", True)]  # the attempts at one tol
+
+
 @pytest.mark.parametrize(
     ("outcomes", "calls", "picked"),
     [
@@ -41,15 +44,29 @@ def _fake(outcomes):
             [("raw", False), ("centred", False), ("raw", True)],
             2,
         ),
-        # nothing settles: the smallest residual of all four
+        # nothing settles at tol: the same four at the retry tolerance; the first that settles is the answer
         (
             [
                 (Status.NOT_CERTIFIED, 1e-5),
                 (Status.SOLVER_ERROR, 0.2),
                 (Status.INACCURATE, 3e-6),
                 (Status.MAX_ITERATIONS, 1e-4),
+                (Status.NOT_CERTIFIED, 2e-6),
+                (Status.CONVERGED, 1e-9),
             ],
-            [("raw", False), ("centred", False), ("raw", True), ("centred", True)],
+            [*_ROUND, *_ROUND[:2]],
+            5,
+        ),
+        # nothing settles in either round: the smallest residual of all eight
+        (
+            [
+                (Status.NOT_CERTIFIED, 1e-5),
+                (Status.SOLVER_ERROR, 0.2),
+                (Status.INACCURATE, 3e-6),
+                (Status.MAX_ITERATIONS, 1e-4),
+                *[(Status.SOLVER_ERROR, 0.2)] * 4,
+            ],
+            [*_ROUND, *_ROUND],
             2,
         ),
     ],
@@ -57,6 +74,7 @@ def _fake(outcomes):
 def test_the_attempts_and_the_answer(monkeypatch, outcomes, calls, picked):
     fake, seen = _fake(outcomes)
     monkeypatch.setattr(conic, "_solve_form", fake)
+    monkeypatch.setattr(conic, "_refined", lambda *args: None)  # the fakes carry no point to refine
     g = Grid.uniform(-2.0, 2.0, 21)
     prob = CollisionProblem(g, PowerKernel(1.0), np.exp(-2 * g.points**2), 0.01, beta=10.0)
     res = conic._solve_forms(prob, ConicOptions.checked(prob), ["raw", "centred"])
@@ -64,6 +82,7 @@ def test_the_attempts_and_the_answer(monkeypatch, outcomes, calls, picked):
     assert res.kkt_residual == outcomes[picked][1] and res.status is outcomes[picked][0]
     assert ("fallback_from" in res.info) == (len(calls) > 1)
     assert res.info["edge_units"] == calls[picked][1]
+    assert res.info.get("tol") == (1e-12 if picked >= len(_ROUND) else None)
 
 
 def test_an_explicit_form_falls_back_to_its_own_edge_units(monkeypatch):
