@@ -11,6 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+
 from jko_cvx import CollisionProblem, Grid, PowerKernel, f_error_estimate, solve_collision
 from jko_cvx.collision import solve_conic
 

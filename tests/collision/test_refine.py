@@ -22,7 +22,7 @@ def test_one_correction_from_a_loose_answer_lands_on_the_minimiser():
         assert loose.kkt_residual > 1e-8  # the loose answer is not certified at the threshold below
         out = refine_once(prob, loose.f, loose.m, max_move=1e-2, kkt_tol=1e-8, check_convexity=True)
         assert out is not None
-        f, m, cert, move = out
+        f, _, cert, move = out
         assert cert.residual <= 1e-8 and abs(prob.mass_error(f)) < 1e-13
         if momentum:
             assert prob.momentum_change(f) < 1e-13
