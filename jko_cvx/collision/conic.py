@@ -587,8 +587,12 @@ def _dc_loop(problem: CollisionProblem, filled: _Filled, opts: ConicOptions, t_s
         if left <= 0:
             loop.claimed = Status.TIME_LIMIT
             break
-        lin = filled.grad_star if at is None else filled.grad_star + filled.concave(at)
-        model.params["lin"].value = lin * mu / varsigma
+        with np.errstate(over="ignore", invalid="ignore"):
+            lin = (filled.grad_star if at is None else filled.grad_star + filled.concave(at)) * mu / varsigma
+        if not np.all(np.isfinite(lin)):  # an energy at the edge of the float range (strength * max f* ~ 1e300)
+            loop.claimed = Status.NUMERICAL_ERROR
+            break
+        model.params["lin"].value = lin
         settings = {**_solver_settings(opts.solver, opts.tol, left), **opts.solver_options}
         try:
             with warnings.catch_warnings():
