@@ -26,6 +26,7 @@ import pandas as pd
 import jko_cvx.engine.loop as loop
 from jko_cvx import shipped_scene, simulate
 from jko_cvx.collision import solve_newton
+from jko_cvx.environment import record_csv, write_markdown
 from studies.newton_single_call import tree_label
 
 OUT = Path(__file__).parent / "results" / "conic_scene_runs.csv"
@@ -98,6 +99,7 @@ def main() -> None:
     frame.to_csv(OUT, index=False)
     failed_frame = pd.DataFrame(slices)
     failed_frame.to_csv(OUT.with_name("conic_scene_runs_failed_slices.csv"), index=False)
+    record_csv(OUT, OUT.with_name("conic_scene_runs_failed_slices.csv"))
     text = [
         "# The conic method on the paper's gamma = 3 scene (`studies/conic_scene_runs.py`)",
         "",
@@ -114,7 +116,7 @@ def main() -> None:
         if len(failed_frame) else "(none: every run reached t = 1)",
         "",
     ]
-    OUT.with_suffix(".md").write_text("\n".join(text))
+    write_markdown(OUT.with_suffix(".md"), "\n".join(text))
     print("\n".join(text))
 
 

@@ -46,6 +46,7 @@ from jko_cvx import CollisionProblem, PowerKernel, Status
 from jko_cvx.collision import solve_conic, solve_newton, solve_nlp, solve_sqp
 from jko_cvx.collision.certify import certify
 from jko_cvx.engine.loop import ACCEPT_KKT
+from jko_cvx.environment import record_csv
 from jko_cvx.testing import random_density
 from studies.newton_certification import HELD_OUT_SEEDS, SEEDS, _append, _grid, problems
 from studies.newton_single_call import tree_label
@@ -176,6 +177,7 @@ def main() -> None:
     rows = run(count, seed_set)
     meta = {"date": date, "commit": tree, "label": label, "threads": threads, "seeds": seed_set}
     _append([meta | r for r in rows], OUT)
+    record_csv(OUT)
     text = summary(rows, f"{label} ({tree}, seeds {seed_set}, {date} UTC, OPENBLAS_NUM_THREADS={threads})")
     print(text)
     with OUT.with_suffix(".md").open("a") as fh:

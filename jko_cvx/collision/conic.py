@@ -11,6 +11,12 @@ absolute: posed at its own scale, a low-mass x-slice of the paper's gamma = 3 sc
 KKT 1.6e-4 to 0.78, one NOT_CERTIFIED at 1.3e-6), and the run under ``method = "conic"`` stopped at
 its first step; in units of max f* all 61 are certified.
 
+Limits (measured): on concentrating slices (explicit CFL 6 to 16) whose tails sit at 1e-10 of
+the peak, the answer is within 1e-8 to 4e-7 of the minimiser in f but the KKT residual stalls
+at 1e-6 to 1.4e-5 in every form, unit and inner tolerance, carried by the low-density cells; so
+do tiny steps (dt ~ 1e-4) on graded grids with rough data (residual noise at 7e-4).  Such steps
+are NOT_CERTIFIED or INACCURATE, never CONVERGED; IPOPT (``method = "nlp"``) certifies them.
+
 Model (in scaled variables :math:`\\delta = (f - f^*)/\\mu`, :math:`\\hat m = m/\\mu`,
 :math:`\\hat t = t/\\mu^2`, with :math:`\\mu` the size of the explicit-Euler flux, so that
 every variable is O(1) whatever ``dt``):
