@@ -125,10 +125,10 @@ _EDGE_REF = 1e-3
 _EDGE_FIRST = (1e-11, 1e-6)
 # A step that no cone form or units settle at the method's tol is tried again at this gap tolerance
 # (feasibility stays floored at 1e-8, _solver_settings): on inhom_gamma3_lambda4 at 61 x 61
-# (perspective) the inner solves' accuracy stalled the loop's KKT residual at 2.2e-6 to 1.5e-5 on
-# 4 slices of 3721 (beta = 30 at t = 0.3, beta = 100 at t = 0.05: NOT_CERTIFIED after every attempt,
-# one after 4 x 50 passes) and the run stopped; at 1e-12 the first attempt certified each in 1 to 3
-# passes.  Not the default: 1e-12 ends more solves AlmostSolved (INACCURATE).
+# (perspective, beta = 30, t = 0.3) the inner solves' accuracy stalled the loop's KKT residual at
+# 2.2e-6 to 5e-6 on 3 slices (NOT_CERTIFIED after every attempt) and the run stopped; at 1e-12 the
+# first attempt certified each in 2 to 3 passes.  Not the default: 1e-12 ends more solves
+# AlmostSolved (INACCURATE).
 _RETRY_TOL = 1e-12
 _RETRY_FROM = 1e-10
 """The default ``tol``: the retry (and the largest move of the refinement) starts from it."""
