@@ -25,6 +25,7 @@ A new method calls it once on its final, feasible point::
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -186,11 +187,15 @@ def certify_rescaled(
     A failure status the solver claimed (iteration or time limit, solver error, ...) is kept; a
     certificate's outcome is judged again on the original problem.  ``info`` gains ``scaled_by = c``.
     """
+    t0 = time.perf_counter()
     f, m = scaled.f * c, scaled.m * c
     claimed = None if scaled.status in _JUDGED else scaled.status
     cert = certify(problem, f, m, kkt_tol=kkt_tol, check_convexity=check_convexity, claimed=claimed)
-    return CollisionResult.from_certificate(problem, f, m, cert, scaled.method, scaled.iterations, scaled.seconds,
-                                            {**scaled.info, "scaled_by": c})  # fmt: skip
+    info = {**scaled.info, "scaled_by": c}
+    if "kkt" in info:
+        info["kkt"] = cert.kkt  # the residual's components on this problem, not the scaled one's
+    seconds = scaled.seconds + time.perf_counter() - t0
+    return CollisionResult.from_certificate(problem, f, m, cert, scaled.method, scaled.iterations, seconds, info)
 
 
 def _per_row(value, rows: int):

@@ -12,10 +12,11 @@ KKT 1.6e-4 to 0.78, one NOT_CERTIFIED at 1.3e-6), and the run under ``method = "
 its first step; in units of max f* all 61 are certified.
 
 Limits (measured): on concentrating slices (explicit CFL 6 to 16) whose tails sit at 1e-10 of
-the peak, the answer is within 1e-8 to 4e-7 of the minimiser in f but the KKT residual stalls
-at 1e-6 to 1.4e-5 in every form, unit and inner tolerance, carried by the low-density cells; so
-do tiny steps (dt ~ 1e-4) on graded grids with rough data (residual noise at 7e-4).  Such steps
-are NOT_CERTIFIED or INACCURATE, never CONVERGED; IPOPT (``method = "nlp"``) certifies them.
+the peak, the answer is within 7e-9 to 4e-7 of Newton's certified one in f but the KKT residual
+stalls at 1.3e-6 to 1.4e-5 in every form and unit and at both inner tolerances, carried by the
+low-density cells; a tiny step (dt ~ 1e-4) on a graded grid with rough data stalled at 6.8e-4.
+Such steps are NOT_CERTIFIED or INACCURATE, never CONVERGED; Newton certifies them, and IPOPT
+(``method = "nlp"``) the graded-grid one.
 
 Model (in scaled variables :math:`\\delta = (f - f^*)/\\mu`, :math:`\\hat m = m/\\mu`,
 :math:`\\hat t = t/\\mu^2`, with :math:`\\mu` the size of the explicit-Euler flux, so that
@@ -734,7 +735,9 @@ def _solve_forms(problem: CollisionProblem, opts: ConicOptions, forms: list[str]
     NONCONVEX, then the smallest KKT residual).  The time limit covers every attempt but not
     the models' compilation (a worker process compiles its own, so the budget does not depend
     on which process solves the step).  Where no attempt settles at ``tol``, the same attempts run
-    again at :data:`_RETRY_TOL` (``info["tol"]`` records it on an answer from them).
+    again at :data:`_RETRY_TOL` (``info["tol"]`` records it on an answer from them; Clarabel only,
+    from the default ``tol`` down, and not where ``solver_options`` set the gap tolerance); where
+    none settles then either, the best answer is refined (:func:`_refined`).
     ``info["fallback_from"]`` names the first of two forms where another attempt ran,
     ``info["edge_units"]`` is True where the answer comes from the edge units, ``info["attempts"]``
     counts the attempts.
@@ -744,7 +747,8 @@ def _solve_forms(problem: CollisionProblem, opts: ConicOptions, forms: list[str]
     units = (True, False) if _near_vacuum(problem) else (False, True)
     # the retry at a tighter gap tolerance is Clarabel's, from the default tolerance down: a tol the caller
     # loosened (or a first-order solver) is answered at that tol
-    retry = opts.solver == "CLARABEL" and _RETRY_TOL < opts.tol <= _RETRY_FROM
+    retry = (opts.solver == "CLARABEL" and _RETRY_TOL < opts.tol <= _RETRY_FROM
+             and not any(k.startswith("tol_gap") for k in opts.solver_options))  # fmt: skip
     best = None
     for tol in [opts.tol, _RETRY_TOL] if retry else [opts.tol]:
         for edge_units, form in [(edge_units, form) for edge_units in units for form in forms]:
@@ -764,10 +768,9 @@ def _solve_forms(problem: CollisionProblem, opts: ConicOptions, forms: list[str]
         best = min(tried, key=lambda r: (_RANK.get(r.status, 2), r.kkt_residual))
         if best.status in _RANK or any(r.status is Status.TIME_LIMIT for r in tried):
             break
-        refined = _refined(problem, best, opts)
-        if refined is not None:
-            best = refined
-            break
+    else:  # no round settled: the best answer, refined where one correction certifies it
+        assert best is not None
+        best = _refined(problem, best, opts) or best
     assert best is not None
     if len(tried) > 1:
         if len(forms) > 1:
@@ -782,21 +785,27 @@ def _refined(problem: CollisionProblem, res: CollisionResult, opts: ConicOptions
 
     Only a correction within the method's accuracy in f, ``sqrt(tol)`` (at most ``sqrt(1e-10)``), is
     taken: the refinement certifies an answer the inner solves pinned but could not drive below
-    ``kkt_tol``, and never moves it further than the conic answer's own error (the reference stays
-    independent).  Not where the caller asked reduced accuracy to be reported (``accept_inaccurate``).
+    ``kkt_tol``, and moves it by less than the conic answer's own error.  The correction uses the
+    problem's gradient and reduced Hessian (the certificate's, and Newton's), so a refined answer is
+    independent of the Newton solver only to that bound (``info["refined_by"]``), a tenth of the
+    verification's tolerance.  Not with the linearised energy, nor where the caller asked reduced
+    accuracy to be reported (``accept_inaccurate=False`` and an inaccurate last solve).
     """
-    if res.status in (Status.SOLVER_ERROR, Status.NUMERICAL_ERROR, Status.TIME_LIMIT):
-        return None
-    if res.status is Status.INACCURATE and not opts.accept_inaccurate:
+    if res.status in (Status.SOLVER_ERROR, Status.NUMERICAL_ERROR, Status.TIME_LIMIT) or opts.energy == "linearized":
+        return None  # no point to refine, or the linearised energy's answer is not the full problem's
+    almost = res.info.get("solver_status") == _cvxpy().OPTIMAL_INACCURATE
+    if not opts.accept_inaccurate and (res.status is Status.INACCURATE or almost):
         return None  # the caller asked for reduced accuracy to be reported as such
+    t0 = time.perf_counter()
     max_move = float(np.sqrt(min(opts.tol, _RETRY_FROM)))  # a loosened tol does not widen the move
     out = refine_once(problem, res.f, res.m, max_move=max_move, kkt_tol=opts.kkt_tol,
                       check_convexity=opts.check_convexity)  # fmt: skip
     if out is None:
         return None
     f, m, cert, move = out
-    info = {**res.info, "refined_by": move, "refined_from": res.status.name}
-    return CollisionResult.from_certificate(problem, f, m, cert, "conic", res.iterations, res.seconds, info)
+    info = {**res.info, "refined_by": move, "refined_from": res.status.name, "kkt": cert.kkt}
+    seconds = res.seconds + time.perf_counter() - t0
+    return CollisionResult.from_certificate(problem, f, m, cert, "conic", res.iterations, seconds, info)
 
 
 def _near_vacuum(problem: CollisionProblem) -> bool:

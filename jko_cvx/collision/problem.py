@@ -320,16 +320,19 @@ class CollisionProblem:
         term :math:`2 m^2 / s`, both Fisher forms) and the energy is 2-homogeneous, so the
         minimiser of the step for :math:`(f^*, \\text{strength})` is :math:`c` times the minimiser
         for :math:`(f^*/c, c\\,\\text{strength})`; ``scaled`` is that problem.  ``c = 1`` (and
-        ``scaled`` this problem) where max f* is not a finite positive number or is 1.
-        Unbatched problems only.
+        ``scaled`` this problem) where max f* is not a finite positive number or is 1, or where the
+        scaled strength is not a finite positive number.  Unbatched problems only.
         """
         if self.batched:
             raise ValueError("in_units_of_max() needs an unbatched problem (use slice(i))")
         c = float(np.max(self.f_star))
         if not (np.isfinite(c) and c > 0) or c == 1.0:
             return self, 1.0
-        scaled = CollisionProblem(self.grid, self.kernel, self.f_star / c, self.dt, self.strength * c, self.beta,
-                                  self.fisher, self.conserve_momentum)  # fmt: skip
+        try:
+            scaled = CollisionProblem(self.grid, self.kernel, self.f_star / c, self.dt, self.strength * c, self.beta,
+                                      self.fisher, self.conserve_momentum)  # fmt: skip
+        except ValueError:  # the scaled strength leaves the float range (strength 1e300, max f* 1e10)
+            return self, 1.0
         return scaled, c
 
     def rows(self, index: ArrayLike | slice) -> CollisionProblem:

@@ -181,3 +181,49 @@ def test_a_bump_over_a_floor_of_1e_10_is_certified_in_one_attempt():
     ref = solve_collision(prob, method="newton", tol=1e-12)
     assert res.success and res.info["edge_units"] and res.info["attempts"] == 1, res.message
     assert np.abs(res.f - ref.f).max() <= 1e-6 * ref.f.max()
+
+
+@pytest.mark.parametrize(
+    ("options", "retried"),
+    [
+        ({}, True),
+        ({"tol": 1e-6}, False),  # a tol the caller loosened is answered at that tol
+        ({"solver": "SCS"}, False),  # a first-order solver is not asked for 1e-12
+        ({"solver_options": {"tol_gap_rel": 1e-9}}, False),  # the caller set the gap tolerance itself
+    ],
+)
+def test_the_retry_at_the_tighter_tolerance_is_clarabels_from_the_default_down(monkeypatch, options, retried):
+    tols = []
+
+    def solve_form(problem, opts, form, edge_units=False):
+        tols.append(opts.tol)
+        return SimpleNamespace(status=Status.NOT_CERTIFIED, kkt_residual=1e-5, info={}, seconds=1.0)
+
+    monkeypatch.setattr(conic, "_solve_form", solve_form)
+    monkeypatch.setattr(conic, "_refined", lambda *args: None)
+    g = Grid.uniform(-2.0, 2.0, 21)
+    prob = CollisionProblem(g, PowerKernel(1.0), np.exp(-2 * g.points**2), 0.01, beta=10.0)
+    conic._solve_forms(prob, ConicOptions.checked(prob, **options), ["raw", "centred"])
+    assert (1e-12 in tols) == retried and len(tols) == (8 if retried else 4)
+
+
+def test_the_refinement_is_refused_where_its_answer_would_not_be_the_asked_one():
+    """One Newton correction would certify this loose answer; it is not taken for a linearised energy, for an
+    inaccurate solve the caller wants reported, or after the time limit."""
+    g = Grid.uniform(-2.0, 2.0, 41)
+    prob = CollisionProblem(g, PowerKernel(1.5), np.exp(-2 * g.points**2), 0.01, 1.0, 10.0, "perspective")
+    loose = solve_collision(prob, method="newton", tol=1e-7)
+    res = replace_status(loose, Status.NOT_CERTIFIED)
+    assert conic._refined(prob, res, ConicOptions.checked(prob, kkt_tol=1e-10)).status is Status.CONVERGED
+    for status, opts in (
+        (Status.NOT_CERTIFIED, {"energy": "linearized", "kkt_tol": 1e-10}),
+        (Status.INACCURATE, {"accept_inaccurate": False, "kkt_tol": 1e-10}),
+        (Status.TIME_LIMIT, {"kkt_tol": 1e-10}),
+    ):
+        assert conic._refined(prob, replace_status(loose, status), ConicOptions.checked(prob, **opts)) is None
+
+
+def replace_status(res, status):
+    import dataclasses
+
+    return dataclasses.replace(res, status=status, info={"solver_status": "optimal"})

@@ -44,5 +44,5 @@ def test_a_pinned_answer_above_the_threshold_is_certified_after_one_newton_corre
     prob = _problem(1000)
     res = solve_conic(prob)
     assert res.success and res.kkt_residual <= 1e-6, res.message
-    assert 0 < res.info["refined_by"] <= 1e-5 and res.info["refined_from"] == "NOT_CERTIFIED"
+    assert 0 < res.info["refined_by"] <= 1e-5 and res.info["refined_from"] in ("NOT_CERTIFIED", "INACCURATE")
     assert _close_to_newton(prob, res)

@@ -37,13 +37,34 @@ def test_a_slice_of_any_mass_is_certified_and_equals_newton(scale):
     assert abs(prob.mass_error(res.f)) < 1e-12
 
 
-def test_the_answer_scales_with_the_data():
-    """Homogeneity: the answers for f* and for 1e-7 f* (with the strength scaled by 1e7) differ by the factor."""
-    a, b = _slice(1.0), _slice(1e-7)
-    b = CollisionProblem(b.grid, b.kernel, b.f_star, b.dt, a.strength * 1e7, b.beta, b.fisher, True)
-    ra, rb = solve_conic(a), solve_conic(b)
-    assert ra.success and rb.success
-    assert np.abs(rb.f / 1e-7 - ra.f).max() <= 1e-9 * ra.f.max()
+@pytest.mark.parametrize("fisher", ["perspective", "log", None])
+def test_the_step_is_homogeneous_so_the_scaled_problem_has_the_scaled_minimiser(fisher):
+    """J(c f, c m; f*, strength) = c J(f, m; f*/c, c strength) at any point, and Newton's minimiser of the original
+    step is c times its minimiser of the scaled one (the argument in_units_of_max rests on), with the momentum
+    constraint too."""
+    g = Grid.uniform(-2.0, 2.0, 41)
+    rng = np.random.default_rng(3)
+    f_star = 1e-6 * (np.exp(-3 * (g.points - 0.4) ** 2) + 0.5 * np.exp(-5 * (g.points + 0.6) ** 2) + 1e-3)
+    beta = np.inf if fisher is None else 30.0
+    prob = CollisionProblem(g, PowerKernel(3.0), f_star, 0.05, 2.0, beta, fisher, True)
+    scaled, c = prob.in_units_of_max()
+    assert c == f_star.max() and scaled.f_star.max() == 1.0 and scaled.strength == 2.0 * c
+    f, m = scaled.f_star * (1 + 0.1 * rng.uniform(-1, 1, g.n)), 1e-3 * rng.normal(size=g.n - 1)
+    assert np.isclose(prob.objective(c * f, c * m), c * scaled.objective(f, m), rtol=1e-13, atol=0)
+    a = solve_collision(prob, method="newton", tol=1e-12, max_iter=500)
+    b = solve_collision(scaled, method="newton", tol=1e-12, max_iter=500)
+    assert a.success and b.success
+    assert np.abs(a.f - c * b.f).max() <= 1e-9 * a.f.max()
+
+
+def test_a_scaled_strength_out_of_the_float_range_leaves_the_problem_as_it_is():
+    g = Grid.uniform(-2.0, 2.0, 21)
+    f = np.exp(-2 * g.points**2)
+    for strength, top in ((1e300, 1e10), (1e-300, 1e-30)):
+        prob = CollisionProblem(g, PowerKernel(3.0), top * f, 0.01, strength, 10.0, "perspective")
+        scaled, c = prob.in_units_of_max()
+        assert scaled is prob and c == 1.0
+        assert not solve_conic(prob).success  # a failure status, not an exception
 
 
 def test_the_papers_gamma3_scene_runs_under_the_conic_method():
