@@ -90,7 +90,8 @@ PAGES: tuple[Page, ...] = (
             Entry("conic_defaults.md", data=("conic_defaults.csv",)),
             Entry("extremes.md", data=("extremes.csv",)),
             Entry("reference_certification.md", data=("reference_certification.csv",)),
-            Entry("conic_scene_runs.md", data=("conic_scene_runs.csv", "conic_scene_runs_failed_slices.csv")),
+            Entry("conic_scene_runs.md", data=("conic_scene_runs.csv", "conic_scene_runs_failed_slices.csv",
+                                               "conic_scene_runs_verify.csv", "conic_scene_runs_minima.csv")),
         ),
     ),
     Page(
