@@ -102,12 +102,18 @@ def problems(family: str, count: int, seeds: dict[str, int] = SEEDS) -> list[tup
     return out
 
 
-def main() -> None:
+def study_args(count: int, seed_set: str) -> tuple[str, int, str]:
+    """``LABEL [PER_FAMILY] [SEEDS]`` from the command line, with the study's defaults for the last two."""
     label = sys.argv[1] if len(sys.argv) > 1 else "current"
-    count = int(sys.argv[2]) if len(sys.argv) > 2 else 20
-    seed_set = sys.argv[3] if len(sys.argv) > 3 else "development"
+    count = int(sys.argv[2]) if len(sys.argv) > 2 else count
+    seed_set = sys.argv[3] if len(sys.argv) > 3 else seed_set
     if seed_set not in ("development", "held_out"):
         raise SystemExit(f"SEEDS must be 'development' or 'held_out', got {seed_set!r}")
+    return label, count, seed_set
+
+
+def main() -> None:
+    label, count, seed_set = study_args(20, "development")
     seeds = SEEDS if seed_set == "development" else HELD_OUT_SEEDS
     commit = subprocess.run(
         ["git", "-C", str(Path(__file__).parent), "describe", "--always", "--dirty"], capture_output=True, text=True

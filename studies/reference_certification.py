@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import datetime
 import os
-import sys
 import time
 from pathlib import Path
 
@@ -48,7 +47,7 @@ from jko_cvx.collision.certify import certify
 from jko_cvx.engine.loop import ACCEPT_KKT
 from jko_cvx.environment import record_csv
 from jko_cvx.testing import random_density
-from studies.newton_certification import HELD_OUT_SEEDS, SEEDS, _append, _grid, problems
+from studies.newton_certification import HELD_OUT_SEEDS, SEEDS, _append, _grid, problems, study_args
 from studies.newton_single_call import tree_label
 
 OUT = Path(__file__).parent / "results" / "reference_certification.csv"
@@ -166,11 +165,7 @@ def summary(rows: list[dict], heading: str) -> str:
 
 
 def main() -> None:
-    label = sys.argv[1] if len(sys.argv) > 1 else "current"
-    count = int(sys.argv[2]) if len(sys.argv) > 2 else 12
-    seed_set = sys.argv[3] if len(sys.argv) > 3 else "held_out"
-    if seed_set not in ("development", "held_out"):
-        raise SystemExit(f"SEEDS must be 'development' or 'held_out', got {seed_set!r}")
+    label, count, seed_set = study_args(12, "held_out")
     tree = tree_label()
     date = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M")
     threads = os.environ.get("OPENBLAS_NUM_THREADS", "unset")
