@@ -8,11 +8,12 @@ smallest density relative to the largest, the explicit CFL number, the distance 
 from Newton's (tight) answer, and the weight f_j / max f of the cell that carries the residual.
 
 Part 2 verifies each scene's Newton run against the conic reference at every step and slice
-(``jko_cvx.verify``, to t = 1): the outcome counts, and the rows that do not agree
-(``conic_scene_runs_verify.csv``).  Part 3 takes the rows where both solvers are certified yet differ
-by more than 1e-3 in f and solves those steps again with Newton (the run's options), the conic
-reference and IPOPT, recording each objective (``conic_scene_runs_minima.csv``): the step is not
-convex there, and certified answers may be different local minimisers.
+(``jko_cvx.verify``, to t = 1), with Newton's second start (``second_start``, the default) and
+without it: the outcome counts, and the rows that do not agree (``conic_scene_runs_verify.csv``).
+Part 3 takes the rows where both solvers are certified yet differ by more than 1e-3 in f and solves
+those steps again with Newton without and with the second start (the run's options otherwise), the
+conic reference and IPOPT, recording each objective (``conic_scene_runs_minima.csv``): the step is
+not convex there, and certified answers may be different local minimisers.
 
 Rows go to ``studies/results/conic_scene_runs.csv`` (date, commit, BLAS threads), the summary to the
 Markdown report beside it::
@@ -81,7 +82,14 @@ def run_conic(beta: float) -> tuple[object, list[dict]]:
         loop.solve_collision = solve
 
 
-def newton_problems(beta: float) -> list:
+def _newton_scene(beta: float, second_start: bool):
+    """The scene's Newton run at ``beta``, with or without Newton's second start."""
+    return shipped_scene(
+        "inhom_gamma3_lambda4", {**GRID, "collision.beta": beta, "collision.options.second_start": second_start}
+    )
+
+
+def newton_problems(beta: float, second_start: bool) -> list:
     """The collision problem of every step of the scene's Newton run, in order."""
     seen: list = []
     solve = loop.solve_collision
@@ -92,38 +100,43 @@ def newton_problems(beta: float) -> list:
 
     loop.solve_collision = watched
     try:
-        simulate(shipped_scene("inhom_gamma3_lambda4", {**GRID, "collision.beta": beta}))
+        simulate(_newton_scene(beta, second_start))
     finally:
         loop.solve_collision = solve
     return seen
 
 
-def verify_part(beta: float) -> tuple[dict, pd.DataFrame, list[dict]]:
+def verify_part(beta: float, second_start: bool) -> tuple[dict, pd.DataFrame, list[dict]]:
     """Outcome counts of verifying the Newton run against conic, the rows that do not agree, and the objectives
     of the certified pairs that differ by more than 1e-3 in f."""
-    scene = shipped_scene("inhom_gamma3_lambda4", {**GRID, "collision.beta": beta})
+    scene = _newton_scene(beta, second_start)
     t0 = time.perf_counter()
     ver = verify(scene, "conic")
     table = ver.table
-    counts = {"beta": beta, "compared": len(table), **table["outcome"].value_counts().to_dict(),
-              "verdict": ver.verdict, "wall_s": round(time.perf_counter() - t0, 1)}  # fmt: skip
-    bad = table[table["outcome"] != "agree"].assign(beta=beta)
+    counts = {"beta": beta, "second_start": second_start, "compared": len(table),
+              **table["outcome"].value_counts().to_dict(), "verdict": ver.verdict,
+              "wall_s": round(time.perf_counter() - t0, 1)}  # fmt: skip
+    bad = table[table["outcome"] != "agree"].assign(beta=beta, second_start=second_start)
     wide = bad[(bad["outcome"] == "differ") & (bad["df"] > 1e-3)]
     minima = []
     if len(wide):
-        steps = newton_problems(beta)
+        steps = newton_problems(beta, second_start)
         for _, row in wide.iterrows():
             problem, options = steps[int(row["step"]) - 1]
             p = problem.slice(int(row["slice"]))
-            newton = solve_collision(p, method="newton", **options)
+            first = solve_collision(p, method="newton", **{**options, "second_start": False})
+            newton = solve_collision(p, method="newton", **{**options, "second_start": True})
             conic_ref, nlp_ref = solve_reference(p, "conic", {}), solve_reference(p, "nlp", {})
             minima.append({
-                "beta": beta, "step": int(row["step"]), "t": row["t"], "slice": int(row["slice"]), "cfl": p.cfl(),
+                "beta": beta, "run_second_start": second_start, "step": int(row["step"]), "t": row["t"],
+                "slice": int(row["slice"]), "cfl": p.cfl(), "J_newton_first": p.objective(first.f, first.m),
                 "J_newton": p.objective(newton.f, newton.m), "J_conic": p.objective(conic_ref.f, conic_ref.m),
                 "J_nlp": p.objective(nlp_ref.f, nlp_ref.m), "newton": newton.status.name,
-                "conic": conic_ref.status.name, "nlp": nlp_ref.status.name,
-                "df_newton_conic": float(np.abs(newton.f - conic_ref.f).max() / newton.f.max()),
-                "df_conic_nlp": float(np.abs(conic_ref.f - nlp_ref.f).max() / newton.f.max()),
+                "lower_minimum": bool(newton.info["lower_minimum"]), "conic": conic_ref.status.name,
+                "nlp": nlp_ref.status.name,
+                "df_first_conic": float(np.abs(first.f - conic_ref.f).max() / conic_ref.f.max()),
+                "df_newton_conic": float(np.abs(newton.f - conic_ref.f).max() / conic_ref.f.max()),
+                "df_conic_nlp": float(np.abs(conic_ref.f - nlp_ref.f).max() / conic_ref.f.max()),
             })  # fmt: skip
     return counts, bad, minima
 
@@ -138,7 +151,7 @@ def main() -> None:
         conic, failed = run_conic(beta)
         t_conic = time.perf_counter() - t0
         t0 = time.perf_counter()
-        newton = simulate(shipped_scene("inhom_gamma3_lambda4", {**GRID, "collision.beta": beta}))
+        newton = simulate(_newton_scene(beta, True))
         t_newton = time.perf_counter() - t0
         a, b = conic.diagnostics["max_f"].to_numpy(), newton.diagnostics["max_f"].to_numpy()
         n = min(a.size, b.size)
@@ -152,11 +165,12 @@ def main() -> None:
         print(runs[-2], failed, flush=True)
     counts, bads, minima = [], [], []
     for beta in BETAS:
-        c, b, mins = verify_part(beta)
-        counts.append(c)
-        bads.append(b)
-        minima += mins
-        print(c, flush=True)
+        for second_start in (True, False):
+            c, b, mins = verify_part(beta, second_start)
+            counts.append(c)
+            bads.append(b)
+            minima += mins
+            print(c, flush=True)
     count_frame = pd.DataFrame(counts).fillna(0)
     verify_path = OUT.with_name("conic_scene_runs_verify.csv")
     minima_path = OUT.with_name("conic_scene_runs_minima.csv")
@@ -185,13 +199,18 @@ def main() -> None:
         "",
         "## The Newton runs verified against the conic reference (every step and slice, to t = 1)",
         "",
+        "`second_start`: Newton's second start on slices that jammed at the vacuum boundary (the default), or "
+        "not (the first certified point, as before it existed).",
+        "",
         count_frame.drop(columns=["verdict"]).to_markdown(index=False),
         "",
-        *(f"- beta = {c['beta']:g}: {c['verdict']}" for c in counts),
+        *(f"- beta = {c['beta']:g}, second_start = {c['second_start']}: {c['verdict']}" for c in counts),
         "",
         "The rows that do not agree are in `conic_scene_runs_verify.csv`.  Where both solvers are certified and "
-        "differ by more than 1e-3 in f, the step solved again by Newton (the run's options), the conic reference "
-        "and IPOPT (the objective J of each answer; the step is not convex there, and a certificate is local):",
+        "differ by more than 1e-3 in f, the step solved again by Newton without the second start (`J_newton_first`) "
+        "and with it (`J_newton`; `lower_minimum`: the second start replaced the first certified point), the run's "
+        "options otherwise, by the conic reference and by IPOPT (the objective J of each answer; the step is not "
+        "convex there, and a certificate is local; `run_second_start`: the run the step comes from):",
         "",
         minima_frame.to_markdown(index=False, floatfmt=".10g") if len(minima_frame) else "(none)",
         "",

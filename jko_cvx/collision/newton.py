@@ -456,6 +456,7 @@ class NewtonOptions(Options):
     max_iter: int = option(100, Spec("int", lo=1))
     start: str = option("explicit", Spec("str", choices=("explicit", "zero")))
     check_convexity: bool = option(True, Spec("bool"))
+    second_start: bool = option(True, Spec("bool"))
     m0: NDArray | None = option(None, Spec("array", scene=False))
 
     def __post_init__(self) -> None:
@@ -904,7 +905,7 @@ def _cascade(P: CollisionProblem, m0: NDArray | None, opts: NewtonOptions) -> Co
                           for s, k in zip(res.status, res.kkt_residual, strict=True)], dtype=bool)  # fmt: skip
     unfinished = np.array([s in _RETRY or s == Status.NOT_CERTIFIED for s in res.status], dtype=bool) | nonconvex
     certified = np.array([s == Status.CONVERGED for s in res.status], dtype=bool)
-    rival = jammed & certified  # a jam that a later attempt certified: a second start, for the lower minimiser
+    rival = jammed & certified & opts.second_start  # a jam a later attempt certified: start again, for a lower J
     lower = np.zeros(jammed.shape, dtype=bool)
     todo = (unfinished | rival) & np.all(P.f_star > 0, axis=-1)
     if todo.any():
@@ -958,6 +959,7 @@ def solve_newton(
     m0: Any = None,
     start: str = "explicit",
     check_convexity: bool = True,
+    second_start: bool = True,
 ) -> CollisionResult:
     """Solve the collision step (or a batch of them) by damped Newton on the reduced KKT system.
 
@@ -988,6 +990,12 @@ def solve_newton(
     check_convexity : bool, default True
         Report ``NONCONVEX`` when the reduced Hessian at the final point is not positive
         definite (a stationary point that is not a minimiser).
+    second_start : bool, default True
+        Solve a slice whose first attempt jammed at the vacuum boundary, and that a later
+        attempt certified, once more with the barrier attempt, and return the certified point
+        with the lower J (the step is not convex: the two can be different local minimisers;
+        see :func:`_cascade`).  False returns the first certified point (cheaper, and the
+        higher minimiser where there are two).
 
     Returns
     -------
@@ -1001,7 +1009,7 @@ def solve_newton(
         every attempt.
         A single problem is solved as a batch of one.
     """
-    opts = _check_newton_args(problem, tol, kkt_tol, max_iter, m0, start, check_convexity)
+    opts = _check_newton_args(problem, tol, kkt_tol, max_iter, m0, start, check_convexity, second_start)
     t0 = time.perf_counter()
     batch = problem if problem.batched else problem.rows(slice(None))
     m0 = opts.m0
@@ -1014,25 +1022,40 @@ solve_newton.batched = True  # type: ignore[attr-defined]
 
 
 @functools.lru_cache(maxsize=64, typed=True)
-def _checked_options(tol: Any, kkt_tol: Any, max_iter: Any, start: Any, check_convexity: Any) -> NewtonOptions:
+def _checked_options(
+    tol: Any, kkt_tol: Any, max_iter: Any, start: Any, check_convexity: Any, second_start: Any
+) -> NewtonOptions:
     """:class:`NewtonOptions` of these values, checked once per distinct values and types.
 
     ``typed=True``: ``1``, ``1.0``, ``True`` and ``np.float64(1.0)`` are separate entries, each
     checked on its own; a value that fails raises every time (exceptions are not cached).
     """
-    return NewtonOptions(tol=tol, kkt_tol=kkt_tol, max_iter=max_iter, start=start, check_convexity=check_convexity)
+    return NewtonOptions(
+        tol=tol, kkt_tol=kkt_tol, max_iter=max_iter, start=start, check_convexity=check_convexity,
+        second_start=second_start,
+    )  # fmt: skip
 
 
 def _check_newton_args(
-    problem: CollisionProblem, tol: Any, kkt_tol: Any, max_iter: Any, m0: Any, start: Any, check_convexity: Any
+    problem: CollisionProblem,
+    tol: Any,
+    kkt_tol: Any,
+    max_iter: Any,
+    m0: Any,
+    start: Any,
+    check_convexity: Any,
+    second_start: Any,
 ) -> NewtonOptions:
     """The checked options, the warm start checked against ``problem``; errors name the option."""
     try:
-        opts = _checked_options(tol, kkt_tol, max_iter, start, check_convexity)
+        opts = _checked_options(tol, kkt_tol, max_iter, start, check_convexity, second_start)
     except TypeError as exc:  # an unhashable argument: check it without the cache
         if "unhashable" not in str(exc):
             raise
-        opts = NewtonOptions(tol=tol, kkt_tol=kkt_tol, max_iter=max_iter, start=start, check_convexity=check_convexity)
+        opts = NewtonOptions(
+            tol=tol, kkt_tol=kkt_tol, max_iter=max_iter, start=start, check_convexity=check_convexity,
+            second_start=second_start,
+        )  # fmt: skip
     if m0 is None:
         return opts
     shape = (*problem.f_star.shape[:-1], problem.n - 1)

@@ -101,3 +101,15 @@ def test_steps_without_a_jam_are_not_solved_twice():
     res = solve_newton(P)
     assert res.status == Status.CONVERGED
     assert not res.info["jammed"] and not res.info["lower_minimum"] and not res.info["barrier"]
+
+
+def test_without_the_second_start_the_first_certified_point_is_returned():
+    P = _facing_bumps()
+    off = solve_newton(P, tol=1e-8, max_iter=500, second_start=False)
+    batch = P.with_f_star(P.f_star[None, :])
+    opts = newton.NewtonOptions(tol=1e-8, max_iter=500)
+    damped = newton._attempt(batch, None, opts, newton._Attempt(damping=True, jam_exit=False))
+    assert off.status == Status.CONVERGED and not off.info["lower_minimum"] and not off.info["barrier"]
+    assert np.array_equal(off.f, damped.f[0])
+    with pytest.raises(TypeError, match="second_start"):
+        solve_newton(P, second_start="yes")
