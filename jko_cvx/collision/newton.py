@@ -28,7 +28,7 @@ steps (explicit CFL numbers of 20 and more) empty cells, and a minimiser on the 
 boundary is no interior stationary point, which the two attempts before only creep
 towards (linearly, at KKT 1e-9 to 1e-3 after their iteration limits).  The step is not
 convex (the energy's concave part), and a certificate is local: a slice that jammed and was
-then certified is also solved by the barrier attempt, and the certified point with the lower J
+then certified is also solved with the barrier attempt, and the certified point with the lower J
 is returned (``info["lower_minimum"]``; :func:`_cascade`).  The
 solver stops on the KKT residual of
 :class:`~jko_cvx.collision.problem.CollisionProblem` (``tol``), never on step length
@@ -874,10 +874,13 @@ def _cascade(P: CollisionProblem, m0: NDArray | None, opts: NewtonOptions) -> Co
        certified: the step is not convex, and the jam marks a path that met the vacuum
        boundary (two bumps facing each other across an empty gap), where the damped attempt
        creeps to a local minimiser that keeps the gap empty while the lower one fills it.  The
-       barrier keeps the iterates off that boundary.  Its answer replaces the first only if it
-       is certified and its J is lower beyond rounding (``_LOWER``, relative), and
-       ``info["lower_minimum"]`` marks those slices.  Slices certified by the first attempt, and
-       slices that did not jam, are never solved again, so their results do not depend on this stage.
+       barrier keeps the iterates off that boundary; this attempt starts cold (the explicit step)
+       also where ``m0`` is given, which would begin in the first point's basin.  Its answer
+       replaces the first only if it is certified (and, with ``check_convexity=False``, passes the
+       second-order test) and its J is lower beyond rounding (``_LOWER``, relative), and
+       ``info["lower_minimum"]`` marks those slices: another minimiser, or the same one reached more
+       accurately.  Slices certified by the first attempt, and certified slices that did not jam, are
+       never solved again, so their results do not depend on this stage.
     """
     res = _attempt(P, m0, opts, _Attempt(damping=False, jam_exit=True))
     jammed = res.info["jammed"]
@@ -909,17 +912,25 @@ def _cascade(P: CollisionProblem, m0: NDArray | None, opts: NewtonOptions) -> Co
     lower = np.zeros(jammed.shape, dtype=bool)
     todo = (unfinished | rival) & np.all(P.f_star > 0, axis=-1)
     if todo.any():
-        again = _attempt(P.rows(todo), _m0_rows(m0, todo), opts, _Attempt(False, False, barrier=True))
+        Pt, second = P.rows(todo), rival[todo]
+        start = _m0_rows(m0, todo)
+        if start is not None and second.any():  # the second start is cold: a warm start begins in the first's basin
+            start = start.copy()
+            start[second] = np.nan  # _start takes m0 only where it is finite
+        again = _attempt(Pt, start, opts, _Attempt(False, False, barrier=True))
         ok = again.status == Status.CONVERGED
         smaller = (again.kkt_residual < res.kkt_residual[todo]) & ~nonconvex[todo]
         J_first = res.objective[todo]
         with np.errstate(invalid="ignore"):  # J at the edge of the float range: inf - inf, no replacement
-            below = ok & (again.objective < J_first - _LOWER * np.abs(J_first))
-        better = np.where(rival[todo], below, ok | smaller)
+            below = ok & second & (again.objective < J_first - _LOWER * np.abs(J_first))
+        if not opts.check_convexity:  # a certified point may then be any stationary one: replace only by a minimiser
+            for k in np.flatnonzero(below):
+                below[k] = Pt.slice(int(k)).is_local_minimiser(again.f[k], again.m[k])
+        better = np.where(second, below, ok | smaller)
         _merge(res, todo, again, better)
         barrier[np.flatnonzero(todo)[better]] = True
         damped[np.flatnonzero(todo)[better]] = False
-        lower[np.flatnonzero(todo)[better & rival[todo]]] = True
+        lower[np.flatnonzero(todo)[better & second]] = True
     res.info.update(jammed=jammed, interior_damping=damped, barrier=barrier, lower_minimum=lower)
     return res
 
@@ -992,10 +1003,10 @@ def solve_newton(
         definite (a stationary point that is not a minimiser).
     second_start : bool, default True
         Solve a slice whose first attempt jammed at the vacuum boundary, and that a later
-        attempt certified, once more with the barrier attempt, and return the certified point
-        with the lower J (the step is not convex: the two can be different local minimisers;
-        see :func:`_cascade`).  False returns the first certified point (cheaper, and the
-        higher minimiser where there are two).
+        attempt certified, once more with the barrier attempt (from a cold start, also with
+        ``m0``), and return the certified point with the lower J (the step is not convex: the
+        two can be different local minimisers; see :func:`_cascade`).  False returns the first
+        certified point (cheaper, and the higher minimiser where there are two).
 
     Returns
     -------
@@ -1003,10 +1014,10 @@ def solve_newton(
         One status per slice for a batched problem.  ``info`` holds ``warm_started``,
         ``jammed`` (the first, undamped attempt ended on a jam), ``interior_damping``
         (the returned point comes from the interior-damped attempt) and ``barrier`` (it
-        comes from the barrier attempt) and ``lower_minimum`` (the barrier attempt, started again
-        on a slice that had jammed, found a certified local minimiser with a lower J than the one
-        first certified, and that is returned); per slice when batched.  ``iterations`` counts
-        every attempt.
+        comes from the barrier attempt) and ``lower_minimum`` (the second start found a certified
+        local minimiser with a lower J than the one first certified, beyond rounding, and that is
+        returned: another minimiser, or the same one reached more accurately); per slice when
+        batched.  ``iterations`` counts every attempt.
         A single problem is solved as a batch of one.
     """
     opts = _check_newton_args(problem, tol, kkt_tol, max_iter, m0, start, check_convexity, second_start)

@@ -15,8 +15,6 @@ from jko_cvx import CollisionProblem, Grid, PowerKernel, Status
 from jko_cvx.collision import newton, solve_newton
 from jko_cvx.collision.estimate import solve_reference
 
-pytest.importorskip("cyipopt")
-
 
 def _facing_bumps(dt: float = 0.05, gap: float = 1e-10) -> CollisionProblem:
     """Two bumps at v = -1.9 and 1.9 over a floor of ``gap``: gamma = 3, beta = 30, sigma = 2 (lambda = 4)."""
@@ -28,6 +26,7 @@ def _facing_bumps(dt: float = 0.05, gap: float = 1e-10) -> CollisionProblem:
 
 @pytest.mark.parametrize("options", [{}, {"tol": 1e-8, "max_iter": 500}], ids=["default", "run"])
 def test_the_lower_of_two_minimisers_is_returned(options):
+    pytest.importorskip("cyipopt")
     P = _facing_bumps()
     res = solve_newton(P, **options)
     assert res.status == Status.CONVERGED, (res.status, res.kkt_residual)
@@ -113,3 +112,38 @@ def test_without_the_second_start_the_first_certified_point_is_returned():
     assert np.array_equal(off.f, damped.f[0])
     with pytest.raises(TypeError, match="second_start"):
         solve_newton(P, second_start="yes")
+
+
+def test_a_warm_start_in_the_higher_basin_still_finds_the_lower_minimiser():
+    """The second start is cold: a warm start from the higher minimiser (a time loop passing the last m)
+    would otherwise begin, and stay, in its basin."""
+    P = _facing_bumps()
+    first = solve_newton(P, tol=1e-8, max_iter=500, second_start=False)
+    cold = solve_newton(P, tol=1e-8, max_iter=500)
+    warm = solve_newton(P, tol=1e-8, max_iter=500, m0=first.m)
+    assert warm.info["warm_started"] and warm.status == Status.CONVERGED
+    assert warm.info["lower_minimum"]
+    assert warm.objective <= cold.objective * (1 + 1e-9)
+    assert warm.objective < first.objective * (1 - 1e-6)
+
+
+def test_without_the_convexity_check_the_replacement_is_still_a_minimiser():
+    P = _facing_bumps()
+    res = solve_newton(P, tol=1e-8, max_iter=500, check_convexity=False)
+    assert res.status == Status.CONVERGED and res.info["lower_minimum"]
+    assert P.is_local_minimiser(res.f, res.m)
+
+
+def test_a_slice_certified_at_once_is_untouched_in_a_batch_with_a_jammed_one():
+    """Iterations and point of a slice the first attempt certifies do not depend on the second start, nor on a
+    jammed slice beside it in the batch."""
+    grid = Grid.uniform(-4.0, 4.0, 61)
+    smooth = 0.01 * np.exp(-0.5 * grid.points**2)  # little mass: a weak interaction, no jam
+    P = _facing_bumps()
+    both = P.with_f_star(np.stack([smooth, P.f_star]))
+    on = solve_newton(both, tol=1e-8, max_iter=500)
+    off = solve_newton(both, tol=1e-8, max_iter=500, second_start=False)
+    assert not on.info["jammed"][0] and on.info["jammed"][1] and on.info["lower_minimum"][1]
+    assert on.iterations[0] == off.iterations[0]
+    assert np.array_equal(on.f[0], off.f[0]) and on.status[0] == off.status[0] == Status.CONVERGED
+    assert on.iterations[1] > off.iterations[1]  # every attempt's iterations count
