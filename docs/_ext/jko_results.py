@@ -92,6 +92,7 @@ PAGES: tuple[Page, ...] = (
             Entry("reference_certification.md", data=("reference_certification.csv",)),
             Entry("conic_scene_runs.md", data=("conic_scene_runs.csv", "conic_scene_runs_failed_slices.csv",
                                                "conic_scene_runs_verify.csv", "conic_scene_runs_minima.csv")),
+            Entry("bench_second_start.md", data=("bench_second_start.csv",)),
         ),
     ),
     Page(
