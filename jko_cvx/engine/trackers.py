@@ -56,6 +56,7 @@ class StepInfo:
     iterations: int = 0
     failed: int = 0
     retries: int = 0
+    lower_minimum: int = 0  # slices where Newton's second start returned a lower certified J
 
 
 class Tracker:
@@ -100,6 +101,7 @@ class Diagnostics(Tracker):
             "iterations": step.iterations,
             "failed": step.failed,
             "retries": step.retries,
+            "lower_minimum": step.lower_minimum,
         }
 
 
