@@ -886,7 +886,7 @@ def _cascade(P: CollisionProblem, m0: NDArray | None, opts: NewtonOptions) -> Co
     jammed = res.info["jammed"]
     damped = np.zeros(jammed.shape, dtype=bool)
     barrier = np.zeros(jammed.shape, dtype=bool)
-    if not jammed.any() and all(s is Status.CONVERGED for s in res.status):  # the common case: nothing to retry
+    if all(s is Status.CONVERGED for s in res.status):  # the common case (a jam ends a slice unconverged): no retry
         res.info.update(jammed=jammed, interior_damping=damped, barrier=barrier, lower_minimum=np.zeros_like(jammed))
         return res
     retry = np.array([s in _RETRY for s in res.status]) & np.all(P.f_star > 0, axis=-1)
