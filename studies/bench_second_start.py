@@ -39,7 +39,7 @@ def main() -> None:
         for beta in BETAS:
             for second_start in ((True, False) if k % 2 == 0 else (False, True)):  # alternate the order
                 t0 = time.perf_counter()
-                run, counts = newton_run(beta, second_start)
+                run, counts, _ = newton_run(beta, second_start)
                 rows.append({
                     "date": date, "commit": tree, "threads": threads, "round": k, "beta": beta,
                     "second_start": second_start, "wall_s": time.perf_counter() - t0, **counts,

@@ -91,12 +91,15 @@ def _newton_scene(beta: float, second_start: bool):
     )
 
 
-def newton_run(beta: float, second_start: bool) -> tuple[object, dict]:
-    """The scene's Newton run, and its slice-steps: how many, how many jammed, how many the second start changed."""
+def newton_run(beta: float, second_start: bool) -> tuple[object, dict, list]:
+    """The scene's Newton run; its slice-steps (how many, how many jammed, how many the second start changed);
+    and the collision problem of every step with its options, in order."""
     counts = {"slice_steps": 0, "jammed": 0, "lower_minimum": 0}
+    steps: list = []
     solve = loop.solve_collision
 
     def watched(problem, method, **options):
+        steps.append((problem, options))
         res = solve(problem, method, **options)
         counts["slice_steps"] += problem.batch_size
         counts["jammed"] += int(np.sum(res.info["jammed"]))
@@ -105,31 +108,15 @@ def newton_run(beta: float, second_start: bool) -> tuple[object, dict]:
 
     loop.solve_collision = watched
     try:
-        return simulate(_newton_scene(beta, second_start)), counts
+        return simulate(_newton_scene(beta, second_start)), counts, steps
     finally:
         loop.solve_collision = solve
 
 
-def newton_problems(beta: float, second_start: bool) -> list:
-    """The collision problem of every step of the scene's Newton run, in order."""
-    seen: list = []
-    solve = loop.solve_collision
-
-    def watched(problem, method, **options):
-        seen.append((problem, options))
-        return solve(problem, method, **options)
-
-    loop.solve_collision = watched
-    try:
-        simulate(_newton_scene(beta, second_start))
-    finally:
-        loop.solve_collision = solve
-    return seen
-
-
-def verify_part(beta: float, second_start: bool) -> tuple[dict, pd.DataFrame, list[dict]]:
+def verify_part(beta: float, second_start: bool, steps: list) -> tuple[dict, pd.DataFrame, list[dict]]:
     """Outcome counts of verifying the Newton run against conic, the rows that do not agree, and the objectives
-    of the certified pairs that differ by more than 1e-3 in f."""
+    of the certified pairs that differ by more than 1e-3 in f (``steps``: the run's problems, from
+    :func:`newton_run`)."""
     scene = _newton_scene(beta, second_start)
     t0 = time.perf_counter()
     ver = verify(scene, "conic")
@@ -141,7 +128,6 @@ def verify_part(beta: float, second_start: bool) -> tuple[dict, pd.DataFrame, li
     wide = bad[(bad["outcome"] == "differ") & (bad["df"] > 1e-3)]
     minima = []
     if len(wide):
-        steps = newton_problems(beta, second_start)
         for _, row in wide.iterrows():
             problem, options = steps[int(row["step"]) - 1]
             p = problem.slice(int(row["slice"]))
@@ -166,7 +152,7 @@ def main() -> None:
     tree = tree_label()
     date = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M")
     threads = os.environ.get("OPENBLAS_NUM_THREADS", "unset")
-    runs, slices = [], []
+    runs, slices, problems = [], [], {}
     for beta in BETAS:
         t0 = time.perf_counter()
         conic, failed = run_conic(beta)
@@ -174,7 +160,7 @@ def main() -> None:
         newtons = {}
         for second_start in (True, False):
             t0 = time.perf_counter()
-            run, counts = newton_run(beta, second_start)
+            run, counts, problems[beta, second_start] = newton_run(beta, second_start)
             newtons[second_start] = (run, counts, time.perf_counter() - t0)
         newton = newtons[True][0]
         b = newton.diagnostics["max_f"].to_numpy()
@@ -193,7 +179,7 @@ def main() -> None:
     counts, bads, minima = [], [], []
     for beta in BETAS:
         for second_start in (True, False):
-            c, b, mins = verify_part(beta, second_start)
+            c, b, mins = verify_part(beta, second_start, problems[beta, second_start])
             counts.append(c)
             bads.append(b)
             minima += mins
