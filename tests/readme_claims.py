@@ -1862,10 +1862,12 @@ def _second_start_max_f(runs: pd.DataFrame) -> tuple[str, ...]:
     return f"{100 * worst.max_rel_dmax_f_vs_newton:.1f}", f"{worst.beta:g}"
 
 
-def _e(x: float) -> str:
-    """``9e-6``, not ``9e-06``."""
-    mantissa, exponent = f"{x:.1e}".split("e")
-    return f"{mantissa.rstrip('0').rstrip('.')}e{int(exponent)}"
+def _e(x: float, digits: int = 2) -> str:
+    """``x`` to ``digits`` significant digits as ``9e-6``, not ``9e-06`` (trailing zeros dropped)."""
+    mantissa, exponent = f"{x:.{digits - 1}e}".split("e")
+    if "." in mantissa:
+        mantissa = mantissa.rstrip("0").rstrip(".")
+    return f"{mantissa}e{int(exponent)}"
 
 
 def _second_start_minima(d: pd.DataFrame) -> tuple[str, ...]:
@@ -1874,7 +1876,7 @@ def _second_start_minima(d: pd.DataFrame) -> tuple[str, ...]:
     close = now <= 2e-8
     far = d[~close]
     return (
-        str(len(d)), _e(float(f"{first.min():.0e}")), _e(float(f"{first.max():.0e}")), f"{d.df_first_conic.max():.2f}",
+        str(len(d)), _e(first.min(), 1), _e(first.max(), 1), f"{d.df_first_conic.max():.2f}",
         str(int(close.sum())), _e(now[~close].max()), str(int((~close).sum())),
         f"{far.beta.iloc[0]:g}", f"{far.t.iloc[0]:.2f}", _e(far.df_newton_conic.max()),
     )  # fmt: skip
