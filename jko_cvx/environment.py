@@ -15,6 +15,8 @@ finds loaded after numpy.
 
 from __future__ import annotations
 
+import functools
+import hashlib
 import importlib.metadata
 import json
 import os
@@ -28,10 +30,12 @@ from typing import Any
 __all__ = [
     "ENVIRONMENT_FILE",
     "PACKAGES",
+    "code_fingerprint",
     "environment",
     "environment_line",
     "git_state",
     "installed_version",
+    "package_files",
     "record_csv",
     "write_markdown",
 ]
@@ -44,6 +48,25 @@ PACKAGES = ("numpy", "scipy", "cvxpy", "clarabel", "threadpoolctl")
 
 ENVIRONMENT_FILE = "environment.json"
 """The file beside CSV results that records, per file name, the environment that wrote it."""
+
+
+def package_files() -> list[Path]:
+    """Every ``.py`` file of the package, sorted: what :func:`code_fingerprint` covers."""
+    return sorted(PACKAGE_DIR.rglob("*.py"))
+
+
+@functools.cache
+def code_fingerprint() -> str:
+    """SHA-256 over the relative paths and contents of every ``.py`` file of the package (hex).
+
+    The code itself, where the version number is not enough: an edited checkout or an editable install keeps
+    its version.  Read once per process (about 3 ms); a study's cache and a run's checkpoint record it, and
+    neither is reused under other code.
+    """
+    h = hashlib.sha256()
+    for path in package_files():
+        h.update(str(path.relative_to(PACKAGE_DIR)).encode() + b"\0" + path.read_bytes() + b"\0")
+    return h.hexdigest()
 
 
 def installed_version(name: str) -> str:

@@ -12,7 +12,10 @@ Rules (each refusal is a :class:`~jko_cvx.engine.errors.RunDirError` naming the 
   ``scene.json`` and ``metadata.json``, and only then deletes them: a failed overwrite puts the
   old run back, and one killed meanwhile is put back when the directory is next opened;
 * ``resume`` needs a checkpoint, made from the same scene (the SHA-256 of the canonical JSON
-  of ``scene.to_dict()``; a refusal names the keys that differ) by the same package version;
+  of ``scene.to_dict()``; a refusal names the keys that differ) by the same package version and
+  the same code (:func:`~jko_cvx.environment.code_fingerprint`, the SHA-256 of the package's
+  ``.py`` files: an edited checkout keeps its version number, and a run continued under other
+  code would mix two codes' steps in one record);
 * every file the run writes has its SHA-256 recorded in ``metadata.json``
   (:class:`~jko_cvx.engine._state.Ledger`); ``resume`` and :func:`~jko_cvx.engine.run.load_run`
   refuse a file whose digest differs and a state whose invariants fail
@@ -40,7 +43,7 @@ from typing import Any
 from jko_cvx._version import __version__
 from jko_cvx.engine._state import TEMP_FILE, Ledger, RunState, read_snapshot
 from jko_cvx.engine.errors import RunDirError
-from jko_cvx.environment import environment
+from jko_cvx.environment import code_fingerprint, environment
 from jko_cvx.scene.model import Scene
 
 __all__ = ["RunDir", "canonical_scene", "flat_scene_record", "read_snapshots", "scene_differences", "scene_fingerprint"]
@@ -102,6 +105,7 @@ def _metadata(scene: Scene) -> dict[str, Any]:
     (package and library versions, git commit, the BLAS library, its kernel and threads)."""
     return {
         **environment(),
+        "code_sha256": code_fingerprint(),
         "scene_sha256": scene_fingerprint(scene),
         "started": time.strftime("%Y-%m-%dT%H:%M:%S"),
         "scene": scene.name,
@@ -174,7 +178,9 @@ class RunDir:
     def __init__(self, path: Path, scene: Scene) -> None:
         self.path = path
         self.scene = scene
-        self.provenance = {"scene_sha256": scene_fingerprint(scene), "jko_cvx": __version__}
+        self.provenance = {
+            "scene_sha256": scene_fingerprint(scene), "jko_cvx": __version__, "code_sha256": code_fingerprint(),
+        }  # fmt: skip
         self.state: RunState | None = None
         self.snapshots: list[dict[str, Any]] = []
         self.ledger: Ledger | None = None
@@ -343,6 +349,18 @@ class RunDir:
             raise RunDirError(
                 f"cannot resume {self.path}: its checkpoint was made by jko_cvx {recorded['jko_cvx']}, this is "
                 f"{__version__} (a continued run would mix two versions); start again with --overwrite"
+            )
+        code, here = recorded.get("code_sha256"), self.provenance["code_sha256"]
+        if code is None:
+            raise RunDirError(
+                f"cannot resume {self.path}: its checkpoint records no code fingerprint (an earlier jko_cvx wrote it), "
+                "so it cannot be continued under code known to be the same; start again with --overwrite"
+            )
+        if code != here:
+            raise RunDirError(
+                f"cannot resume {self.path}: its checkpoint was made by other jko_cvx code of the same version "
+                f"(code SHA-256 {code[:12]}... then, {here[:12]}... now: a package file was edited since; a continued "
+                "run would mix two codes' steps); start again with --overwrite"
             )
 
     def read_snapshots(self, last_step: int) -> list[dict[str, Any]]:

@@ -275,8 +275,8 @@ class RunState:
         return self.verdict.blowup or self.t >= t_end * (1 - 1e-12)
 
     def save(self, path: Path, provenance: dict[str, str], save: Callable[..., None] = save_npz) -> None:
-        """Write the checkpoint (``provenance``: the scene fingerprint and package version, as strings)
-        with ``save(path, **arrays)`` (a run directory's :meth:`Ledger.save_npz`)."""
+        """Write the checkpoint (``provenance``: the scene fingerprint, package version and code fingerprint, as
+        strings) with ``save(path, **arrays)`` (a run directory's :meth:`Ledger.save_npz`)."""
         save(
             path,
             v_params=np.array([]) if self.v_params is None else self.v_params,
@@ -294,7 +294,8 @@ class RunState:
 
     @classmethod
     def load(cls, path: Path, x_period: float | None) -> tuple[RunState, dict[str, str]]:
-        """Read a checkpoint: the state, and the provenance recorded with it.
+        """Read a checkpoint: the state, and the provenance recorded with it (``code_sha256`` absent where an
+        earlier jko_cvx wrote the checkpoint: :class:`~jko_cvx.engine._rundir.RunDir` refuses to resume it).
 
         ``x_period`` is the scene's x-period (None for a homogeneous scene).
         """
@@ -323,7 +324,7 @@ class RunState:
             )
         except _READ_ERRORS as exc:
             raise RunDirError(f"checkpoint {path} does not hold a valid run state ({exc})") from None
-        provenance = {k: str(ck[k]) for k in ("scene_sha256", "jko_cvx")}
+        provenance = {k: str(ck[k]) for k in ("scene_sha256", "jko_cvx", "code_sha256") if k in ck}
         return state, provenance
 
     def check(self, path: Path) -> None:

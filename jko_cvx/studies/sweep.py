@@ -55,7 +55,6 @@ keys that differ, and nothing is served.
 from __future__ import annotations
 
 import ast
-import functools
 import hashlib
 import inspect
 import json
@@ -75,6 +74,8 @@ from pathlib import Path
 from typing import Any
 
 import pandas as pd
+
+from jko_cvx.environment import code_fingerprint, git_state
 
 __all__ = [
     "TIMING_KEY",
@@ -106,25 +107,6 @@ def _sha(text: str) -> str:
     return hashlib.sha256(text.encode()).hexdigest()
 
 
-PACKAGE_ROOT = Path(__file__).resolve().parents[1]
-"""The ``jko_cvx`` package directory (this module sits in ``jko_cvx/studies``)."""
-
-
-def package_files() -> list[Path]:
-    """Every ``.py`` file of the package, sorted: what :func:`_package_hash` covers."""
-    return sorted(PACKAGE_ROOT.rglob("*.py"))
-
-
-@functools.cache
-def _package_hash() -> str:
-    """SHA-256 over the relative paths and contents of every ``.py`` file of the package."""
-    root = PACKAGE_ROOT
-    h = hashlib.sha256()
-    for path in package_files():
-        h.update(str(path.relative_to(root)).encode() + b"\0" + path.read_bytes() + b"\0")
-    return h.hexdigest()
-
-
 def _module_source(func: Callable[..., Any]) -> str:
     """The source of the module defining ``func`` (its helpers change the results too); the function's own
     source where the module has none."""
@@ -145,7 +127,7 @@ def code_identity(func: Callable[..., Any]) -> dict[str, str]:
         "func": f"{func.__module__}.{func.__qualname__}",
         "module_sha256": _sha(_module_source(func)),
         "package_version": __version__,
-        "package_sha256": _package_hash(),
+        "package_sha256": code_fingerprint(),
     }
 
 
@@ -156,9 +138,7 @@ def code_provenance(func: Callable[..., Any]) -> dict[str, Any]:
     For study scripts that record which code produced a result file; take it before the run,
     so that a file edited meanwhile cannot change the record.
     """
-    from jko_cvx.environment import git_state
-
-    commit, modified = git_state(PACKAGE_ROOT)
+    commit, modified = git_state()
     return {
         **code_identity(func),
         "git_commit": commit,

@@ -114,6 +114,33 @@ def test_resume_refuses_a_checkpoint_of_another_package_version(tmp_path, monkey
         simulate(_small(), out=out, resume=True)
 
 
+def test_resume_refuses_a_checkpoint_made_by_other_code_of_the_same_version(tmp_path, monkeypatch):
+    # an edited checkout keeps its version number: the code itself must match, or the run would mix two codes
+    out = tmp_path / "r"
+    simulate(_small({"t_end": 0.1}), out=out)
+    ck = np.load(out / "checkpoint.npz")
+    meta = json.loads((out / "metadata.json").read_text())
+    assert str(ck["code_sha256"]) == meta["code_sha256"] == rundir_module.code_fingerprint()
+    monkeypatch.setattr(rundir_module, "code_fingerprint", lambda: "f" * 64)
+    with pytest.raises(RunDirError, match=r"made by other jko_cvx code .*code SHA-256 [0-9a-f]{12}\.\.\. then, "
+                       r"ffffffffffff\.\.\. now.*--overwrite"):
+        simulate(_small({"t_end": 0.1}), out=out, resume=True)
+    assert load_run(out).t == pytest.approx(0.1)  # reading the finished run back is not refused
+
+
+def test_resume_refuses_a_checkpoint_without_a_code_fingerprint(tmp_path):
+    from jko_cvx.engine._state import Ledger
+
+    out = tmp_path / "r"
+    simulate(_small({"t_end": 0.1}), out=out)
+    with np.load(out / "checkpoint.npz") as ck:
+        arrays = {k: ck[k] for k in ck.files if k != "code_sha256"}
+    Ledger.read(out).save_npz(out / "checkpoint.npz", **arrays)  # as a version without the fingerprint wrote it
+    with pytest.raises(RunDirError, match=r"records no code fingerprint .* cannot be continued.*--overwrite"):
+        simulate(_small({"t_end": 0.1}), out=out, resume=True)
+    assert load_run(out).t == pytest.approx(0.1)
+
+
 def test_resume_with_nothing_to_resume_fails(tmp_path):
     with pytest.raises(RunDirError, match=r"nothing to resume: run directory .* does not exist"):
         simulate(_small(), out=tmp_path / "none", resume=True)

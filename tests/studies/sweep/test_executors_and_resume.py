@@ -114,7 +114,7 @@ def test_two_functions_at_one_point_have_distinct_keys(tmp_path):
 
 def test_the_package_hash_covers_every_module_of_the_package():
     import jko_cvx
-    from jko_cvx.studies.sweep import package_files
+    from jko_cvx.environment import package_files
 
     root = Path(jko_cvx.__file__).resolve().parent
     assert package_files() == sorted(root.rglob("*.py"))
@@ -127,7 +127,7 @@ def test_key_covers_package_code_and_version(tmp_path, monkeypatch):
 
     mod = _point_module(tmp_path, "pts_pkg", "2")
     key = point_key(mod.double, {"a": 1.0})
-    monkeypatch.setattr(sweep, "_package_hash", lambda: "another package source")
+    monkeypatch.setattr(sweep, "code_fingerprint", lambda: "another package source")
     assert point_key(mod.double, {"a": 1.0}) != key
     monkeypatch.undo()
     monkeypatch.setattr(jko_cvx._version, "__version__", "9.9.9")
