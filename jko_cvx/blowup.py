@@ -510,8 +510,9 @@ def extrapolate_thresholds(
     """Extrapolate threshold times :math:`T_b(\\varepsilon_v, \\Delta t)` to :math:`\\varepsilon_v, \\Delta t \\to 0`.
 
     The paper's blow-up time is the first step with :math:`\\min dv < \\varepsilon_v`
-    (``sec: numerics``); it fires before the singularity, the earlier the larger
-    :math:`\\varepsilon_v`.  Least squares fit of
+    (``sec: numerics``); it fires the earlier the larger :math:`\\varepsilon_v` (before the
+    singularity where the Fisher term is weak; a strong one slows the narrowing, and it may fire
+    after it).  Least squares fit of
 
     .. math:: T_b(\\varepsilon, \\Delta t) = T_0 - c\\,\\varepsilon^{p} + d\\,\\Delta t
 

@@ -139,7 +139,7 @@ def plot_records(run: Run, ax=None):
     exact = exact_max_f(run)
     if exact is not None:
         te, law, T = exact
-        a.semilogy(te, law, "k--", lw=1, label="exact max f = M0 / (1 - 2 s M0 t)")
+        a.semilogy(te, law, "k--", lw=1, label="exact max f = m0 / (1 - 2 s m0 t), m0 = max f0, s = strength")
         a.axvline(T, color="k", ls="--", lw=0.8, label=f"exact T = {T:.4g}")
     if run.blowup:
         a.axvline(run.verdict.T_b, color="r", lw=0.8, label=f"T_b = {run.verdict.T_b:.4g}")
