@@ -79,7 +79,8 @@ def main(argv: list[str] | None = None) -> int:
         f"Baseline {args.base}, tree {tree_label()}; {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}.  "
         f"Threads: {thread_environment()}.  User + system CPU seconds of a fresh interpreter, median of "
         f"{args.repeats} rounds with the versions interleaved: the whole command on the built-in default scene "
-        "(simulation, run directory, figures), and the interpreter with the command's imports alone.  "
+        "(simulation, run directory, figures), and the interpreter with the command's imports alone.  Each side "
+        "runs its own version's default scene (`jko_cvx.default_scene`; it may differ between the versions).  "
         f"Target: under {TARGET_S:g} s for the whole command ({'met' if run_s < TARGET_S else 'not met'}: "
         f"{run_s:.2f} s).\n\n" + df.to_markdown(index=False, floatfmt=".3g") + "\n",
     )

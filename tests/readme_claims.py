@@ -1650,7 +1650,7 @@ def _crawl(d: pd.DataFrame) -> tuple[str, ...]:
 
 
 def _default_scene_tb(d: pd.DataFrame) -> tuple[str, ...]:
-    """T_b of the beta-scan run with the default scene's physics (tab_bu_g1 at beta = 1000)."""
+    """T_b of the beta-scan run of the paper's first test (tab_bu_g1's physics) at beta = 1000."""
     row = d[(d.data == "g1") & np.isclose(d.eps_v, 2.5e-4) & np.isclose(d["dt"], 0.01) & (d.beta == 1000.0)]
     if len(row) != 1:
         raise ValueError("tab_bu_beta_scan.csv: expected one g1 row at eps_v = 2.5e-4, dt = 0.01, beta = 1000")
@@ -1676,7 +1676,7 @@ CLAIMS += (
         "tab_bu_beta_scan.csv",
         _default_scene_tb,
         "(measured `T_b = {}` with these settings: `tab_bu_beta_scan.csv`, beta = 1000",
-        "the g1, eps_v = 1e-3/4, dt = 0.01, beta = 1000 entry of the beta scan (the default scene's physics)",
+        "the g1, eps_v = 1e-3/4, dt = 0.01, beta = 1000 entry of the beta scan (the paper's first test)",
         FISHER_WEIGHT_PAGE,
     ),
     Claim(

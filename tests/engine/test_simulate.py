@@ -93,6 +93,12 @@ def test_default_scene_blows_up_at_the_exact_time():
     assert np.all(np.abs(d.mass - d.mass.iloc[0]) <= 1e-12 * d.mass.iloc[0])
     assert (d.failed == 0).all()
     assert np.all(np.diff(d.moment2) <= 1e-12)  # energy dissipation
+    # the first run a newcomer makes: the fitted blow-up time, not only the paper's threshold, is right, with a tight
+    # bar and the exact law's exponent (T = 1/(2 max f0) on the initial grid)
+    v, T = run.verdict, 1 / (2 * d.max_f.iloc[0])
+    assert v.blowup_kind == "finite_time", v.blowup_reason
+    assert abs(v.T_b_fit - T) <= v.T_b_fit_err / 2 and v.T_b_fit_err < 0.02 * T
+    assert abs(v.blowup_rate - 1) < 0.05
 
 
 def test_short_inhomogeneous_run_conserves_mass_and_dissipates():
