@@ -55,12 +55,13 @@ def _gauss(grid: Grid, rate: float = 2.0) -> np.ndarray:
 
 
 def _before_blowup() -> CollisionProblem:
-    """The default scene's step at t = 0.49 (T = 0.5): its refined grid and density, posed with
-    the perspective Fisher term and no momentum constraint so that every solver can take it."""
+    """The paper's first test's step at t = 0.49 (T = 0.5; the default scene at beta = 1000, where no blow-up rule
+    fires before t = 0.5): its refined grid and density, posed with the perspective Fisher term and no momentum
+    constraint so that every solver can take it."""
     from jko_cvx.scene.model import default_scene
     from jko_cvx.studies.compare import problem_from_scene
 
-    p = problem_from_scene(default_scene(), 0.49)
+    p = problem_from_scene(default_scene().replace({"collision.beta": 1000.0}), 0.49)
     return CollisionProblem(p.grid, p.kernel, p.f_star, p.dt, p.strength, p.beta, "perspective")
 
 
