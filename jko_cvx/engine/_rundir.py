@@ -8,7 +8,10 @@ the run has ended, ``verdict.json`` (the CLI adds ``solution.png`` and ``records
 Rules (each refusal is a :class:`~jko_cvx.engine.errors.RunDirError` naming the directory or file):
 
 * a new run refuses a directory that already holds a run, unless ``overwrite``, which moves
-  that run's files (and only those) aside into ``DIR/.replaced/``, writes the new run's
+  that run's files (and only those) aside into ``DIR/.replaced/`` -- and refuses, deleting nothing,
+  where an entry it would remove is not the run's: a directory without a run this package wrote
+  (no ``metadata.json`` with digests), a run or verification file the ledger does not record, a
+  ``reference`` folder that is no run directory --, writes the new run's
   ``scene.json`` and ``metadata.json``, and only then deletes them: a failed overwrite puts the
   old run back, and one killed meanwhile is put back when the directory is next opened;
 * ``resume`` needs a checkpoint, made from the same scene (the SHA-256 of the canonical JSON
@@ -264,6 +267,8 @@ class RunDir:
                 f"run directory {self.path} already holds a run ({', '.join(found)}): "
                 "resume it with --resume (resume=True) or replace it with --overwrite (overwrite=True)"
             )
+        if found:
+            self._check_replaceable(found)
         moved = self._move_aside() if found else []
         try:
             self.ledger = Ledger(self.path, _metadata(self.scene))
@@ -276,6 +281,39 @@ class RunDir:
             raise
         if moved:
             shutil.rmtree(self.path / _ASIDE)
+
+    def _check_replaceable(self, found: list[str]) -> None:
+        """RunDirError unless every entry an overwrite would remove is the old run's own: the directory must hold a
+        run this package wrote (``metadata.json`` with its files' digests), each run and verification file one it
+        recorded, and ``reference`` a run directory of its own.  The figures (written beside the ledger, unrecorded)
+        and the files of ``snapshots/`` named as the run names its snapshots are the run's by name."""
+        try:
+            recorded = set(Ledger.read(self.path).digests)
+        except RunDirError:
+            raise RunDirError(
+                f"cannot overwrite {self.path}: it holds {', '.join(found)} but no run this package wrote "
+                "(metadata.json with the digests of a run's files is missing or unreadable), so these may be files of "
+                "yours and nothing is deleted: move them away or choose another --out"
+            ) from None
+        for p in self._run_files():
+            name = p.relative_to(self.path).as_posix()
+            if p.name in FIGURES or name in ("metadata.json", "verify.png") or name.startswith("snapshots/"):
+                continue
+            if name == "reference":
+                try:
+                    Ledger.read(p)
+                except RunDirError:
+                    raise RunDirError(
+                        f"cannot overwrite {self.path}: {p} is not a run directory this package wrote (a "
+                        "verification's reference run has a metadata.json with its files' digests); nothing is "
+                        "deleted: move it away or choose another --out"
+                    ) from None
+            elif name not in recorded:
+                raise RunDirError(
+                    f"cannot overwrite {self.path}: {p} is not one of the files the run in {self.path} wrote "
+                    "(metadata.json records no digest of it), so it may be a file of yours and nothing is deleted: "
+                    "move it away or choose another --out"
+                )
 
     def _move_aside(self) -> list[Path]:
         """Move the old run's files into ``DIR/.replaced/`` (renames in one file system); on failure move

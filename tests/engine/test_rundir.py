@@ -201,6 +201,34 @@ def test_a_locked_run_directory_is_refused_and_the_lock_dies_with_its_run(tmp_pa
     simulate(_small(), out=out, overwrite=True)  # a killed holder leaves no stale lock
 
 
+def test_overwrite_refuses_files_no_run_wrote_and_deletes_nothing(tmp_path):
+    # a directory of the user's with names a run uses (a "reference" folder, a figure), but no run in it
+    out = tmp_path / "project"
+    (out / "reference").mkdir(parents=True)
+    (out / "reference" / "measurements.csv").write_text("data\n")
+    (out / "records.png").write_bytes(b"my own figure")
+    before = sorted(p.relative_to(out).as_posix() for p in out.rglob("*"))
+    with pytest.raises(RunDirError, match=r"cannot overwrite .*project: it holds records\.png, reference but no run"):
+        simulate(_small(), out=out, overwrite=True)
+    assert sorted(p.relative_to(out).as_posix() for p in out.rglob("*") if p.name != ".lock") == before
+    assert (out / "reference" / "measurements.csv").read_text() == "data\n"
+
+
+def test_overwrite_of_a_run_refuses_a_file_the_run_did_not_write(tmp_path):
+    out = tmp_path / "r"
+    simulate(_small(), out=out)
+    (out / "verify.csv").write_text("a table of mine\n")  # not written by this run (it was no verification)
+    (out / "reference").mkdir()  # nor this folder: it holds no run
+    with pytest.raises(RunDirError, match=r"verify\.csv is not one of the files the run in .* wrote"):
+        simulate(_small(), out=out, overwrite=True)
+    assert (out / "verify.csv").read_text() == "a table of mine\n" and (out / "reference").is_dir()
+    (out / "verify.csv").unlink()
+    with pytest.raises(RunDirError, match=r"reference is not a run directory this package wrote"):
+        simulate(_small(), out=out, overwrite=True)
+    (out / "reference").rmdir()
+    assert simulate(_small(), out=out, overwrite=True).steps == load_run(out).steps  # the run's own files go
+
+
 def test_cli_rerun_resume_and_overwrite(tmp_path, capsys):
     out = tmp_path / "r"
     scene = tmp_path / "s.toml"
