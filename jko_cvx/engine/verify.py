@@ -54,9 +54,10 @@ Outcome of a slice (``outcome`` column)
 * ``reference failed``: the reference is not certified -- the slice is *unverified*, never
   counted as agreement.
 
-The verdict is ``verified`` when at least one slice was compared and every compared slice
-agrees; otherwise it names the first step and slice (in step order, then slice order) that
-does not, with both statuses and why.
+The verdict is ``verified`` when at least one slice was compared, every compared slice
+agrees and the run itself is certified (no failed solve ended it or was carried on:
+:func:`run_failure`); otherwise it names why: the run's failure, or the first step and slice (in
+step order, then slice order) that does not agree, with both statuses and why.
 
 Trajectory
 ----------
@@ -430,9 +431,8 @@ class Verification:
 
     @property
     def _failure(self) -> str | None:
-        """The run's stop reason where a failed solve of the tested method ended it (else None)."""
-        v = self.run.verdict
-        return v.reason if v.stop is StopReason.SOLVER_FAILURE else None
+        """Why the run itself is not certified (:func:`run_failure`), else None."""
+        return run_failure(self.run.verdict.to_dict())
 
     @property
     def verified(self) -> bool:
@@ -479,18 +479,35 @@ _OTHER_REFERENCE = {
 }
 
 
+def run_failure(verdict: dict[str, Any]) -> str | None:
+    """Why a run is not certified whatever its compared steps show, from its verdict record, else None.
+
+    A failed solve of the tested method that ended the run (``stop.on_solver_failure``: that step is never
+    committed, so it has no row), or failed solves the run went on with (``stop.on_solver_failure = false``:
+    ``uncertified_steps``; ``every`` or ``slices`` may skip them, and the states after them are carried on
+    from an uncertified one).
+    """
+    if verdict.get("stop") in (StopReason.SOLVER_FAILURE, StopReason.SOLVER_FAILURE.name):
+        return f"a failed solve of the tested method stopped the run ({verdict.get('reason')})"
+    n = int(verdict.get("uncertified_steps") or 0)
+    if n:
+        return (
+            f"the run carried {n} uncertified step(s) from t = {float(verdict['first_uncertified_t']):.6g} (failed "
+            "collision solves it went on with, stop.on_solver_failure = false)"
+        )
+    return None
+
+
 def verify_verdict(table: pd.DataFrame, reference: str | None = None, failure: str | None = None) -> tuple[bool, str]:
     """``(verified, text)`` of a verification table (module docstring: verified when every compared slice agrees).
 
     With ``reference``, a verdict with slices the reference failed on says which reference to use instead.
-    ``failure`` is the run's stop reason where a failed solve of the tested method ended the run
-    (``stop.on_solver_failure``): that step is never committed, so it has no row, and the verdict is
-    "not verified" whatever the rows say.
+    ``failure`` says why the run itself is not certified (:func:`run_failure`): the verdict is then "not
+    verified" whatever the rows say.
     """
     if failure is not None and len(table):
         text = verify_verdict(table, reference)[1]
-        head = f"not verified: a failed solve of the tested method stopped the run ({failure})"
-        return False, f"{head}; before it: {text}"
+        return False, f"not verified: {failure}; the compared steps: {text}"
     if len(table) == 0:
         return False, "unverified: no step was compared (the run took fewer steps than every)"
     bad = table[table["outcome"] != AGREE]
@@ -708,8 +725,7 @@ def load_verification(path: str | Path) -> pd.DataFrame:
             f"{steps} steps compared every {settings['every']}: it was continued without verification"
         )
     table.attrs["settings"] = settings
-    failure = record["reason"] if record.get("stop") == StopReason.SOLVER_FAILURE.name else None
-    verified, verdict = verify_verdict(table, settings.get("reference"), failure)
+    verified, verdict = verify_verdict(table, settings.get("reference"), run_failure(record))
     if settings.get("trajectory"):
         tr = _load_trajectory(path, ledger, settings["tolerance"])
         table.attrs["trajectory"] = tr.table

@@ -195,6 +195,19 @@ def test_a_run_stopped_by_the_tested_methods_failure_is_not_verified(tmp_path):
     assert ver.verdict in (tmp_path / "v" / "verify.md").read_text()
 
 
+def test_a_run_that_went_on_with_failed_solves_is_not_verified_whatever_the_compared_steps(tmp_path):
+    # stop.on_solver_failure = false: steps 2 and 4 fail (imposed) and the run goes on with them; every = 3 compares
+    # steps 3 only, which agrees -- the run still carries uncertified steps, so it is not verified
+    sc = _scene(**{"stop.on_solver_failure": False})
+    with failing(lambda attempt, accepted, dt: attempt in (1, 3)):
+        ver = verify(sc, "conic", every=3, out=tmp_path / "v")
+    assert ver.run.verdict.uncertified_steps == 2 and ver.run.steps == 5
+    assert list(ver.table["step"]) == [3] and list(ver.table["outcome"]) == ["agree"]
+    assert not ver.verified and ver.verdict.startswith("not verified: the run carried 2 uncertified step"), ver.verdict
+    back = load_verification(tmp_path / "v")
+    assert back.attrs["verified"] is False and back.attrs["verdict"] == ver.verdict
+
+
 @pytest.mark.parametrize(
     ("scene_changes", "kwargs", "error", "names"),
     [
