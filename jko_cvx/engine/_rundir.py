@@ -117,12 +117,23 @@ def _metadata(scene: Scene) -> dict[str, Any]:
 
 def read_snapshots(path: Path, last_step: int, ledger: Ledger | None = None) -> list[dict[str, Any]]:
     """The snapshot files in ``path/snapshots`` of steps ``<= last_step``, in step order, each checked
-    against ``ledger`` when given (a snapshot whose step is not its name's is refused too)."""
+    against ``ledger`` when given (a snapshot whose step is not its name's is refused too, and so is one the
+    ledger records that is gone: the snapshots asked for by time would silently skip it)."""
     found = []
     for p in (path / "snapshots").glob("step_*.npz"):
         m = _SNAPSHOT.fullmatch(p.name)
         if m and int(m.group(1)) <= last_step:
             found.append((int(m.group(1)), p))
+    if ledger is not None:
+        present = {p.name for _, p in found}
+        for name in sorted(ledger.digests):
+            folder, _, file = name.partition("/")
+            m = _SNAPSHOT.fullmatch(file)
+            if folder == "snapshots" and m and int(m.group(1)) <= last_step and file not in present:
+                raise RunDirError(
+                    f"{path / name} is recorded in {path / 'metadata.json'} but missing: it was deleted or moved; "
+                    "restore it, or start the run again with --overwrite"
+                )
     snaps = []
     for step, p in sorted(found):
         if p.is_symlink():

@@ -229,6 +229,16 @@ def test_overwrite_of_a_run_refuses_a_file_the_run_did_not_write(tmp_path):
     assert simulate(_small(), out=out, overwrite=True).steps == load_run(out).steps  # the run's own files go
 
 
+def test_a_deleted_snapshot_is_named_by_load_run_and_resume(tmp_path):
+    out = tmp_path / "r"
+    simulate(_small({"t_end": 0.1}), out=out)
+    gone = out / "snapshots" / "step_0000002.npz"
+    gone.unlink()  # load_run would hand out the next snapshot for t = 0.02
+    for read in (lambda: load_run(out), lambda: simulate(_small({"t_end": 0.1}), out=out, resume=True)):
+        with pytest.raises(RunDirError, match=r"step_0000002\.npz is recorded in .*metadata\.json but missing"):
+            read()
+
+
 def test_cli_rerun_resume_and_overwrite(tmp_path, capsys):
     out = tmp_path / "r"
     scene = tmp_path / "s.toml"
