@@ -51,17 +51,21 @@ ENVIRONMENT_FILE = "environment.json"
 
 
 def package_files() -> list[Path]:
-    """Every ``.py`` file of the package, sorted: what :func:`code_fingerprint` covers."""
-    return sorted(PACKAGE_DIR.rglob("*.py"))
+    """Every file of the package (its modules and its data: the shipped scenes), sorted, compiled bytecode left
+    out: what :func:`code_fingerprint` covers."""
+    return sorted(
+        p for p in PACKAGE_DIR.rglob("*")
+        if p.is_file() and "__pycache__" not in p.relative_to(PACKAGE_DIR).parts and p.suffix not in (".pyc", ".pyo")
+    )  # fmt: skip
 
 
 @functools.cache
 def code_fingerprint() -> str:
-    """SHA-256 over the relative paths and contents of every ``.py`` file of the package (hex).
+    """SHA-256 over the relative paths and contents of every file of the package (:func:`package_files`; hex).
 
-    The code itself, where the version number is not enough: an edited checkout or an editable install keeps
-    its version.  Read once per process (about 3 ms); a study's cache and a run's checkpoint record it, and
-    neither is reused under other code.
+    The code and its data (a shipped scene file is what ``shipped_scene`` reads), where the version number is not
+    enough: an edited checkout or an editable install keeps its version.  Read once per process (about 3 ms); a
+    study's cache and a run's checkpoint record it, and neither is reused under other code.
     """
     h = hashlib.sha256()
     for path in package_files():

@@ -35,10 +35,14 @@ every worker.  :func:`run_sweep` refuses such a call before any work, with a
 
 Interactive sessions, notebooks and ``python -c`` have no main script to import again.
 
-The cache cannot serve stale results.  A point's key (:func:`point_key`) covers the point,
-the function's qualified name, the source of the module that defines it, the package
-version and a hash of every ``.py`` file of the package: after any change of code, old
-entries are simply not found (and the point runs again).  Each entry records its key and
+The cache cannot serve stale results.  A point's key (:func:`point_key`) covers the point
+(NumPy numbers as the Python numbers of their kind), the function's qualified name, the source
+of the module that defines it, the package version and a hash of every file of the package
+(its modules and the shipped scenes, :func:`jko_cvx.environment.code_fingerprint`): after any
+change of code or shipped data, old entries are simply not found (and the point runs again).
+Functions whose results that key cannot pin are refused before any point runs: lambdas (two in
+one module share a name), closures (their captured values are not in the source) and callable
+objects such as ``functools.partial``.  Each entry records its key and
 a SHA-256 digest of its content; an entry that does not parse, records another key or
 point, or fails its digest (truncated, tampered with) is recomputed with a
 :class:`StaleCacheWarning` naming the file.  ``fresh=True`` (``jko-cvx reproduce --fresh``)
@@ -119,10 +123,38 @@ def _module_source(func: Callable[..., Any]) -> str:
     raise TypeError(f"cannot read the source of {func!r}: sweeps cache only functions defined in source files")
 
 
+def _check_cacheable(func: Callable[..., Any]) -> None:
+    """TypeError / ValueError unless ``func``'s results are determined by what :func:`code_identity` records: a
+    function defined with ``def`` whose behaviour its module's source fixes (no lambda: two in one module share a
+    name; no closure: the values it captured are not in its source)."""
+    import types
+
+    if not isinstance(func, types.FunctionType):
+        raise TypeError(
+            f"func must be a function defined with def (at module level), got {type(func).__module__}."
+            f"{type(func).__qualname__}: its results could not be keyed by its source; pass the arguments it fixes "
+            "in the points instead"
+        )
+    if func.__name__ == "<lambda>":
+        raise ValueError(
+            f"func is a lambda ({func.__qualname__} in {func.__module__}): lambdas of one module share a name, so "
+            "the cache could serve one's results for another; define it with def"
+        )
+    if func.__closure__:
+        raise ValueError(
+            f"func {func.__qualname__} captures values ({', '.join(func.__code__.co_freevars)}) that its source does "
+            "not fix, so the cache could serve results of other values; pass them in the points instead"
+        )
+
+
 def code_identity(func: Callable[..., Any]) -> dict[str, str]:
-    """What the results of ``func`` depend on besides the point: name, module source, package version and code."""
+    """What the results of ``func`` depend on besides the point: name, module source, package version and code.
+
+    Raises TypeError or ValueError for a function whose results these do not determine (a lambda, a closure,
+    a ``functools.partial`` or other callable object)."""
     from jko_cvx._version import __version__
 
+    _check_cacheable(func)
     return {
         "func": f"{func.__module__}.{func.__qualname__}",
         "module_sha256": _sha(_module_source(func)),
@@ -146,8 +178,19 @@ def code_provenance(func: Callable[..., Any]) -> dict[str, Any]:
     }
 
 
+def _plain(obj: Any) -> Any:
+    """A NumPy scalar as the Python number of its kind (``np.int64(5)`` is 5, not 5.0: the key tells the types
+    apart as JSON does), anything else JSON cannot write refused."""
+    import numpy as np
+
+    if isinstance(obj, np.generic) and isinstance(obj, np.number | np.bool_):
+        return obj.item()
+    raise TypeError(f"a point or result holds {obj!r} ({type(obj).__name__}): only numbers, strings, bools, None, "
+                    "lists and dicts are keyed and cached")  # fmt: skip
+
+
 def _canonical(obj: Any) -> str:
-    return json.dumps(obj, sort_keys=True, default=float)
+    return json.dumps(obj, sort_keys=True, default=_plain)
 
 
 def point_key(func: Callable[..., Any], point: Mapping[str, Any]) -> str:
@@ -158,7 +201,7 @@ def point_key(func: Callable[..., Any], point: Mapping[str, Any]) -> str:
 def _entry(key: str, point: Mapping[str, Any], result: Mapping[str, Any]) -> str:
     """The JSON text of a cache entry; ``digest`` covers key, point and result."""
     body = {"key": key, "point": dict(point), "result": dict(result)}
-    return json.dumps({**body, "digest": _sha(_canonical(body))}, default=float)
+    return json.dumps({**body, "digest": _sha(_canonical(body))}, default=_plain)
 
 
 def _read_entry(path: Path, key: str, point: Mapping[str, Any]) -> dict | None:
@@ -365,6 +408,7 @@ def run_sweep(
     """
     if not callable(func):
         raise TypeError(f"func must be callable, got {type(func).__name__}")
+    _check_cacheable(func)
     points = _checked_points(points)
     if isinstance(executor, str) and executor not in ("process", "serial", "dask"):
         raise ValueError(f"executor must be 'process', 'serial', 'dask' or an Executor, got {executor!r}")

@@ -117,7 +117,7 @@ def test_the_package_hash_covers_every_module_of_the_package():
     from jko_cvx.environment import package_files
 
     root = Path(jko_cvx.__file__).resolve().parent
-    assert package_files() == sorted(root.rglob("*.py"))
+    assert set(root.rglob("*.py")) <= set(package_files())
     assert {root / "grid.py", root / "collision" / "newton.py", root / "engine" / "loop.py"} <= set(package_files())
 
 
@@ -198,3 +198,50 @@ def test_code_provenance_adds_the_checkouts_commit_to_the_code_identity():
         assert prov["jko_cvx_modified"] == bool(dirty.stdout.strip())
     else:
         assert prov["git_commit"] is None
+
+
+def test_the_code_fingerprint_covers_the_shipped_scenes():
+    # shipped_scene() reads these files: an edited one changes what a cached point computed
+    import jko_cvx
+    from jko_cvx.environment import package_files
+
+    root = Path(jko_cvx.__file__).resolve().parent
+    assert root / "scene" / "shipped" / "tab_bu_g1.toml" in package_files()
+    assert not [p for p in package_files() if "__pycache__" in p.parts or p.suffix in (".pyc", ".pyo")]
+
+
+def test_lambdas_closures_and_partials_are_refused_before_any_point_runs(tmp_path):
+    import functools
+
+    def make(k):
+        return lambda a: {"y": k * a}
+
+    def scaled(a, k):
+        return {"y": k * a}
+
+    for func, match in (
+        (lambda a: {"y": a}, r"a lambda"),
+        (make(10), r"a lambda"),
+        (_closure(3), r"captures values \(k\)"),
+        (functools.partial(scaled, k=2), r"func must be a function defined with def .*functools\.partial"),
+    ):
+        with pytest.raises((TypeError, ValueError), match=match):
+            run_sweep(func, [{"a": 1.0}], tmp_path / "c", "serial", progress=False)
+    assert not (tmp_path / "c").exists()
+
+
+def _closure(k):
+    def times(a):
+        return {"y": k * a}
+
+    return times
+
+
+def test_numpy_and_python_numbers_of_other_types_get_other_keys(tmp_path):
+    mod = _point_module(tmp_path, "pts_types", "2")
+    assert point_key(mod.double, {"a": np.int64(5)}) == point_key(mod.double, {"a": 5})
+    assert point_key(mod.double, {"a": np.int64(5)}) != point_key(mod.double, {"a": 5.0})
+    assert point_key(mod.double, {"a": np.float64(5.0)}) == point_key(mod.double, {"a": 5.0})
+    assert point_key(mod.double, {"a": np.bool_(True)}) == point_key(mod.double, {"a": True}) != point_key(
+        mod.double, {"a": 1}
+    )
