@@ -385,11 +385,22 @@ def _check_combinations(top, v, x, t, c, s, o) -> None:
 def with_overrides(data: Mapping[str, Any], overrides: Mapping[str, Any] | None) -> dict[str, Any]:
     """A deep copy of the scene document ``data`` with dotted keys set (``{"time.dt": 0.005}``).
 
-    A value ``None`` removes the key (``{"x": None}`` drops the x-grid).  The result is not
+    A value ``None`` removes the key (``{"x": None}`` drops the x-grid).  A table and one of its
+    keys (``"v"`` and ``"v.n"``) are refused: one would drop the other.  The result is not
     validated here; :func:`scene_from_dict` does that, so a misspelt override is refused
     like a misspelt key in a file.
     """
     out = copy.deepcopy(dict(data))
+    keys = {str(k) for k in (overrides or {})}
+    for b in sorted(keys):
+        parts = b.split(".")
+        for a in (".".join(parts[:i]) for i in range(1, len(parts))):
+            if a not in keys:
+                continue
+            raise SceneError(
+                f"overrides {a!r} and {b!r} overlap: {a!r} sets the whole table, so one would silently drop the "
+                f"other; give the keys of {a} one by one"
+            )
     for dotted, val in (overrides or {}).items():
         *parents, leaf = str(dotted).split(".")
         node = out

@@ -363,6 +363,18 @@ def test_overrides_set_dotted_keys_and_are_validated_like_the_file():
         shipped_scene("tab_bu_g1", {"gamma.x": 1.0})
 
 
+@pytest.mark.parametrize(
+    "overrides",
+    [{"v.n": 61, "v": {"L": 2.0, "n": 41}}, {"v": {"L": 2.0, "n": 41}, "v.n": 61},
+     {"refine.v.delta": 0.3, "refine.v": {"bumps": 1}}, {"refine": {"v": {"bumps": 1}}, "refine.v.delta": 0.3}],
+)  # fmt: skip
+def test_overrides_of_a_table_and_of_one_of_its_keys_are_refused(overrides):
+    # one would silently drop the other, whichever order they come in
+    a, b = sorted(overrides, key=len)
+    with pytest.raises(SceneError, match=rf"overrides '{re.escape(a)}' and '{re.escape(b)}' overlap"):
+        shipped_scene("tab_bu_g1", overrides)
+
+
 def test_to_dict_is_canonical_sorted_and_complete():
     s = scene_from_dict(BASE)
     d = s.to_dict()
