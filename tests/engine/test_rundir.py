@@ -122,8 +122,11 @@ def test_resume_refuses_a_checkpoint_made_by_other_code_of_the_same_version(tmp_
     meta = json.loads((out / "metadata.json").read_text())
     assert str(ck["code_sha256"]) == meta["code_sha256"] == rundir_module.code_fingerprint()
     monkeypatch.setattr(rundir_module, "code_fingerprint", lambda: "f" * 64)
-    with pytest.raises(RunDirError, match=r"made by other jko_cvx code .*code SHA-256 [0-9a-f]{12}\.\.\. then, "
-                       r"ffffffffffff\.\.\. now.*--overwrite"):
+    with pytest.raises(
+        RunDirError,
+        match=r"made by other jko_cvx code .*code SHA-256 [0-9a-f]{12}\.\.\. then, "
+        r"ffffffffffff\.\.\. now.*--overwrite",
+    ):
         simulate(_small({"t_end": 0.1}), out=out, resume=True)
     assert load_run(out).t == pytest.approx(0.1)  # reading the finished run back is not refused
 
