@@ -45,7 +45,7 @@ from jko_cvx.engine.verdict import SolverFailureRule, StopReason, Verdict
 from jko_cvx.kernels import PowerKernel
 from jko_cvx.mesh.policy import RemeshPolicy
 from jko_cvx.scene.limits import check_limits
-from jko_cvx.scene.model import Scene
+from jko_cvx.scene.model import Scene, SceneError, scene_from_dict
 from jko_cvx.time_order import collision_step_order2, strang_step
 from jko_cvx.transport import transport_step
 
@@ -89,6 +89,22 @@ def initial_state(scene: Scene) -> RunState:
     # v_params, x_params: the extent of the set each refined grid was built for
     f, vgrid, xgrid, v_params, x_params = remesh_policy(scene).initial(vgrid, xgrid, f)
     return RunState(0.0, 0, f, vgrid, xgrid, v_params, x_params, [], Verdict())
+
+
+def _check_thresholds(scene: Scene, state: RunState) -> None:
+    """SceneError where a blow-up threshold is not below the initial (refined) grid's smallest spacing: the
+    paper's rule ``min dv < eps_v`` (``min dx < eps_x``) would fire on the first step, with no concentration."""
+    for key, eps, grid, axis in (("stop.eps_v", scene.stop.eps_v, state.vgrid, "v"),
+                                 ("stop.eps_x", scene.stop.eps_x, state.xgrid, "x")):  # fmt: skip
+        if grid is None or not eps > 0:
+            continue
+        smallest = float(np.min(np.diff(grid.points)))
+        if eps > smallest:
+            raise SceneError(
+                f"{key} = {eps:g} is not below the smallest spacing of the initial {axis}-grid ({smallest:.4g}, after "
+                f"its first refinement): the rule min d{axis} < {key.split('.')[1]} would fire on the first step "
+                f"with no concentration; choose {key} < {smallest:.4g} (or more points on {axis})"
+            )
 
 
 @dataclass
@@ -345,8 +361,11 @@ def simulate(
     Raises
     ------
     SceneError
-        The scene's step count or memory estimate is beyond the limits of
-        :mod:`jko_cvx.scene.limits` (nothing has been written).
+        The scene is not one the loader accepts (a scene built in code with
+        ``dataclasses.replace`` is checked as a file would be), its step count or memory estimate is
+        beyond the limits of :mod:`jko_cvx.scene.limits`, or a blow-up threshold (``stop.eps_v``,
+        ``stop.eps_x``) is not below the smallest spacing of the initial grid, where the rule would
+        fire without any concentration (nothing has been written).
     RunDirError
         ``out`` cannot be used as asked (see :mod:`jko_cvx.engine._rundir`); nothing has been run.
     RunInterrupted
@@ -374,16 +393,20 @@ def simulate(
         check_bool(name, flag)
     if out is None and (resume or overwrite):
         raise ValueError("resume and overwrite need a run directory: pass out=")
-    # a Scene built in code (dataclasses.replace) bypasses the loader: check its size here too,
-    # before anything is written
+    # a Scene built in code (dataclasses.replace) bypasses the loader: check it as the loader would, and its
+    # size, before anything is written
+    scene_from_dict(scene.to_dict())
     check_limits(scene)
     if attempts is not None and not isinstance(attempts, list):
         raise TypeError(f"attempts must be a list (it receives the failed attempts), got {type(attempts).__name__}")
     if observers is not None and not callable(observers):
         raise TypeError(f"observers must be a callable (rundir -> list of trackers), got {type(observers).__name__}")
     stepper = Stepper(scene, attempts)
+    first = None if resume else initial_state(scene)
+    if first is not None:
+        _check_thresholds(scene, first)
     with RunDir.open(out, scene, resume=resume, overwrite=overwrite) if out is not None else nullcontext() as rd:
-        state = rd.state if rd is not None and rd.state is not None else initial_state(scene)
+        state = rd.state if rd is not None and rd.state is not None else first
         trackers, snaps = default_trackers(scene, rd, [] if rd is None else rd.snapshots, progress)
         if observers is not None:
             at = trackers.index(snaps)

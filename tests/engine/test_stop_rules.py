@@ -16,11 +16,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
+import jko_cvx.engine.loop as loop
 from jko_cvx.engine._state import RunState
 from jko_cvx.engine.loop import simulate
 from jko_cvx.engine.verdict import StopReason, Verdict
 from jko_cvx.grid import Grid
-from jko_cvx.scene.model import scene_from_dict
+from jko_cvx.scene.model import SceneError, scene_from_dict
 
 # 16 velocity points on [-1.5, 1.5]: dv = 0.2; 10 cell-centred x-points on [-4, 4): dx = 0.8.
 DV, DX = 0.2, 0.8
@@ -61,6 +62,13 @@ def _homogeneous(**changes):
     return scene_from_dict(d)
 
 
+@pytest.fixture
+def unguarded(monkeypatch):
+    """Thresholds above a uniform grid's spacing, which simulate refuses (the rule would fire with no
+    concentration: loop._check_thresholds), are what these tests need to see a rule's wiring fire: let them."""
+    monkeypatch.setattr(loop, "_check_thresholds", lambda scene, state: None)
+
+
 def test_the_tiny_grids_have_the_spacings_the_tests_assume():
     run = simulate(dataclasses.replace(_scene(), t_end=0.1))
     assert run.diagnostics.min_dv.iloc[-1] == pytest.approx(DV, rel=1e-12)
@@ -69,7 +77,7 @@ def test_the_tiny_grids_have_the_spacings_the_tests_assume():
     assert {k: run.verdict[k] for k in expected} == expected
 
 
-def test_B_x_fires_on_min_dx_against_eps_x_only():
+def test_B_x_fires_on_min_dx_against_eps_x_only(unguarded):
     """eps_x = 0.9 > dx = 0.8 > dv = 0.2 > eps_v = 0.1: only B_x may fire, at the first step.
 
     A rule comparing min dx with eps_v (0.8 < 0.1: never) misses it; one comparing min dv
@@ -82,7 +90,7 @@ def test_B_x_fires_on_min_dx_against_eps_x_only():
     assert "min dx" in v["reason"] and "eps_x" in v["reason"]
 
 
-def test_B_v_fires_on_min_dv_against_eps_v_only():
+def test_B_v_fires_on_min_dv_against_eps_v_only(unguarded):
     """eps_v = 0.3 > dv = 0.2, eps_x = 0.1 < dx = 0.8: only B_v may fire, at the first step.
 
     A rule comparing min dv with eps_x (0.2 < 0.1: never) misses it; one comparing min dx
@@ -96,14 +104,18 @@ def test_B_v_fires_on_min_dv_against_eps_v_only():
 
 
 @pytest.mark.parametrize("axis", ["v", "x"])
-def test_the_spacing_rules_are_strict_inequalities(axis):
-    """``B = 1`` if ``min d < eps`` (alg:SPMCSL-JKO): a threshold equal to the spacing does not fire."""
+def test_the_spacing_rules_are_strict_inequalities(axis, monkeypatch):
+    """``B = 1`` if ``min d < eps`` (alg:SPMCSL-JKO): a threshold equal to the spacing does not fire; one above
+    it is refused before the run (it would fire with no concentration), and fires at the first step if let."""
     spacing = DV if axis == "v" else DX
     free = simulate(_scene())
     exact = float(free.diagnostics[f"min_d{axis}"].iloc[-1])
     assert exact == pytest.approx(spacing, rel=1e-12)
     at = simulate(_scene(stop={f"eps_{axis}": exact}))
     assert not at.blowup and at.t == pytest.approx(0.3)
+    with pytest.raises(SceneError, match=rf"stop\.eps_{axis} = .* is not below the smallest spacing"):
+        simulate(_scene(stop={f"eps_{axis}": exact * (1 + 1e-12)}))
+    monkeypatch.setattr(loop, "_check_thresholds", lambda scene, state: None)
     above = simulate(_scene(stop={f"eps_{axis}": exact * (1 + 1e-12)}))
     assert above.blowup and above.verdict[f"B_{axis}"] and above.verdict["T_b"] == pytest.approx(0.1)
 

@@ -52,3 +52,25 @@ def test_the_same_data_with_the_perspective_form_is_not_refused():
     conic = {"initial.rates": [400.0], "collision.fisher": "perspective", "collision.method": "conic"}
     run = simulate(scene_from_dict(with_overrides(BASE, conic)))
     assert run.verdict.certified and run.steps == 2 and not run.diagnostics.failed.any()
+
+
+def test_a_threshold_the_initial_grid_already_meets_is_refused_before_writing(tmp_path):
+    # min dv of the initial (refined) grid is 0.05 on 41 points: eps_v = 0.06 would "detect" a blow-up at the first
+    # step with no concentration at all
+    scene = scene_from_dict(with_overrides(BASE, {"refine": {"v": {"bumps": 1}}, "stop.eps_v": 0.06}))
+    with pytest.raises(SceneError, match=r"stop\.eps_v = 0\.06 is not below the smallest spacing of the initial "
+                                         r"v-grid \(0\.05"):  # fmt: skip
+        simulate(scene, out=tmp_path / "run")
+    assert not (tmp_path / "run").exists()
+    simulate(scene.replace({"stop.eps_v": 0.04}))  # below it: a threshold the run must reach
+
+
+def test_a_scene_built_in_code_is_validated_before_writing(tmp_path):
+    import dataclasses
+
+    scene = scene_from_dict(BASE)
+    for bad, key in ((dataclasses.replace(scene, strength=float("inf")), "strength"),
+                     (dataclasses.replace(scene, t_end=-1.0), "t_end")):  # fmt: skip
+        with pytest.raises(SceneError, match=key):
+            simulate(bad, out=tmp_path / "run")
+        assert not (tmp_path / "run").exists()
