@@ -108,8 +108,14 @@ def _run_scene(
     # what continues this run (after an interrupt) or redraws its figures (after a finished run)
     cmd = ["jko-cvx", "run", *([] if scene_path is None else [str(scene_path)]), *_set_args(settings)]
     cmd += ["--out", str(out), "--resume"]
+    finished: list = []
+
+    def figures(run) -> None:  # drawn while the run directory is still locked (simulate's on_finish)
+        finished.append(run)
+        save_figures(run, out)
+
     try:
-        run = simulate(scene, out=out, resume=resume, overwrite=overwrite, progress=not quiet)
+        run = simulate(scene, out=out, resume=resume, overwrite=overwrite, progress=not quiet, on_finish=figures)
     except RunInterrupted as exc:
         print(
             f"\njko-cvx: interrupted ({signal.Signals(exc.signum).name}) at step {exc.step}, t = {exc.t:.6g}; "
@@ -117,19 +123,18 @@ def _run_scene(
             file=sys.stderr,
         )
         return 130
-    except KeyboardInterrupt:  # before the run had a state to checkpoint
+    except KeyboardInterrupt:
+        if finished:  # the run itself is complete and on disk; only figures are missing
+            print(
+                f"\njko-cvx: interrupted while drawing the figures; the run in {out} is complete "
+                f"(verdict.json written: {finished[0].summary()}).\nRedraw the figures with:\n  {shlex.join(cmd)}",
+                file=sys.stderr,
+            )
+            return 130
+        # before the run had a state to checkpoint
         print(
             f"\njko-cvx: interrupted before the run started (nothing was checkpointed); start it again with "
             f"--overwrite (--out {out})",
-            file=sys.stderr,
-        )
-        return 130
-    try:
-        save_figures(run, out)
-    except KeyboardInterrupt:  # the run itself is complete and on disk; only figures are missing
-        print(
-            f"\njko-cvx: interrupted while drawing the figures; the run in {out} is complete "
-            f"(verdict.json written: {run.summary()}).\nRedraw the figures with:\n  {shlex.join(cmd)}",
             file=sys.stderr,
         )
         return 130

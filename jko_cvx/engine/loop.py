@@ -334,6 +334,7 @@ def simulate(
     overwrite: bool = False,
     attempts: list[dict[str, Any]] | None = None,
     observers: Callable[[RunDir | None], list[Tracker]] | None = None,
+    on_finish: Callable[[Run], None] | None = None,
 ) -> Run:
     """Run a scene; see the module docstring.
 
@@ -357,6 +358,10 @@ def simulate(
         (snapshots, checkpoints), so what they write is never behind the checkpoint; their
         :meth:`~jko_cvx.engine.trackers.Tracker.solved` sees each committed step's collision
         problem and result (:mod:`jko_cvx.engine.verify` re-solves it with a reference).
+    on_finish : callable, optional
+        ``on_finish(run)``, called with the finished run while its directory is still locked: what it
+        writes beside the run (the CLI's figures) cannot land in a directory another process has
+        taken over since.  An exception it raises propagates; the run is complete on disk by then.
 
     Raises
     ------
@@ -401,6 +406,8 @@ def simulate(
         raise TypeError(f"attempts must be a list (it receives the failed attempts), got {type(attempts).__name__}")
     if observers is not None and not callable(observers):
         raise TypeError(f"observers must be a callable (rundir -> list of trackers), got {type(observers).__name__}")
+    if on_finish is not None and not callable(on_finish):
+        raise TypeError(f"on_finish must be a callable (run -> None), got {type(on_finish).__name__}")
     stepper = Stepper(scene, attempts)
     first = None if resume else initial_state(scene)
     if first is not None:
@@ -420,7 +427,7 @@ def simulate(
                 _loop(scene, stepper, state, trackers, guard, clock)
                 guard.hold()  # the loop has ended: a signal from here on is ignored
                 clock.accepted()
-                return _finish(scene, state, trackers, snaps, rd)
+                run = _finish(scene, state, trackers, snaps, rd)
             except KeyboardInterrupt as exc:
                 if rd is None:
                     raise
@@ -428,6 +435,9 @@ def simulate(
                 clock.rewind()  # the interrupted step is discarded, and its seconds with it
                 rd.save_state(state)
                 raise RunInterrupted(rd.path, state.step, state.t, getattr(exc, "signum", signal.SIGINT)) from None
+        if on_finish is not None:  # outside the guard (the run is complete), inside the lock
+            on_finish(run)
+        return run
 
 
 def _finish(scene: Scene, state: RunState, trackers: list[Tracker], snaps: Snapshots, rd: RunDir | None) -> Run:

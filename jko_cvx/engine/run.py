@@ -174,11 +174,34 @@ def _require(module: str):
         ) from None
 
 
+def _check_export_target(path: Path) -> None:
+    """RunDirError for a target that is a symbolic link (never followed), a directory, or a file of a run directory
+    (writing there would destroy the run)."""
+    from jko_cvx.engine._rundir import FIGURES, RUN_FILES, VERIFY_FILES
+
+    if path.is_symlink():
+        raise RunDirError(f"{path} is a symbolic link: an export never writes through one; choose another file")
+    if path.is_dir():
+        raise RunDirError(f"{path} is a directory: name the netCDF file to write")
+    folder = path.parent
+    in_run = (folder / "scene.json").exists() and path.name in (*RUN_FILES, *FIGURES, *VERIFY_FILES, ".lock")
+    in_snapshots = folder.name == "snapshots" and (folder.parent / "scene.json").exists()
+    if in_run or in_snapshots:
+        raise RunDirError(
+            f"{path} is a file of the run directory {folder.parent if in_snapshots else folder}: exporting there "
+            "would destroy the run; choose another file name (a new file beside the run is fine)"
+        )
+
+
 def export_netcdf(run: Run, path: str | Path) -> Path:
-    """Write :meth:`Run.to_xarray` to a netCDF-4 file with h5netcdf (extra ``jko_cvx[netcdf]``)."""
+    """Write :meth:`Run.to_xarray` to a netCDF-4 file with h5netcdf (extra ``jko_cvx[netcdf]``).
+
+    A target that is a symbolic link, a directory or one of a run directory's own files is refused
+    (:class:`~jko_cvx.engine.errors.RunDirError`) before anything is written."""
+    path = Path(path)
+    _check_export_target(path)
     ds = run.to_xarray()
     _require("h5netcdf")
-    path = Path(path)
     ds.to_netcdf(path, engine="h5netcdf")
     return path
 

@@ -115,6 +115,18 @@ def test_export_writes_the_dataset_as_netcdf(tmp_path):
         xr.testing.assert_identical(back.load(), run.to_xarray())
 
 
+@pytest.mark.parametrize("target", ["checkpoint.npz", "verdict.json", "snapshots/step_0000002.npz", "link.nc"])
+def test_export_refuses_a_file_of_a_run_directory_or_a_link(tmp_path, capsys, target):
+    out = tmp_path / "r"
+    simulate(dataclasses.replace(default_scene(), t_end=0.02), out=out)
+    elsewhere = tmp_path / "elsewhere.nc"
+    (out / "link.nc").symlink_to(elsewhere)
+    assert main(["export", str(out), "--netcdf", str(out / target)]) == 2
+    assert "jko-cvx: error:" in capsys.readouterr().err
+    assert not elsewhere.exists() and jko_cvx.load_run(out).steps == 2  # the run is intact
+    assert main(["export", str(out), "--netcdf", str(out / "run.nc")]) == 0  # a new file beside the run is fine
+
+
 def test_a_missing_extra_is_named(tmp_path, monkeypatch, capsys):
     run = simulate(dataclasses.replace(default_scene(), t_end=0.02), out=tmp_path / "r")
     monkeypatch.setitem(sys.modules, "xarray", None)  # as if not installed

@@ -242,6 +242,20 @@ def test_a_deleted_snapshot_is_named_by_load_run_and_resume(tmp_path):
             read()
 
 
+def test_on_finish_runs_while_the_run_directory_is_still_locked(tmp_path):
+    # the CLI draws its figures here: another run cannot take the directory over in between
+    out, seen = tmp_path / "r", []
+
+    def other_run(run):
+        with pytest.raises(RunDirError, match=r"in use by another run"):
+            simulate(_small(), out=out, overwrite=True)
+        seen.append(run.t)
+
+    simulate(_small(), out=out, on_finish=other_run)
+    assert seen == [pytest.approx(0.05)]
+    simulate(_small(), out=out, overwrite=True)  # released afterwards
+
+
 def test_cli_rerun_resume_and_overwrite(tmp_path, capsys):
     out = tmp_path / "r"
     scene = tmp_path / "s.toml"
