@@ -132,6 +132,11 @@ class Verdict(Mapping):
                 f" (WARNING: max f grew by a factor {self.unflagged_growth:.3g} and no blow-up rule fired: "
                 "a concentration the mesh criterion did not see)"
             )
+        if self.blowup and self.stop in (StopReason.SOLVER_FAILURE, StopReason.EPS_T):
+            text += (
+                " (the paper's exit-flag rule e_f: a failed collision solve, not a measured concentration; "
+                "the blow-up kind says what the records show)"
+            )
         if self.blowup and self.blowup_kind == "no_finite_time":
             # a threshold crossed at a finite t by a concentration that is not a singularity
             # (exponential contraction, as for gamma >= 2 by the Osgood criterion)

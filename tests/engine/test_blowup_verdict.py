@@ -77,6 +77,10 @@ def test_a_run_stopped_by_a_solver_failure_is_undetermined_through_load_run(tmp_
     assert back == run.verdict and back.stop is StopReason.SOLVER_FAILURE
     assert back.blowup_kind == "undetermined", back.blowup_reason
     assert "stopped early" in back.blowup_reason and back.T_b_fit is None
+    # the paper's exit-flag rule makes it a blow-up; the summary says it is a failed solve, not a concentration
+    assert back.blowup and "exit-flag rule e_f: a failed collision solve, not a measured concentration" in (
+        back.describe()
+    )
 
 
 def test_uncertified_records_never_feed_the_verdict_fit():
