@@ -183,9 +183,9 @@ def _check_export_target(path: Path) -> None:
         raise RunDirError(f"{path} is a symbolic link: an export never writes through one; choose another file")
     if path.is_dir():
         raise RunDirError(f"{path} is a directory: name the netCDF file to write")
-    folder = path.parent
-    in_run = (folder / "scene.json").exists() and path.name in (*RUN_FILES, *FIGURES, *VERIFY_FILES, ".lock")
-    in_snapshots = folder.name == "snapshots" and (folder.parent / "scene.json").exists()
+    folder, leaf = path.parent, path.parts[-1] if path.parts else ""
+    in_run = (folder / "scene.json").exists() and leaf in (*RUN_FILES, *FIGURES, *VERIFY_FILES, ".lock")
+    in_snapshots = folder.parts[-1:] == ("snapshots",) and (folder.parent / "scene.json").exists()
     if in_run or in_snapshots:
         raise RunDirError(
             f"{path} is a file of the run directory {folder.parent if in_snapshots else folder}: exporting there "

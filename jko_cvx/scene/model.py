@@ -376,6 +376,11 @@ def _check_combinations(top, v, x, t, c, s, o) -> None:
         step_policy(t.policy, t.dt, t.eps_t, t.halve_on, prefix="time.")
     except ValueError as exc:
         raise SceneError(str(exc)) from None
+    if t.policy == "fixed" and t.dt > top.t_end:  # (other policies take dt as a cap or a first try)
+        raise SceneError(
+            f"time.dt = {t.dt:g} is larger than t_end = {top.t_end:g} with time.policy = 'fixed': the run would take "
+            "one step of t_end, not of the time.dt asked for; time.dt must be at most t_end"
+        )
     if x is None and s.eps_x > 0:
         raise SceneError("stop.eps_x needs an [x] grid (a homogeneous scene has no x-cells)")
     if any(tk > top.t_end for tk in o.times):

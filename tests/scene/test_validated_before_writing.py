@@ -74,3 +74,10 @@ def test_a_scene_built_in_code_is_validated_before_writing(tmp_path):
         with pytest.raises(SceneError, match=key):
             simulate(bad, out=tmp_path / "run")
         assert not (tmp_path / "run").exists()
+
+
+def test_a_fixed_step_longer_than_the_run_is_refused():
+    # --set time.dt=0x10 is the TOML integer 16: one clipped step of t_end would run instead of the step asked for
+    with pytest.raises(SceneError, match=r"time\.dt = 16 is larger than t_end = 0\.02 with time\.policy = 'fixed'"):
+        scene_from_dict(with_overrides(BASE, {"time.dt": 16}))
+    scene_from_dict(with_overrides(BASE, {"time.dt": 0.02}))  # one whole step is fine
