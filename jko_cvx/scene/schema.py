@@ -85,7 +85,9 @@ class Rule:
         if self.choices is not None:
             return f"one of {sorted(self.choices)}"
         if self.kind == "floats":
-            return f"a {'non-empty ' if self.nonempty else ''}list of numbers"
+            each = self._element().describe()
+            each = "" if each == "a finite number" else f", each {each}"
+            return f"a {'non-empty ' if self.nonempty else ''}list of numbers{each}"
         if self.kind in ("table", "str", "bool"):
             return {"table": "a table", "str": "a string", "bool": "true or false"}[self.kind]
         what = "an integer" if self.kind == "int" else "a finite number"
@@ -100,6 +102,10 @@ class Rule:
             return f"{what} {op} {self.lo:g}"
         return what
 
+    def _element(self) -> Rule:
+        """The rule of one entry of a ``floats`` list (its range, as a number)."""
+        return dataclasses.replace(self, kind="float", nonempty=False, text=None)
+
     def _in_range(self, x: float) -> bool:
         if self.inf and x == math.inf:
             return True
@@ -113,9 +119,9 @@ class Rule:
         """Check ``val`` for the dotted key ``name``; return it in canonical form (float, int, tuple)."""
         if self.kind == "floats":
             if not isinstance(val, list | tuple) or (self.nonempty and not val):
-                what = "a non-empty list" if self.nonempty else "a list"
-                raise SceneError(f"{name} must be {what} of numbers, got {val!r}")
-            return tuple(self._number(v, f"{name}[{i}]") for i, v in enumerate(val))
+                raise SceneError(f"{name} must be {self.describe()}, got {val!r}")
+            element = self._element()
+            return tuple(element._number(v, f"{name}[{i}]") for i, v in enumerate(val))
         if self.kind in ("float", "int"):
             return self._number(val, name)
         if self.kind == "table":

@@ -514,3 +514,11 @@ def test_typos_in_several_tables_are_named_in_one_error():
                         'amplitudes = [1.0]\nrates = [2.0]\ncentres = [0.0]\n[time]\ndt = 0.01\n')  # fmt: skip
     with pytest.raises(SceneError, match=r"^unknown key\(s\) \['v.nn'\] in \[v\] \(did you mean 'v.n'\?\); allowed: "):
         scene_from_dict(one)
+
+
+def test_a_list_entry_out_of_range_is_named_with_the_range():
+    with pytest.raises(SceneError, match=r"initial\.amplitudes\[1\] must be a finite number >= 0, got -0\.5"):
+        shipped_scene("tab_bu_g1", {"initial.amplitudes": [1.0, -0.5], "initial.rates": [2.0, 2.0],
+                                    "initial.centres": [0.0, 0.5]})  # fmt: skip
+    with pytest.raises(SceneError, match=r"must be a non-empty list of numbers, each a finite number >= 0, got \[\]"):
+        shipped_scene("tab_bu_g1", {"initial.amplitudes": []})
