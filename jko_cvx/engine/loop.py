@@ -184,6 +184,22 @@ class Stepper:
             and all(st in (Status.CONVERGED, Status.NOT_CERTIFIED) for st in np.ravel(np.atleast_1d(res.status)))
         )
 
+    @classmethod
+    def failed_slices(cls, res) -> int:
+        """The slices of a committed step the engine does not certify: none where it accepted the step
+        (:meth:`accepted`, as the verdict counts it), else those neither ``success`` nor at ``ACCEPT_KKT``.  A
+        method's own NOT_CERTIFIED at a tolerance tighter than the engine's is no failure: the diagnostics'
+        ``failed`` column, the verdict's ``uncertified_steps`` and the fit's cut agree."""
+        if cls.accepted(res):
+            return 0
+        ok = np.atleast_1d(res.success) | (
+            (np.atleast_1d(res.kkt_residual) <= ACCEPT_KKT)
+            & np.isin(np.atleast_1d(res.status), [Status.CONVERGED, Status.NOT_CERTIFIED])
+        )
+        # a step the engine refused always counts (the verdict counts it uncertified): where every slice passes one
+        # test or the other but not all the same one, its not-success slices
+        return int(np.sum(~ok)) or int(np.sum(~np.atleast_1d(res.success)))
+
     def solve(self, state: RunState) -> _Outcome:
         """Transport and collision from ``state`` with the policy's dt, halved while the policy allows."""
         sc = self.scene
@@ -270,8 +286,7 @@ class Stepper:
         state.t += out.dt
         state.step += 1
         it = np.atleast_1d(out.res.iterations)
-        failed = int(np.sum(~np.atleast_1d(out.res.success)))
-        return StepInfo(out.dt, int(it.max()), failed, out.retries, _lower_minima(out.res))
+        return StepInfo(out.dt, int(it.max()), self.failed_slices(out.res), out.retries, _lower_minima(out.res))
 
 
 class _Clock:

@@ -156,3 +156,12 @@ def test_a_concentration_that_no_rule_flagged_is_reported_after_it_relaxed():
     assert m.max() / m[0] > 20 > m[-1] / m[0]  # the premise: a peak above the warning's factor, an end below it
     assert v.unflagged_growth == pytest.approx(m.max() / m[0], rel=1e-12)
     assert f"WARNING: max f grew by a factor {m.max() / m[0]:.3g}" in v.describe()
+
+
+def test_steps_the_engine_accepts_are_not_counted_failed_nor_cut_from_the_fit():
+    # Newton asked for an unreachable tolerance reports NOT_CERTIFIED at every step, at KKT residuals the engine
+    # accepts (ACCEPT_KKT): the run, its failed column and its fit must agree that these steps are certified
+    run = simulate(shipped_scene("tab_bu_g1", {"v.n": 41, "collision.options.tol": 1e-30}))
+    assert run.verdict.certified and run.blowup
+    assert (run.diagnostics.failed == 0).all()
+    assert "uncertified" not in run.verdict.blowup_reason and run.verdict.blowup_kind == "finite_time"
