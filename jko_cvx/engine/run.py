@@ -82,8 +82,8 @@ class Run:
     @property
     def failed_steps(self) -> int:
         """Steps with a failed collision solve: accepted steps with a failed slice, and the step a
-        solver failure stopped the run on (it has no diagnostics row)."""
-        stopped = self.verdict.stop is StopReason.SOLVER_FAILURE
+        solver failure stopped the run on (it has no diagnostics row; nor has a first step that failed, NO_STEP)."""
+        stopped = self.verdict.stop in (StopReason.SOLVER_FAILURE, StopReason.NO_STEP)
         return int((self.diagnostics["failed"] > 0).sum()) + int(stopped)
 
     def snapshots_at(self, times) -> list[dict[str, Any]]:
