@@ -242,6 +242,21 @@ CASES: list[tuple[str, str, str, str | None, list[str]]] = [
         ["reproduce", "explicit", "--workers", "0", "--out", "rep"],
     ),
     ("bad CLI number", "jko-cvx compare --t -1 SCENE", "t", None, ["compare", "scene.toml", "--t", "-1"]),
+    (
+        "threshold the initial grid meets",
+        "stop.eps_v = 0.5 (dv = 0.2)",
+        "eps_v",
+        _scene(**{"eps_v = 1e-4": "eps_v = 0.5"}),
+        [],
+    ),
+    ("fixed step longer than the run", "time.dt = 0x10", "dt", _scene(**{"dt = 0.01": "dt = 0x10"}), []),
+    (
+        "overlapping overrides",
+        "--set v.n=31 --set v={L=2.0,n=41}",
+        "v.n",
+        BASE,
+        ["--set", "v.n=31", "--set", "v={L=2.0,n=41}", "--out", "out"],
+    ),
 ]
 
 

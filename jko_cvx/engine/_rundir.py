@@ -17,7 +17,7 @@ Rules (each refusal is a :class:`~jko_cvx.engine.errors.RunDirError` naming the 
 * ``resume`` needs a checkpoint, made from the same scene (the SHA-256 of the canonical JSON
   of ``scene.to_dict()``; a refusal names the keys that differ) by the same package version and
   the same code (:func:`~jko_cvx.environment.code_fingerprint`, the SHA-256 of the package's
-  ``.py`` files: an edited checkout keeps its version number, and a run continued under other
+  files: an edited checkout keeps its version number, and a run continued under other
   code would mix two codes' steps in one record);
 * every file the run writes has its SHA-256 recorded in ``metadata.json``
   (:class:`~jko_cvx.engine._state.Ledger`); ``resume`` and :func:`~jko_cvx.engine.run.load_run`
