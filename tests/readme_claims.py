@@ -1541,7 +1541,7 @@ CLAIMS += (
 # --- the bad-input guide's table (studies/misuse_probe.py): every row ---------------------------------------
 
 
-_MISUSE_ROWS = 49  # rows of misuse_scene_cli.csv; _misuse_row refuses a file with another count
+_MISUSE_ROWS = 52  # rows of misuse_scene_cli.csv; _misuse_row refuses a file with another count
 
 
 def _misuse_row(d: pd.DataFrame, i: int) -> tuple[str, ...]:
