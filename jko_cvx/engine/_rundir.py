@@ -46,7 +46,7 @@ from typing import Any
 from jko_cvx._version import __version__
 from jko_cvx.engine._state import TEMP_FILE, Ledger, RunState, read_snapshot
 from jko_cvx.engine.errors import RunDirError
-from jko_cvx.environment import code_fingerprint, environment
+from jko_cvx.environment import PACKAGES, code_fingerprint, environment
 from jko_cvx.scene.model import Scene
 
 __all__ = ["RunDir", "canonical_scene", "flat_scene_record", "read_snapshots", "scene_differences", "scene_fingerprint"]
@@ -57,6 +57,9 @@ VERIFY_FILES = ("verify.json", "verify.csv", "verify.md", "verify.png", "traject
 """A verification's files beside the run's (:mod:`jko_cvx.engine.verify`; ``reference/`` holds the reference's
 run): moved aside by an overwrite too."""
 _SNAPSHOT = re.compile(r"step_(\d+)\.npz")
+_NUMERIC_ENVIRONMENT = ("python", *PACKAGES, "machine", "cpu_count", "blas")
+"""The keys of :func:`~jko_cvx.environment.environment` a run's numbers may depend on (a resumed leg records where
+they differ from the first leg's)."""
 _ASIDE = ".replaced"  # an overwritten run, kept until the new run has started
 
 
@@ -379,6 +382,13 @@ class RunDir:
         state.check(self.checkpoint)
         self.state = state
         self.snapshots = self.read_snapshots(state.step)
+        # the same code, maybe not the same numerics: other library versions or another BLAS give numbers that
+        # agree within tolerances, not bit for bit; each leg records where its environment differs from the first's
+        here = environment()
+        differs = {k: [self.ledger.metadata.get(k), here[k]] for k in _NUMERIC_ENVIRONMENT
+                   if k in here and self.ledger.metadata.get(k) != here[k]}  # fmt: skip
+        leg = {"at_step": state.step, "t": state.t, "started": time.strftime("%Y-%m-%dT%H:%M:%S")}
+        self.ledger.append("resumed", {**leg, "environment_differs": differs})
 
     def _check_provenance(self, recorded: dict[str, str]) -> None:
         if recorded["scene_sha256"] != self.provenance["scene_sha256"]:

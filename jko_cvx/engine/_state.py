@@ -146,6 +146,11 @@ class Ledger:
     def _save(self) -> None:
         save_text(self.root / "metadata.json", json.dumps(self.metadata, indent=2))
 
+    def append(self, key: str, entry: dict[str, Any]) -> None:
+        """Append ``entry`` to the list ``metadata[key]`` and write ``metadata.json`` (atomically)."""
+        self.metadata.setdefault(key, []).append(entry)
+        self._save()
+
     def _name(self, path: Path) -> str:
         return path.relative_to(self.root).as_posix()
 

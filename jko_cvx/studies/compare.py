@@ -198,7 +198,6 @@ def problem_from_scene(scene, t: float) -> CollisionProblem:
     Homogeneous scenes: the next step's problem.  Inhomogeneous ones: the x-slice with the
     largest max f (the hardest one), taken before transport.  ``t = 0`` uses the initial datum.
     """
-    import dataclasses
 
     from jko_cvx.engine.loop import simulate
     from jko_cvx.kernels import PowerKernel
@@ -206,7 +205,12 @@ def problem_from_scene(scene, t: float) -> CollisionProblem:
     if not (isinstance(t, (int, float)) and 0 <= t < scene.t_end):
         raise ValueError(f"t must lie in [0, t_end = {scene.t_end:g}), got {t!r}")
     if t > 0:
-        run = simulate(dataclasses.replace(scene, t_end=float(t)))
+        # the scene's own run, cut at t: snapshot times past t dropped, and a fixed step longer than t is the
+        # one step to t (the loader refuses both in a scene, where they are a mistake)
+        cut = {"t_end": float(t), "output.times": [tk for tk in scene.output.times if tk <= t]}
+        if scene.time.policy == "fixed" and scene.time.dt > t:
+            cut["time.dt"] = float(t)
+        run = simulate(scene.replace(cut))
         if run.blowup:
             raise ValueError(f"the scene flags blow-up at t = {run.t:g} < {t:g}: {run.verdict['reason']}")
         f, grid = run.f, run.vgrid

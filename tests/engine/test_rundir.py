@@ -144,6 +144,23 @@ def test_resume_refuses_a_checkpoint_without_a_code_fingerprint(tmp_path):
     assert load_run(out).t == pytest.approx(0.1)
 
 
+def test_a_resume_records_where_its_environment_differs_from_the_first_legs(tmp_path, monkeypatch):
+    # numbers computed with other library versions or another BLAS are not bit for bit the uninterrupted run's: the
+    # resume is allowed (the code is the same) and metadata.json says which leg ran where
+    out = tmp_path / "r"
+    simulate(_small({"t_end": 0.1}), out=out)
+    simulate(_small({"t_end": 0.1}), out=out, resume=True)
+    legs = json.loads((out / "metadata.json").read_text())["resumed"]
+    assert len(legs) == 1 and legs[0]["environment_differs"] == {} and legs[0]["at_step"] == 10
+    real = rundir_module.environment
+    monkeypatch.setattr(rundir_module, "environment", lambda: {**real(), "numpy": "0.0.1"})
+    simulate(_small({"t_end": 0.1}), out=out, resume=True)
+    meta = json.loads((out / "metadata.json").read_text())
+    assert meta["resumed"][1]["environment_differs"] == {"numpy": [np.__version__, "0.0.1"]}
+    assert meta["numpy"] == np.__version__  # the first leg's record is kept
+    assert load_run(out).steps == 10
+
+
 def test_resume_with_nothing_to_resume_fails(tmp_path):
     with pytest.raises(RunDirError, match=r"nothing to resume: run directory .* does not exist"):
         simulate(_small(), out=tmp_path / "none", resume=True)

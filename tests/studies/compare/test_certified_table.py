@@ -8,6 +8,7 @@ import pytest
 
 from jko_cvx import CollisionProblem, Grid, PowerKernel
 from jko_cvx.cli import main
+from jko_cvx.scene import shipped_scene
 from jko_cvx.scene.model import default_scene, load_scene
 from jko_cvx.studies.compare import compare_solvers, problem_from_scene
 
@@ -60,6 +61,20 @@ def test_problem_from_scene_takes_the_hardest_slice():
     assert homogeneous.n == 121 and homogeneous.dt == 0.01
     with pytest.raises(ValueError, match="t must lie in"):
         problem_from_scene(default_scene(), 5.0)
+
+
+def test_problem_from_scene_at_any_time_of_the_scene():
+    # the run to t is the scene's own, cut there: its snapshot times past t and a first step longer than t are no
+    # reason to refuse (the step to t is then t itself, as a run to t takes it)
+    from jko_cvx.engine.loop import simulate
+
+    s = shipped_scene("inhom_gamma1p5_before", {"x.n": 21, "v.n": 21})
+    assert s.output.times and max(s.output.times) > 0.05
+    prob = problem_from_scene(s, 0.05)
+    assert not prob.batched and np.isfinite(prob.f_star).all()
+    early = problem_from_scene(default_scene(), 0.005)
+    alone = simulate(default_scene().replace({"t_end": 0.005, "time.dt": 0.005}))
+    assert np.array_equal(early.f_star, alone.f) and early.dt == 0.01
 
 
 def test_compare_command_writes_its_table(tmp_path, capsys):
