@@ -50,12 +50,16 @@ ENVIRONMENT_FILE = "environment.json"
 """The file beside CSV results that records, per file name, the environment that wrote it."""
 
 
+PACKAGE_SUFFIXES = (".py", ".toml")
+"""The files of the package its results depend on: modules and data (the shipped scenes)."""
+
+
 def package_files() -> list[Path]:
-    """Every file of the package (its modules and its data: the shipped scenes), sorted, compiled bytecode left
-    out: what :func:`code_fingerprint` covers."""
+    """The package's modules and data files (:data:`PACKAGE_SUFFIXES`), sorted: what :func:`code_fingerprint`
+    covers (an editor's swap file or a ``.DS_Store`` beside them is no change of code)."""
     return sorted(
         p for p in PACKAGE_DIR.rglob("*")
-        if p.is_file() and "__pycache__" not in p.relative_to(PACKAGE_DIR).parts and p.suffix not in (".pyc", ".pyo")
+        if p.suffix in PACKAGE_SUFFIXES and p.is_file() and "__pycache__" not in p.relative_to(PACKAGE_DIR).parts
     )  # fmt: skip
 
 

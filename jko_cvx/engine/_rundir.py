@@ -311,7 +311,7 @@ class RunDir:
             ) from None
         for p in self._run_files():
             name = p.relative_to(self.path).as_posix()
-            if p.name in FIGURES or name in ("metadata.json", "verify.png") or name.startswith("snapshots/"):
+            if p.name in FIGURES or name == "metadata.json" or name.startswith("snapshots/"):
                 continue
             if name == "reference":
                 try:

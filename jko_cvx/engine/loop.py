@@ -98,12 +98,12 @@ def _check_thresholds(scene: Scene, state: RunState) -> None:
                                  ("stop.eps_x", scene.stop.eps_x, state.xgrid, "x")):  # fmt: skip
         if grid is None or not eps > 0:
             continue
-        smallest = float(np.min(np.diff(grid.points)))
+        smallest = float((grid.dv if axis == "v" else grid.dx).min())  # as the diagnostics' min_dv / min_dx
         if eps > smallest:
             raise SceneError(
-                f"{key} = {eps:g} is not below the smallest spacing of the initial {axis}-grid ({smallest:.4g}, after "
-                f"its first refinement): the rule min d{axis} < {key.split('.')[1]} would fire on the first step "
-                f"with no concentration; choose {key} < {smallest:.4g} (or more points on {axis})"
+                f"{key} = {eps:g} is not below the smallest spacing of the {axis}-grid the run starts on "
+                f"({smallest:.4g}): the rule min d{axis} < {key.split('.')[1]} holds before any concentration; "
+                f"choose {key} < {smallest:.4g} (or more points on {axis})"
             )
 
 

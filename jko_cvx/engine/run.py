@@ -183,7 +183,8 @@ def _check_export_target(path: Path) -> None:
         raise RunDirError(f"{path} is a symbolic link: an export never writes through one; choose another file")
     if path.is_dir():
         raise RunDirError(f"{path} is a directory: name the netCDF file to write")
-    folder, leaf = path.parent, path.parts[-1] if path.parts else ""
+    # the folder as it is on disk (a relative path, a linked folder): the file the write would reach
+    folder, leaf = path.parent.resolve(), path.parts[-1] if path.parts else ""
     in_run = (folder / "scene.json").exists() and leaf in (*RUN_FILES, *FIGURES, *VERIFY_FILES, ".lock")
     in_snapshots = folder.parts[-1:] == ("snapshots",) and (folder.parent / "scene.json").exists()
     if in_run or in_snapshots:

@@ -135,6 +135,7 @@ class Scene:
         >>> default_scene().replace({"time.dt": 0.005, "t_end": 0.5}).time.dt
         0.005
         """
+        _check_overlap(changes)
         out: Any = self
         for dotted, val in changes.items():
             out = _replace_path(out, str(dotted).split("."), val, str(dotted))
@@ -387,6 +388,19 @@ def _check_combinations(top, v, x, t, c, s, o) -> None:
         raise SceneError(f"output.times must be a list of numbers in [0, t_end = {top.t_end:g}], got {list(o.times)!r}")
 
 
+def _check_overlap(overrides: Mapping[str, Any]) -> None:
+    """SceneError where one dotted key is a table and another one of its keys: one would drop the other."""
+    keys = {str(k) for k in overrides}
+    for b in sorted(keys):
+        parts = b.split(".")
+        for a in (".".join(parts[:i]) for i in range(1, len(parts))):
+            if a in keys:
+                raise SceneError(
+                    f"overrides {a!r} and {b!r} overlap: {a!r} sets the whole table, so one would silently drop the "
+                    f"other; give the keys of {a} one by one"
+                )
+
+
 def with_overrides(data: Mapping[str, Any], overrides: Mapping[str, Any] | None) -> dict[str, Any]:
     """A deep copy of the scene document ``data`` with dotted keys set (``{"time.dt": 0.005}``).
 
@@ -396,16 +410,7 @@ def with_overrides(data: Mapping[str, Any], overrides: Mapping[str, Any] | None)
     like a misspelt key in a file.
     """
     out = copy.deepcopy(dict(data))
-    keys = {str(k) for k in (overrides or {})}
-    for b in sorted(keys):
-        parts = b.split(".")
-        for a in (".".join(parts[:i]) for i in range(1, len(parts))):
-            if a not in keys:
-                continue
-            raise SceneError(
-                f"overrides {a!r} and {b!r} overlap: {a!r} sets the whole table, so one would silently drop the "
-                f"other; give the keys of {a} one by one"
-            )
+    _check_overlap(overrides or {})
     for dotted, val in (overrides or {}).items():
         *parents, leaf = str(dotted).split(".")
         node = out

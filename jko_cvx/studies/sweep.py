@@ -41,8 +41,8 @@ of the module that defines it, the package version and a hash of every file of t
 (its modules and the shipped scenes, :func:`jko_cvx.environment.code_fingerprint`): after any
 change of code or shipped data, old entries are simply not found (and the point runs again).
 Functions whose results that key cannot pin are refused before any point runs: lambdas (two in
-one module share a name), closures (their captured values are not in the source) and callable
-objects such as ``functools.partial``.  Each entry records its key and
+one module share a name), closures and functions defined inside functions (the values they were
+made with are not in the source) and callable objects such as ``functools.partial``.  Each entry records its key and
 a SHA-256 digest of its content; an entry that does not parse, records another key or
 point, or fails its digest (truncated, tampered with) is recomputed with a
 :class:`StaleCacheWarning` naming the file.  ``fresh=True`` (``jko-cvx reproduce --fresh``)
@@ -139,6 +139,12 @@ def _check_cacheable(func: Callable[..., Any]) -> None:
         raise ValueError(
             f"func is a lambda ({func.__qualname__} in {func.__module__}): lambdas of one module share a name, so "
             "the cache could serve one's results for another; define it with def"
+        )
+    if "<locals>" in func.__qualname__ and not func.__closure__:
+        raise ValueError(
+            f"func {func.__qualname__} is defined inside a function: the values it was made with (default "
+            "arguments, globals of the call) are not in its module's source, so the cache could serve results of "
+            "other values; define it at module level and pass them in the points"
         )
     if func.__closure__:
         raise ValueError(

@@ -127,6 +127,20 @@ def test_export_refuses_a_file_of_a_run_directory_or_a_link(tmp_path, capsys, ta
     assert main(["export", str(out), "--netcdf", str(out / "run.nc")]) == 0  # a new file beside the run is fine
 
 
+def test_export_refuses_a_run_file_reached_by_a_relative_path_or_a_linked_folder(tmp_path, monkeypatch):
+    from jko_cvx.engine.errors import RunDirError
+    from jko_cvx.engine.run import export_netcdf
+
+    out = tmp_path / "r"
+    run = simulate(dataclasses.replace(default_scene(), t_end=0.02), out=out)
+    (tmp_path / "snaps").symlink_to(out / "snapshots")
+    monkeypatch.chdir(out / "snapshots")
+    for target in ("step_0000002.npz", tmp_path / "snaps" / "step_0000002.npz", "../checkpoint.npz"):
+        with pytest.raises(RunDirError, match="file of the run directory"):
+            export_netcdf(run, target)
+    assert jko_cvx.load_run(out).steps == 2
+
+
 def test_a_missing_extra_is_named(tmp_path, monkeypatch, capsys):
     run = simulate(dataclasses.replace(default_scene(), t_end=0.02), out=tmp_path / "r")
     monkeypatch.setitem(sys.modules, "xarray", None)  # as if not installed

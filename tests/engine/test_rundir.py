@@ -238,11 +238,15 @@ def test_overwrite_of_a_run_refuses_a_file_the_run_did_not_write(tmp_path):
     out = tmp_path / "r"
     simulate(_small(), out=out)
     (out / "verify.csv").write_text("a table of mine\n")  # not written by this run (it was no verification)
+    (out / "verify.png").write_bytes(b"my figure")  # nor this: a verification records its figure in the ledger
     (out / "reference").mkdir()  # nor this folder: it holds no run
     with pytest.raises(RunDirError, match=r"verify\.csv is not one of the files the run in .* wrote"):
         simulate(_small(), out=out, overwrite=True)
     assert (out / "verify.csv").read_text() == "a table of mine\n" and (out / "reference").is_dir()
     (out / "verify.csv").unlink()
+    with pytest.raises(RunDirError, match=r"verify\.png is not one of the files the run in .* wrote"):
+        simulate(_small(), out=out, overwrite=True)
+    (out / "verify.png").unlink()
     with pytest.raises(RunDirError, match=r"reference is not a run directory this package wrote"):
         simulate(_small(), out=out, overwrite=True)
     (out / "reference").rmdir()

@@ -373,6 +373,8 @@ def test_overrides_of_a_table_and_of_one_of_its_keys_are_refused(overrides):
     a, b = sorted(overrides, key=len)
     with pytest.raises(SceneError, match=rf"overrides '{re.escape(a)}' and '{re.escape(b)}' overlap"):
         shipped_scene("tab_bu_g1", overrides)
+    with pytest.raises(SceneError, match=rf"overrides '{re.escape(a)}' and '{re.escape(b)}' overlap"):
+        shipped_scene("tab_bu_g1").replace(overrides)  # Scene.replace as well
 
 
 def test_to_dict_is_canonical_sorted_and_complete():

@@ -58,8 +58,8 @@ def test_a_threshold_the_initial_grid_already_meets_is_refused_before_writing(tm
     # min dv of the initial (refined) grid is 0.05 on 41 points: eps_v = 0.06 would "detect" a blow-up at the first
     # step with no concentration at all
     scene = scene_from_dict(with_overrides(BASE, {"refine": {"v": {"bumps": 1}}, "stop.eps_v": 0.06}))
-    with pytest.raises(SceneError, match=r"stop\.eps_v = 0\.06 is not below the smallest spacing of the initial "
-                                         r"v-grid \(0\.05"):  # fmt: skip
+    with pytest.raises(SceneError, match=r"stop\.eps_v = 0\.06 is not below the smallest spacing of the v-grid the "
+                                         r"run starts on \(0\.05\)"):  # fmt: skip
         simulate(scene, out=tmp_path / "run")
     assert not (tmp_path / "run").exists()
     simulate(scene.replace({"stop.eps_v": 0.04}))  # below it: a threshold the run must reach

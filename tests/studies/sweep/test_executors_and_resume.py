@@ -224,10 +224,18 @@ def test_lambdas_closures_and_partials_are_refused_before_any_point_runs(tmp_pat
         (make(10), r"a lambda"),
         (_closure(3), r"captures values \(k\)"),
         (functools.partial(scaled, k=2), r"func must be a function defined with def .*functools\.partial"),
+        (_with_default(3), r"defined inside a function"),
     ):
         with pytest.raises((TypeError, ValueError), match=match):
             run_sweep(func, [{"a": 1.0}], tmp_path / "c", "serial", progress=False)
     assert not (tmp_path / "c").exists()
+
+
+def _with_default(k):
+    def times(a, k=k):  # the value is captured as a default, not a cell
+        return {"y": k * a}
+
+    return times
 
 
 def _closure(k):
@@ -245,3 +253,12 @@ def test_numpy_and_python_numbers_of_other_types_get_other_keys(tmp_path):
     assert point_key(mod.double, {"a": np.bool_(True)}) == point_key(mod.double, {"a": True}) != point_key(
         mod.double, {"a": 1}
     )
+
+
+def test_an_editor_file_beside_the_modules_is_no_change_of_code():
+    import jko_cvx
+    from jko_cvx.environment import package_files
+
+    root = Path(jko_cvx.__file__).resolve().parent
+    assert all(p.suffix in (".py", ".toml") for p in package_files())
+    assert {root / "grid.py", root / "scene" / "shipped" / "tab_bu_g1.toml"} <= set(package_files())
