@@ -30,6 +30,7 @@ import numpy as np
 import pandas as pd
 
 from jko_cvx.engine.run import Run
+from jko_cvx.engine.verdict import run_failure
 
 MATCH = 1e-6
 """Two times are the same when they differ by at most this many of the smaller step (rounding)."""
@@ -80,6 +81,9 @@ def compare_trajectories(run: Run, ref: Run, tolerance: float) -> TrajectoryComp
     stop, stop_ref = run.verdict.stop.name, ref.verdict.stop.name
     T_b, T_b_ref = _t_b(run), _t_b(ref)
     problems = []
+    failure = run_failure(ref.verdict.to_dict())
+    if failure is not None:  # a trajectory carried on from failed solves is no reference, however close
+        problems.append(f"the reference run is not certified ({failure})")
     if stop != stop_ref:
         problems.append(f"the runs stop for different reasons ({run.verdict.reason}; reference: {ref.verdict.reason})")
     if (T_b is None) != (T_b_ref is None):

@@ -31,7 +31,7 @@ from jko_cvx.blowup import KINDS, BlowupFit, fit_blowup
 if TYPE_CHECKING:
     from jko_cvx.engine._state import RunState
 
-__all__ = ["UNFLAGGED_GROWTH", "SolverFailureRule", "StopReason", "Verdict", "fit_rows"]
+__all__ = ["UNFLAGGED_GROWTH", "SolverFailureRule", "StopReason", "Verdict", "fit_rows", "run_failure"]
 
 
 class StopReason(Enum):
@@ -294,3 +294,22 @@ class SolverFailureRule:
         else:
             state.verdict = state.verdict.solver_failed(state.t + dt)
         return self.stop
+
+
+def run_failure(verdict: Mapping[str, Any]) -> str | None:
+    """Why a run is not certified whatever its compared steps show, from its verdict record, else None.
+
+    A failed solve of the tested method that ended the run (``stop.on_solver_failure``: that step is never
+    committed, so it has no row), or failed solves the run went on with (``stop.on_solver_failure = false``:
+    ``uncertified_steps``; ``every`` or ``slices`` may skip them, and the states after them are carried on
+    from an uncertified one).
+    """
+    if verdict.get("stop") in (StopReason.SOLVER_FAILURE, StopReason.SOLVER_FAILURE.name):
+        return f"a failed solve stopped the run ({verdict.get('reason')})"
+    n = int(verdict.get("uncertified_steps") or 0)
+    if n:
+        return (
+            f"the run carried {n} uncertified step(s) from t = {float(verdict['first_uncertified_t']):.6g} (failed "
+            "collision solves it went on with, stop.on_solver_failure = false)"
+        )
+    return None

@@ -56,7 +56,7 @@ Outcome of a slice (``outcome`` column)
 
 The verdict is ``verified`` when at least one slice was compared, every compared slice
 agrees and the run itself is certified (no failed solve ended it or was carried on:
-:func:`run_failure`); otherwise it names why: the run's failure, or the first step and slice (in
+:func:`~jko_cvx.engine.verdict.run_failure`); otherwise it names why: the run's failure, or the first step and slice (in
 step order, then slice order) that does not agree, with both statuses and why.
 
 Trajectory
@@ -64,7 +64,8 @@ Trajectory
 ``trajectory=True`` also runs the whole scene with the reference method (into ``DIR/reference/``)
 and compares the stop reason, T_b and max f(t) at the times both runs share
 (:mod:`jko_cvx.engine._trajectory`); the verdict gains a trajectory part (agrees / differs, with
-the first time max f parts beyond the tolerance) and ``verified`` needs both.
+the first time max f parts beyond the tolerance; a reference run that carried failed solves
+agrees with nothing) and ``verified`` needs both.
 
 Run directory
 -------------
@@ -106,7 +107,7 @@ from jko_cvx.engine.errors import RunDirError
 from jko_cvx.engine.loop import ACCEPT_KKT, simulate
 from jko_cvx.engine.run import Run
 from jko_cvx.engine.trackers import StepInfo, Tracker
-from jko_cvx.engine.verdict import StopReason
+from jko_cvx.engine.verdict import run_failure
 from jko_cvx.scene.model import Scene
 from jko_cvx.threads import blas_limits, usable_cores
 
@@ -431,13 +432,13 @@ class Verification:
 
     @property
     def _failure(self) -> str | None:
-        """Why the run itself is not certified (:func:`run_failure`), else None."""
+        """Why the run itself is not certified (:func:`~jko_cvx.engine.verdict.run_failure`), else None."""
         return run_failure(self.run.verdict.to_dict())
 
     @property
     def verified(self) -> bool:
-        """Every compared slice agrees, no failed solve ended the run and, with ``trajectory``, the two runs
-        agree too."""
+        """Every compared slice agrees, the run is certified (no failed solve ended it or was carried on) and,
+        with ``trajectory``, the reference run is certified too and the two runs agree."""
         ok = verify_verdict(self.table, failure=self._failure)[0]
         return ok and (self.trajectory is None or self.trajectory.agree)
 
@@ -479,31 +480,12 @@ _OTHER_REFERENCE = {
 }
 
 
-def run_failure(verdict: dict[str, Any]) -> str | None:
-    """Why a run is not certified whatever its compared steps show, from its verdict record, else None.
-
-    A failed solve of the tested method that ended the run (``stop.on_solver_failure``: that step is never
-    committed, so it has no row), or failed solves the run went on with (``stop.on_solver_failure = false``:
-    ``uncertified_steps``; ``every`` or ``slices`` may skip them, and the states after them are carried on
-    from an uncertified one).
-    """
-    if verdict.get("stop") in (StopReason.SOLVER_FAILURE, StopReason.SOLVER_FAILURE.name):
-        return f"a failed solve of the tested method stopped the run ({verdict.get('reason')})"
-    n = int(verdict.get("uncertified_steps") or 0)
-    if n:
-        return (
-            f"the run carried {n} uncertified step(s) from t = {float(verdict['first_uncertified_t']):.6g} (failed "
-            "collision solves it went on with, stop.on_solver_failure = false)"
-        )
-    return None
-
-
 def verify_verdict(table: pd.DataFrame, reference: str | None = None, failure: str | None = None) -> tuple[bool, str]:
     """``(verified, text)`` of a verification table (module docstring: verified when every compared slice agrees).
 
     With ``reference``, a verdict with slices the reference failed on says which reference to use instead.
-    ``failure`` says why the run itself is not certified (:func:`run_failure`): the verdict is then "not
-    verified" whatever the rows say.
+    ``failure`` says why the run itself is not certified (:func:`~jko_cvx.engine.verdict.run_failure`): the
+    verdict is then "not verified" whatever the rows say.
     """
     if failure is not None and len(table):
         text = verify_verdict(table, reference)[1]

@@ -208,6 +208,34 @@ def test_a_run_that_went_on_with_failed_solves_is_not_verified_whatever_the_comp
     assert back.attrs["verified"] is False and back.attrs["verdict"] == ver.verdict
 
 
+def test_a_reference_trajectory_with_uncertified_steps_verifies_nothing(tmp_path):
+    # the reference run's third solve reports a failure and the run goes on with it (stop.on_solver_failure =
+    # false): its trajectory is no reference, however close the two agree
+    import dataclasses
+    from unittest import mock
+
+    import jko_cvx.engine.loop as loop
+    from jko_cvx.collision import Status
+
+    real, count = loop.solve_collision, {"conic": 0}
+
+    def solve(problem, method, **opts):
+        res = real(problem, method=method, **opts)
+        if method == "conic":
+            count["conic"] += 1
+            if count["conic"] == 3:
+                res = dataclasses.replace(res, status=Status.MAX_ITERATIONS, kkt_residual=1.0)
+        return res
+
+    sc = _scene(**{"stop.on_solver_failure": False})
+    with mock.patch.object(loop, "solve_collision", solve):
+        ver = verify(sc, "conic", trajectory=True, workers=1, out=tmp_path / "v")
+    assert ver.run.verdict.certified and not ver.reference_run.verdict.certified
+    assert not ver.verified and "the reference run is not certified" in ver.verdict, ver.verdict
+    back = load_verification(tmp_path / "v")
+    assert back.attrs["verified"] is False and back.attrs["verdict"] == ver.verdict
+
+
 @pytest.mark.parametrize(
     ("scene_changes", "kwargs", "error", "names"),
     [
