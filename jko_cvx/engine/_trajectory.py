@@ -81,19 +81,30 @@ def compare_trajectories(run: Run, ref: Run, tolerance: float) -> TrajectoryComp
     stop, stop_ref = run.verdict.stop.name, ref.verdict.stop.name
     T_b, T_b_ref = _t_b(run), _t_b(ref)
     problems = []
+    # a reference carried on from failed solves is no reference from its first one on: those times, and its stop
+    # when that comes later, are not judged (never counted as agreement); before it the comparison stands
     failure = run_failure(ref.verdict.to_dict())
-    if failure is not None:  # a trajectory carried on from failed solves is no reference, however close
-        problems.append(f"the reference run is not certified ({failure})")
-    if stop != stop_ref:
-        problems.append(f"the runs stop for different reasons ({run.verdict.reason}; reference: {ref.verdict.reason})")
-    if (T_b is None) != (T_b_ref is None):
-        problems.append(f"T_b {_fmt(T_b)} against the reference's {_fmt(T_b_ref)}")
-    elif T_b is not None and T_b_ref is not None:
-        step = max(float(d["dt"].iloc[-1]), float(r["dt"].iloc[-1]))
-        if abs(T_b - T_b_ref) > step * (1 + MATCH):
+    cut = math.inf  # the time of the reference's first uncertified state (a failure that stopped it: its T_b)
+    if failure is not None:
+        first = ref.verdict.first_uncertified_t if ref.verdict.first_uncertified_t is not None else ref.verdict.T_b
+        cut = math.inf if first is None else float(first)
+    if failure is None:  # (else the stop is not judged)
+        if stop != stop_ref:
             problems.append(
-                f"T_b {T_b:.6g} against the reference's {T_b_ref:.6g}, more than one step ({step:.3g}) apart"
+                f"the runs stop for different reasons ({run.verdict.reason}; reference: {ref.verdict.reason})"
             )
+        if (T_b is None) != (T_b_ref is None):
+            problems.append(f"T_b {_fmt(T_b)} against the reference's {_fmt(T_b_ref)}")
+        elif T_b is not None and T_b_ref is not None:
+            step = max(float(d["dt"].iloc[-1]), float(r["dt"].iloc[-1]))
+            if abs(T_b - T_b_ref) > step * (1 + MATCH):
+                problems.append(
+                    f"T_b {T_b:.6g} against the reference's {T_b_ref:.6g}, more than one step ({step:.3g}) apart"
+                )
+    if failure is not None:  # from the reference's first failed solve on, nothing is judged
+        late = table["matched"].to_numpy() & (table["t"].to_numpy() >= cut - slack)
+        table.loc[late, "outcome"] = "not judged"
+        table.loc[late, "matched"] = False
     judged = table[table["matched"]]
     bad = judged[judged["outcome"] == "differ"]
     if len(bad):
@@ -107,6 +118,13 @@ def compare_trajectories(run: Run, ref: Run, tolerance: float) -> TrajectoryComp
     worst = float(judged["dmax_f"].max()) if len(judged) else math.nan
     if problems:
         text = "trajectory differs: " + "; ".join(problems)
+    elif failure is not None:
+        text = (
+            f"trajectory agrees where the reference is certified: max f within {tolerance:.1e} at all {len(judged)} "
+            f"common times before t = {cut:.6g} (max relative difference {worst:.2e}); the reference run is not "
+            f"certified from there ({failure}): later times and the stop (T_b {_fmt(T_b)} against the reference's "
+            f"{_fmt(T_b_ref)}) are not judged"
+        )
     else:
         text = (
             f"trajectory agrees: same stop ({stop}), T_b {_fmt(T_b)} and {_fmt(T_b_ref)}, max f within {tolerance:.1e} "

@@ -593,25 +593,32 @@ def verify(
         holder.append(VerifyTracker(scene, settings, rd, workers))
         return holder
 
+    results: list[Verification] = []
+
+    def finish(run: Run) -> None:
+        # inside the run directory's lock (simulate's on_finish): the reference run and the report cannot land in
+        # a directory another process has taken over since the tested run ended
+        tracker = holder[0]
+        result = Verification(run, _frame(tracker.rows), settings)
+        if trajectory:
+            ref_scene = reference_scene(scene, settings.reference, settings.options)
+            again = resume and sub is not None and (sub / "checkpoint.npz").exists()  # killed during the reference run
+            # no checkpoint there: nothing of the reference run to keep (the outer directory's own rules
+            # already refused or moved aside an earlier one), so what a kill left before it is replaced
+            result.reference_run = simulate(ref_scene, out=sub, resume=again, overwrite=not again and sub is not None,
+                                            progress=progress)  # fmt: skip
+            result.trajectory = compare_trajectories(run, result.reference_run, settings.tolerance)
+        if tracker.rundir is not None:
+            _write_report(result, tracker.rundir.path, tracker.rundir.ledger)
+        results.append(result)
+
     try:
-        run = simulate(scene, out=out, resume=resume, overwrite=overwrite, progress=progress, observers=observers)
+        simulate(scene, out=out, resume=resume, overwrite=overwrite, progress=progress, observers=observers,
+                 on_finish=finish)  # fmt: skip
     finally:
         for t in holder:
             t.close()
-    tracker = holder[0]
-    table = _frame(tracker.rows)
-    result = Verification(run, table, settings)
-    if trajectory:
-        ref_scene = reference_scene(scene, settings.reference, settings.options)
-        again = resume and sub is not None and (sub / "checkpoint.npz").exists()  # killed during the reference run
-        # no checkpoint there: nothing of the reference run to keep (the outer directory's own rules
-        # already refused or moved aside an earlier one), so what a kill left before it is replaced
-        result.reference_run = simulate(ref_scene, out=sub, resume=again, overwrite=not again and sub is not None,
-                                        progress=progress)  # fmt: skip
-        result.trajectory = compare_trajectories(run, result.reference_run, settings.tolerance)
-    if tracker.rundir is not None:
-        _write_report(result, tracker.rundir.path, tracker.rundir.ledger)
-    return result
+    return results[0]
 
 
 # ---------------------------------------------------------------- files

@@ -208,9 +208,9 @@ def test_a_run_that_went_on_with_failed_solves_is_not_verified_whatever_the_comp
     assert back.attrs["verified"] is False and back.attrs["verdict"] == ver.verdict
 
 
-def test_a_reference_trajectory_with_uncertified_steps_verifies_nothing(tmp_path):
+def test_a_reference_trajectory_with_uncertified_steps_is_judged_only_before_them(tmp_path):
     # the reference run's third solve reports a failure and the run goes on with it (stop.on_solver_failure =
-    # false): its trajectory is no reference, however close the two agree
+    # false): from there its trajectory is no reference, however close the two agree
     import dataclasses
     from unittest import mock
 
@@ -231,9 +231,14 @@ def test_a_reference_trajectory_with_uncertified_steps_verifies_nothing(tmp_path
     with mock.patch.object(loop, "solve_collision", solve):
         ver = verify(sc, "conic", trajectory=True, workers=1, out=tmp_path / "v")
     assert ver.run.verdict.certified and not ver.reference_run.verdict.certified
-    assert not ver.verified and "the reference run is not certified" in ver.verdict, ver.verdict
+    # only the times before the reference's first failed solve are judged; the rest, and the stop, are not
+    tr = ver.trajectory.table
+    judged = tr[tr["matched"]]
+    assert len(judged) and (judged["t"] < 0.03 - 1e-9).all()
+    assert (tr[tr["t"] >= 0.03 - 1e-9]["outcome"] == "not judged").all()
+    assert "trajectory agrees where the reference is certified" in ver.verdict and "not judged" in ver.verdict
     back = load_verification(tmp_path / "v")
-    assert back.attrs["verified"] is False and back.attrs["verdict"] == ver.verdict
+    assert back.attrs["verified"] == ver.verified and back.attrs["verdict"] == ver.verdict
 
 
 @pytest.mark.parametrize(
