@@ -64,8 +64,9 @@ Trajectory
 ``trajectory=True`` also runs the whole scene with the reference method (into ``DIR/reference/``)
 and compares the stop reason, T_b and max f(t) at the times both runs share
 (:mod:`jko_cvx.engine._trajectory`); the verdict gains a trajectory part (agrees / differs, with
-the first time max f parts beyond the tolerance; a reference run that carried failed solves
-agrees with nothing) and ``verified`` needs both.
+the first time max f parts beyond the tolerance; a reference run that carried failed solves is
+judged only before the first of them: later times and its stop are "not judged", never agreement)
+and ``verified`` needs both.
 
 Run directory
 -------------
@@ -438,7 +439,7 @@ class Verification:
     @property
     def verified(self) -> bool:
         """Every compared slice agrees, the run is certified (no failed solve ended it or was carried on) and,
-        with ``trajectory``, the reference run is certified too and the two runs agree."""
+        with ``trajectory``, the two runs agree where the reference run is certified."""
         ok = verify_verdict(self.table, failure=self._failure)[0]
         return ok and (self.trajectory is None or self.trajectory.agree)
 
