@@ -176,13 +176,17 @@ class Stepper:
             self.opts.setdefault("kkt_tol", CONIC_RUN_KKT)
 
     @staticmethod
-    def accepted(res) -> bool:
+    def _at_accept_kkt(res) -> np.ndarray:
+        """Per slice: stopped by its own rule (CONVERGED or NOT_CERTIFIED) at a KKT residual within ``ACCEPT_KKT``."""
+        return (np.atleast_1d(res.kkt_residual) <= ACCEPT_KKT) & np.isin(
+            np.atleast_1d(res.status), [Status.CONVERGED, Status.NOT_CERTIFIED]
+        )
+
+    @classmethod
+    def accepted(cls, res) -> bool:
         """Every slice certified at ``ACCEPT_KKT``: floored near-vacuum slices stall (NOT_CERTIFIED)
         near 1e-10 while the tight target tol matters for the populated ones (momentum symmetry)."""
-        return bool(np.all(res.success)) or bool(
-            np.all(np.atleast_1d(res.kkt_residual) <= ACCEPT_KKT)
-            and all(st in (Status.CONVERGED, Status.NOT_CERTIFIED) for st in np.ravel(np.atleast_1d(res.status)))
-        )
+        return bool(np.all(res.success)) or bool(np.all(cls._at_accept_kkt(res)))
 
     @classmethod
     def failed_slices(cls, res) -> int:
@@ -192,10 +196,7 @@ class Stepper:
         ``failed`` column, the verdict's ``uncertified_steps`` and the fit's cut agree."""
         if cls.accepted(res):
             return 0
-        ok = np.atleast_1d(res.success) | (
-            (np.atleast_1d(res.kkt_residual) <= ACCEPT_KKT)
-            & np.isin(np.atleast_1d(res.status), [Status.CONVERGED, Status.NOT_CERTIFIED])
-        )
+        ok = np.atleast_1d(res.success) | cls._at_accept_kkt(res)
         # a step the engine refused always counts (the verdict counts it uncertified): where every slice passes one
         # test or the other but not all the same one, its not-success slices
         return int(np.sum(~ok)) or int(np.sum(~np.atleast_1d(res.success)))
