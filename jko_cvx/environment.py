@@ -65,7 +65,8 @@ def package_files() -> list[Path]:
 
 @functools.cache
 def code_fingerprint() -> str:
-    """SHA-256 over the relative paths and contents of every file of the package (:func:`package_files`; hex).
+    """SHA-256 over the relative paths and contents of the package's modules and data files (:func:`package_files`;
+    hex).
 
     The code and its data (a shipped scene file is what ``shipped_scene`` reads), where the version number is not
     enough: an edited checkout or an editable install keeps its version.  Read once per process (about 3 ms); a

@@ -54,6 +54,8 @@ __all__ = ["RunDir", "canonical_scene", "flat_scene_record", "read_snapshots", "
 RUN_FILES = ("scene.json", "metadata.json", "checkpoint.npz", "diagnostics.csv", "verdict.json")
 FIGURES = ("solution.png", "records.png")
 VERIFY_FILES = ("verify.json", "verify.csv", "verify.md", "verify.png", "trajectory.csv", "reference")
+ENTRY_NAMES = (".lock", "snapshots", *RUN_FILES, *FIGURES, *VERIFY_FILES)
+"""The names of a run directory's own entries (besides the snapshot files in ``snapshots/``)."""
 """A verification's files beside the run's (:mod:`jko_cvx.engine.verify`; ``reference/`` holds the reference's
 run): moved aside by an overwrite too."""
 _SNAPSHOT = re.compile(r"step_(\d+)\.npz")
@@ -152,7 +154,7 @@ def read_snapshots(path: Path, last_step: int, ledger: Ledger | None = None) -> 
 
 def _entries(path: Path) -> list[Path]:
     """The entries of a run directory that a run writes or deletes (the lock, run files, figures, snapshots)."""
-    names = [path / n for n in (".lock", "snapshots", *RUN_FILES, *FIGURES, *VERIFY_FILES)]
+    names = [path / n for n in ENTRY_NAMES]
     snaps = path / "snapshots"
     if snaps.is_dir() and not snaps.is_symlink():
         names += [p for p in snaps.iterdir() if _SNAPSHOT.fullmatch(p.name)]

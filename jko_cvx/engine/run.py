@@ -177,7 +177,7 @@ def _require(module: str):
 def _check_export_target(path: Path) -> None:
     """RunDirError for a target that is a symbolic link (never followed), a directory, or a file of a run directory
     (writing there would destroy the run)."""
-    from jko_cvx.engine._rundir import FIGURES, RUN_FILES, VERIFY_FILES
+    from jko_cvx.engine._rundir import ENTRY_NAMES
 
     if path.is_symlink():
         raise RunDirError(f"{path} is a symbolic link: an export never writes through one; choose another file")
@@ -185,7 +185,7 @@ def _check_export_target(path: Path) -> None:
         raise RunDirError(f"{path} is a directory: name the netCDF file to write")
     # the folder as it is on disk (a relative path, a linked folder): the file the write would reach
     folder, leaf = path.parent.resolve(), path.parts[-1] if path.parts else ""
-    in_run = (folder / "scene.json").exists() and leaf in (*RUN_FILES, *FIGURES, *VERIFY_FILES, ".lock")
+    in_run = (folder / "scene.json").exists() and leaf in ENTRY_NAMES
     in_snapshots = folder.parts[-1:] == ("snapshots",) and (folder.parent / "scene.json").exists()
     if in_run or in_snapshots:
         raise RunDirError(
