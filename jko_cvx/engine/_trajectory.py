@@ -83,12 +83,8 @@ def compare_trajectories(run: Run, ref: Run, tolerance: float) -> TrajectoryComp
     problems = []
     # a reference carried on from failed solves is no reference from its first one on: those times, and its stop
     # when that comes later, are not judged (never counted as agreement); before it the comparison stands
-    failure = run_failure(ref.verdict.to_dict())
-    cut = math.inf  # the time of the reference's first uncertified state (a failure that stopped it: its T_b)
-    if failure is not None:
-        first = ref.verdict.first_uncertified_t if ref.verdict.first_uncertified_t is not None else ref.verdict.T_b
-        cut = math.inf if first is None else float(first)
-    if failure is None:  # (else the stop is not judged)
+    failure = run_failure(ref.verdict)
+    if failure is None:
         if stop != stop_ref:
             problems.append(
                 f"the runs stop for different reasons ({run.verdict.reason}; reference: {ref.verdict.reason})"
@@ -101,7 +97,9 @@ def compare_trajectories(run: Run, ref: Run, tolerance: float) -> TrajectoryComp
                 problems.append(
                     f"T_b {T_b:.6g} against the reference's {T_b_ref:.6g}, more than one step ({step:.3g}) apart"
                 )
-    if failure is not None:  # from the reference's first failed solve on, nothing is judged
+    else:  # the stop is not judged, nor anything from the reference's first uncertified state on (or its T_b)
+        first = ref.verdict.first_uncertified_t if ref.verdict.first_uncertified_t is not None else ref.verdict.T_b
+        cut = math.inf if first is None else float(first)
         late = table["matched"].to_numpy() & (table["t"].to_numpy() >= cut - slack)
         table.loc[late, "outcome"] = "not judged"
         table.loc[late, "matched"] = False

@@ -297,7 +297,8 @@ class SolverFailureRule:
 
 
 def run_failure(verdict: Mapping[str, Any]) -> str | None:
-    """Why a run is not certified whatever its compared steps show, from its verdict record, else None.
+    """Why a run is not certified whatever its compared steps show, from its verdict (a :class:`Verdict` or its
+    ``to_dict()`` record), else None.
 
     A failed solve of the tested method that ended the run (``stop.on_solver_failure``: that step is never
     committed, so it has no row), or failed solves the run went on with (``stop.on_solver_failure = false``:

@@ -434,7 +434,7 @@ class Verification:
     @property
     def _failure(self) -> str | None:
         """Why the run itself is not certified (:func:`~jko_cvx.engine.verdict.run_failure`), else None."""
-        return run_failure(self.run.verdict.to_dict())
+        return run_failure(self.run.verdict)
 
     @property
     def verified(self) -> bool:
