@@ -119,6 +119,7 @@ class Run:
             f"momentum drift {abs(d.momentum.iloc[-1] - d.momentum.iloc[0]):.1e}, "
             f"max f over the run {d.max_f.max():.4g}, min dv {d.min_dv.min():.3g}"
             + ("" if self.xgrid is None else f", min dx {d.min_dx.min():.3g}")
+            + _time_error_words(d)
         )
 
     def to_xarray(self):
@@ -142,6 +143,15 @@ class Run:
             ds = ds.assign_coords(x=(("t_snap", "ix"), x, {"long_name": "space grid of the snapshot"}))
         ds.attrs = _attrs(self)
         return ds
+
+
+def _time_error_words(d) -> str:
+    """", local time error ... at t = ...": the largest ``time_error`` of a second-order run (none recorded: "")."""
+    err = d["time_error"].to_numpy(dtype=float) if "time_error" in d else np.array([])
+    if not np.isfinite(err).any():
+        return ""
+    k = int(np.nanargmax(err))
+    return f", first-order local time error up to {err[k]:.2g} of max f (t = {d.t.iloc[k]:.4g})"
 
 
 def _attrs(run: Run) -> dict[str, Any]:

@@ -57,6 +57,7 @@ class StepInfo:
     failed: int = 0
     retries: int = 0
     lower_minimum: int = 0  # slices where Newton's second start returned a lower certified J
+    time_error: float = float("nan")  # time.order = 2: the first-order step's local error estimate (loop.time_error)
 
 
 class Tracker:
@@ -102,6 +103,7 @@ class Diagnostics(Tracker):
             "failed": step.failed,
             "retries": step.retries,
             "lower_minimum": step.lower_minimum,
+            "time_error": step.time_error,
         }
 
 

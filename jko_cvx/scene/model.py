@@ -17,6 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from jko_cvx.grid import Grid, PeriodicGrid
+from jko_cvx.mesh.maps import VALLEY, bump_about_maximum
 from jko_cvx.mesh.policy import RefineSpec
 from jko_cvx.scene.initial import INITIAL_KINDS, Initial
 from jko_cvx.scene.limits import Limits, check_limits
@@ -345,16 +346,32 @@ def _even(profile: np.ndarray) -> bool:
     return bool(np.allclose(profile, profile[::-1], rtol=1e-12, atol=1e-14 * profile.max()))
 
 
+def _bump_about_zero(profile: np.ndarray, delta0: float) -> bool:
+    """The bump about the profile's maximum (the run of points above ``VALLEY * delta0`` times it, as
+    :meth:`~jko_cvx.mesh.maps.FollowingMap.from_density` delimits it) reaches the middle of the symmetric grid."""
+    lo, hi = bump_about_maximum(profile, VALLEY * delta0)
+    n = profile.size
+    return lo <= (n - 1) // 2 <= hi or lo <= n // 2 <= hi
+
+
 def _resolve_centre(scene: Scene, f0: np.ndarray, axes: tuple[str, ...]) -> Scene:
     """``refine.<axis>.centre = "auto"``: the paper's map at 0 where f0's projection on the axis is even (max_x f0
-    in v, max_v f0 in x), the map that follows the concentration elsewhere; always the paper's map where the
-    sets are the quadrant's."""
+    in v, max_v f0 in x) and, on a homogeneous scene with a one-bump map, the bump about f0's maximum reaches 0;
+    the map that follows the concentration elsewhere; always the paper's map where the sets are the quadrant's.
+
+    Without transport nothing but the collision moves mass, and the concentration forms about f0's maxima
+    (gamma = 1: at the argmax, T = 1/(2 max f0)): an even datum whose maxima sit apart from 0 (bumps at -c and
+    c) concentrates there, and the paper's one-bump map, centred at 0, would spread its set over both and
+    refine neither.  On inhomogeneous scenes transport carries the bumps together (eqn:f0's meet at x = 0),
+    and the paper's maps of its symmetric data stay the default."""
     if scene.refine.concentration_set != "projections":
         return scene
     refine = scene.refine
     for axis in axes:
         profile = (f0 if f0.ndim == 1 else f0.max(axis=0)) if axis == "v" else f0.max(axis=1)
-        if not _even(profile):
+        spec = getattr(refine, axis)
+        apart = scene.x is None and spec.bumps == 1 and not _bump_about_zero(profile, spec.delta0)
+        if not _even(profile) or apart:
             refine = dataclasses.replace(refine, **{axis: dataclasses.replace(getattr(refine, axis), centre="follow")})
     return scene if refine is scene.refine else dataclasses.replace(scene, refine=refine)
 

@@ -125,8 +125,9 @@ def _module_source(func: Callable[..., Any]) -> str:
 
 def _check_cacheable(func: Callable[..., Any]) -> None:
     """TypeError / ValueError unless ``func``'s results are determined by what :func:`code_identity` records: a
-    function defined with ``def`` whose behaviour its module's source fixes (no lambda: two in one module share a
-    name; no closure: the values it captured are not in its source)."""
+    function defined with ``def`` at module level, whose behaviour its module's source fixes (no lambda: two in one
+    module share a name; no function defined inside another, nor a closure: the values it was made with are not in
+    its source; no ``functools.partial`` or other callable object)."""
     import types
 
     if not isinstance(func, types.FunctionType):

@@ -131,12 +131,14 @@ def test_diagnostics_tracker_records_step_zero_once_and_each_step(inhomogeneous)
     tr.start(state)  # a resumed run already has its step-0 row
     assert len(state.rows) == 1
     expected = diagnostics(state.vgrid, state.f, state.xgrid)
-    assert state.rows[0] == {"step": 0, "t": 0.0, "dt": 0.0, **expected, "iterations": 0, "failed": 0, "retries": 0,
-                             "lower_minimum": 0}
+    first = dict(state.rows[0])
+    assert np.isnan(first.pop("time_error"))  # no step yet: no time-error estimate
+    assert first == {"step": 0, "t": 0.0, "dt": 0.0, **expected, "iterations": 0, "failed": 0, "retries": 0,
+                     "lower_minimum": 0}
     state.t, state.step = 0.1, 1
-    tr.handle(state, StepInfo(0.1, iterations=7, failed=2, retries=3, lower_minimum=4))
+    tr.handle(state, StepInfo(0.1, iterations=7, failed=2, retries=3, lower_minimum=4, time_error=0.25))
     assert state.rows[1] == {"step": 1, "t": 0.1, "dt": 0.1, **expected, "iterations": 7, "failed": 2, "retries": 3,
-                             "lower_minimum": 4}
+                             "lower_minimum": 4, "time_error": 0.25}
     assert list(state.rows[1])[:3] == ["step", "t", "dt"]  # the column order of diagnostics.csv
 
 
