@@ -103,16 +103,20 @@ def concentration_clusters(
     return sorted(sets)
 
 
-def periodic_following_grid(L: float, c: float, r: float, delta: float, n: int) -> PeriodicGrid:
+def periodic_following_grid(
+    L: float, c: float, r: float, delta: float, n: int, junction: str = "paper"
+) -> PeriodicGrid:
     """The paper's one-bump periodic x-grid (:func:`~jko_cvx.mesh.maps.periodic_map_grid` of ``mu1``) rotated to c.
 
     The grid on :math:`[-L, L)` whose refined set is :math:`[c - r, c + r]` (mod 2L):
     :math:`x_i = c + \\mu_1(s_i)` wrapped into :math:`[-L, L)` and sorted.  ``mu1`` is odd with
     equal spacings at :math:`s = \\pm 1`, so the wrap point is a point of the grid like any
     other; ``c = 0`` gives the paper's grid.  r is capped at the uniform share :math:`L\\delta`.
+    ``junction``: the map's outer piece (:class:`~jko_cvx.mesh.maps.OneBumpMap`).
     """
     period = 2.0 * L
-    base = periodic_map_grid(OneBumpMap(L=L, r=min(float(r), L * delta), delta=delta), n, period).points
+    mu = OneBumpMap(L=L, r=min(float(r), L * delta), delta=delta, junction=junction)
+    base = periodic_map_grid(mu, n, period).points
     if c == 0:
         return PeriodicGrid(base, period)
     x = np.sort((base + c + L) % period - L)

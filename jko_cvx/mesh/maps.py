@@ -7,7 +7,20 @@ A map :math:`v = \\mu(s)` from uniform :math:`s \\in [-1, 1]` onto :math:`[-L, L
 One bump (``mu1``): linear :math:`\\mu = (r/\\delta) s` on :math:`[0, \\delta]`, then to
 :math:`(1, L)` by :math:`a s^5 + b s` if :math:`r/\\delta < L` (concave up) or by the logistic
 :math:`a/(1 + e^{-bs})` otherwise (concave down), constants from continuity at
-:math:`s = \\delta` and :math:`\\mu(1) = L`.
+:math:`s = \\delta` and :math:`\\mu(1) = L`.  The map has a kink at :math:`s = \\delta`: the
+spacing jumps there (ninefold on ``tab_bu_g1`` near its blow-up), and the collision step
+(``eqn:non-uniform JKO``) piles mass on the kink's node, a spike next to the concentration that holds
+back the peak's growth.  ``junction = "c1"`` (this package's option, not the paper's) replaces the
+outer piece by one whose slope rises from the linear part's :math:`r/\\delta` at :math:`s = \\delta`
+to the value that reaches :math:`(1, L)`, along the cubic :math:`3u^2 - 2u^3`,
+:math:`u = (s - \\delta)/(1 - \\delta)`:
+
+.. math:: \\mu(s) = r + (1 - \\delta)\\bigl(k_0 u + (m - k_0)(u^3 - u^4/2)\\bigr), \\qquad
+          k_0 = r/\\delta, \\quad m = k_0 + 2\\Bigl(\\frac{L - r}{1 - \\delta} - k_0\\Bigr),
+
+a C^1 map, increasing wherever :math:`m > 0` (always for :math:`r \\le L\\delta`, which
+``from_density`` ensures), the same grid as the paper's inside the set.  Measured in
+``studies/results/blowup_fit_validation.md`` (section "The map's junction").
 
 Two bumps (``mu2``): linear between :math:`(\\tfrac12 - \\tfrac\\delta2, r_1)` and
 :math:`(\\tfrac12 + \\tfrac\\delta2, r_2)`; outer piece to :math:`(1, L)` as for one bump; inner
@@ -51,6 +64,7 @@ from numpy.typing import ArrayLike, NDArray
 from jko_cvx.grid import Grid, PeriodicGrid
 
 __all__ = [
+    "JUNCTIONS",
     "VALLEY",
     "FollowingMap",
     "OneBumpMap",
@@ -62,6 +76,9 @@ __all__ = [
 ]
 
 _OUTER_RULES = ("paper", "slopes")
+JUNCTIONS = ("paper", "c1")
+"""How a one-bump map's linear part meets its outer piece (the module docstring): the paper's continuous
+piece, or the C^1 one."""
 
 
 def _check_fraction(name: str, x: float) -> float:
@@ -82,6 +99,10 @@ class _Piece:
             return self.v0 + self.a * (s - self.s0)
         if self.kind == "quintic":
             return self.a * s**5 + self.b * s
+        if self.kind == "c1":  # slope from a (at s0, value v0) to b (at 1) along 3u^2 - 2u^3
+            w = 1 - self.s0
+            u = np.clip((s - self.s0) / w, 0.0, 1.0)
+            return self.v0 + w * (self.a * u + (self.b - self.a) * (u**3 - u**4 / 2))
         return self.a / (1 + np.exp(-self.b * s))
 
 
@@ -158,16 +179,31 @@ class OneBumpMap(_OddMap):
         Half-width of the concentration set, ``0 < r < L``.
     delta : float
         Fraction of s in the linear (concentrated) part, ``0 < delta < 1``.
+    junction : {"paper", "c1"}
+        The outer piece: the paper's (continuous at :math:`s = \\delta`) or the C^1 one (module docstring).
     """
 
     L: float
     r: float
     delta: float
+    junction: str = "paper"
 
     def __post_init__(self) -> None:
         self._check_domain()
         if not 0 < self.r < self.L:
             raise ValueError(f"r must lie in (0, L) = (0, {self.L}), got {self.r!r}")
+        if self.junction not in JUNCTIONS:
+            raise ValueError(f"junction must be one of {list(JUNCTIONS)}, got {self.junction!r}")
+        if self.junction == "c1":
+            k0 = self.r / self.delta
+            m = k0 + 2 * ((self.L - self.r) / (1 - self.delta) - k0)
+            if not m > 0:
+                raise ValueError(
+                    f"the C^1 outer piece from (s={self.delta:.4g}, v={self.r:.4g}) with slope {k0:.4g} to "
+                    f"(1, L={self.L:.4g}) is not increasing; r must be at most about L delta (r = {self.r:.4g})"
+                )
+            object.__setattr__(self, "_outer", _Piece("c1", k0, m, self.delta, self.r))
+            return
         paper_quintic = self.r / self.delta <= self.L
         try:
             outer = _outer_piece(self.delta, self.r, self.L, concave_up=paper_quintic)
@@ -187,19 +223,21 @@ class OneBumpMap(_OddMap):
 
     @property
     def outer_kind(self) -> str:
-        """``"quintic"`` (concave up) or ``"logistic"`` (concave down)."""
+        """``"quintic"`` (concave up), ``"logistic"`` (concave down) or ``"c1"`` (``junction = "c1"``)."""
         return self._outer.kind  # type: ignore[attr-defined]
 
     @classmethod
-    def from_density(cls, grid: Grid, f: ArrayLike, delta0: float, delta: float) -> OneBumpMap:
+    def from_density(
+        cls, grid: Grid, f: ArrayLike, delta0: float, delta: float, junction: str = "paper"
+    ) -> OneBumpMap:
         """The map for density ``f`` on ``grid`` (symmetric domain ``[-L, L]``)."""
         _check_fraction("delta0", delta0)
         _check_fraction("delta", delta)
         r, _ = concentration_set(grid, f, delta0)
-        return cls.from_extent(grid, r, delta)
+        return cls.from_extent(grid, r, delta, junction)
 
     @classmethod
-    def from_extent(cls, grid: Grid, r: float, delta: float) -> OneBumpMap:
+    def from_extent(cls, grid: Grid, r: float, delta: float, junction: str = "paper") -> OneBumpMap:
         """The map for a set reaching out to ``r`` (its largest positive point) on ``grid``.
 
         A set wider than its uniform share (r > L delta) gains nothing from refinement: the
@@ -207,7 +245,7 @@ class OneBumpMap(_OddMap):
         """
         _check_fraction("delta", delta)
         L = float(grid.points[-1])
-        return cls(L=L, r=min(float(r), L * delta), delta=delta)
+        return cls(L=L, r=min(float(r), L * delta), delta=delta, junction=junction)
 
 
 @dataclass(frozen=True)
@@ -324,20 +362,24 @@ class FollowingMap:
         Half-width of the set about c, ``0 < r < L - |c|``.
     delta : float
         Fraction of s in the linear part.
+    junction : {"paper", "c1"}
+        The outer pieces of both sides (:class:`OneBumpMap`).
     """
 
     L: float
     c: float
     r: float
     delta: float
+    junction: str = "paper"
 
     def __post_init__(self) -> None:
         if not abs(self.c) < self.L:
             raise ValueError(f"the centre c must lie in (-L, L) = (-{self.L}, {self.L}), got {self.c!r}")
         if not 0 < self.r < self.L - abs(self.c):
             raise ValueError(f"r must lie in (0, L - |c|) = (0, {self.L - abs(self.c):.6g}), got {self.r!r}")
-        object.__setattr__(self, "_right", OneBumpMap(L=self.L - self.c, r=self.r, delta=self.delta))
-        object.__setattr__(self, "_left", OneBumpMap(L=self.L + self.c, r=self.r, delta=self.delta))
+        side = {"r": self.r, "delta": self.delta, "junction": self.junction}
+        object.__setattr__(self, "_right", OneBumpMap(L=self.L - self.c, **side))
+        object.__setattr__(self, "_left", OneBumpMap(L=self.L + self.c, **side))
 
     def __call__(self, s: ArrayLike) -> NDArray[np.float64]:
         s = np.asarray(s, dtype=float)
@@ -350,7 +392,9 @@ class FollowingMap:
         return Grid(v)
 
     @classmethod
-    def from_density(cls, grid: Grid, f: ArrayLike, delta0: float, delta: float) -> FollowingMap:
+    def from_density(
+        cls, grid: Grid, f: ArrayLike, delta0: float, delta: float, junction: str = "paper"
+    ) -> FollowingMap:
         """The map for density ``f`` on ``grid``: c the grid point of max f, r the largest distance from c
         of a point of c's own bump where :math:`f > \\delta_0 \\max f` (at least the larger spacing next to c),
         capped at the uniform share :math:`(L - |c|)\\,\\delta` (a wider set gains nothing from refinement).
@@ -372,7 +416,7 @@ class FollowingMap:
         sel[lo : hi + 1] = f[lo : hi + 1] > delta0 * f[k]
         gaps = np.diff(v)
         r = max(float(np.abs(v[sel] - c).max()), float(gaps[max(k - 1, 0)]), float(gaps[min(k, gaps.size - 1)]))
-        return cls(L=L, c=c, r=min(r, (L - abs(c)) * delta), delta=delta)
+        return cls(L=L, c=c, r=min(r, (L - abs(c)) * delta), delta=delta, junction=junction)
 
 
 VALLEY = 0.1

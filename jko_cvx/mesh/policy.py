@@ -33,7 +33,7 @@ import numpy as np
 
 from jko_cvx.grid import Grid, PeriodicGrid
 from jko_cvx.mesh.following import ClusterMap, concentration_clusters, periodic_following_grid
-from jko_cvx.mesh.maps import FollowingMap, OneBumpMap, TwoBumpMap, periodic_map_grid, quadrant_set
+from jko_cvx.mesh.maps import JUNCTIONS, FollowingMap, OneBumpMap, TwoBumpMap, periodic_map_grid, quadrant_set
 from jko_cvx.mesh.remapping import remap, remap_periodic
 
 __all__ = ["CENTRES", "CONCENTRATION_SETS", "UNIFORM_EXTENT", "RefineSpec", "RemeshPolicy"]
@@ -56,6 +56,8 @@ class RefineSpec:
 
     ``centre``: ``"origin"`` (the paper's maps, centred at 0) or ``"follow"`` (each set centred on
     its concentration: the grid point of max f; its extent is recorded as (c - r, c + r) per set).
+    ``junction`` (one-bump maps): ``"paper"`` (the paper's outer piece, with a kink at s = delta) or ``"c1"``
+    (a C^1 outer piece, :mod:`jko_cvx.mesh.maps`).
     ``tol = 0`` remeshes every step (the paper's Algorithm ``alg:one_step_MR_JKO``); ``tol > 0``
     remeshes only when the concentration set's extent has moved by more than ``tol`` times
     its width.  Measured (``ibu_gamma3``): remeshing every step moves the bumps inward by as
@@ -69,10 +71,17 @@ class RefineSpec:
     tol: float = 0.0
     conserve_energy: bool = False
     centre: str = "origin"
+    junction: str = "paper"
 
     def __post_init__(self) -> None:
         if self.centre not in CENTRES:
             raise ValueError(f"centre must be one of {list(CENTRES)}, got {self.centre!r}")
+        if self.junction not in JUNCTIONS:
+            raise ValueError(f"junction must be one of {list(JUNCTIONS)}, got {self.junction!r}")
+        if self.junction != "paper" and self.bumps != 1:
+            raise ValueError(
+                f"junction = {self.junction!r} is built for one-bump maps (bumps = 1), got bumps = {self.bumps}"
+            )
 
 
 def _map_params(mu) -> np.ndarray:
@@ -103,7 +112,7 @@ def _moved(spec: RefineSpec, old: np.ndarray | None, new: np.ndarray) -> bool:
 def _map_from_extent(spec: RefineSpec, grid: Grid, lo: float, hi: float):
     """The axis map for a set spanning [lo, hi] on the positive half of ``grid``."""
     if spec.bumps == 1:
-        return OneBumpMap.from_extent(grid, hi, spec.delta)
+        return OneBumpMap.from_extent(grid, hi, spec.delta, spec.junction)
     return TwoBumpMap.from_extent(grid, lo, hi, spec.delta)
 
 
@@ -202,16 +211,18 @@ class RemeshPolicy:
         spec = self.v
         fv = f if f.ndim == 1 else f.max(axis=0)
         if spec.centre == "follow" and spec.bumps == 1:
-            mu = FollowingMap.from_density(vgrid, fv, spec.delta0, spec.delta)
+            mu = FollowingMap.from_density(vgrid, fv, spec.delta0, spec.delta, spec.junction)
             new = np.array([mu.c - mu.r, mu.c + mu.r])
         elif spec.centre == "follow":
             L = float(vgrid.points[-1])
             sets = concentration_clusters(vgrid.points, fv, spec.delta0, spec.bumps)
             mu = ClusterMap(L, tuple((c, min(r, L * spec.delta)) for c, r in sets), spec.delta)
             new = mu.extent()
+        elif spec.bumps == 1:
+            mu = OneBumpMap.from_density(vgrid, fv, spec.delta0, spec.delta, spec.junction)
+            new = _map_params(mu)
         else:
-            cls = OneBumpMap if spec.bumps == 1 else TwoBumpMap
-            mu = cls.from_density(vgrid, fv, spec.delta0, spec.delta)
+            mu = TwoBumpMap.from_density(vgrid, fv, spec.delta0, spec.delta)
             new = _map_params(mu)
         if not _moved(spec, params, new):
             return f, vgrid, params
@@ -225,9 +236,12 @@ class RemeshPolicy:
         fx = f.max(axis=1)
         if spec.centre == "follow":
             return self._follow_x(xgrid, f, fx, params)
-        cls = OneBumpMap if spec.bumps == 1 else TwoBumpMap
         proxy = self._x_proxy(xgrid)
-        mu = cls.from_density(proxy, np.concatenate([[fx[0]], fx, [fx[-1]]]), spec.delta0, spec.delta)
+        fx_proxy = np.concatenate([[fx[0]], fx, [fx[-1]]])
+        if spec.bumps == 1:
+            mu = OneBumpMap.from_density(proxy, fx_proxy, spec.delta0, spec.delta, spec.junction)
+        else:
+            mu = TwoBumpMap.from_density(proxy, fx_proxy, spec.delta0, spec.delta)
         new = _map_params(mu)
         if not _moved(spec, params, new):
             return f, xgrid, params
@@ -247,7 +261,10 @@ class RemeshPolicy:
             new = mu.extent()
         if not _moved(spec, params, new):
             return f, xgrid, params
-        grid = periodic_following_grid(L, c, r, spec.delta, xgrid.n) if mu is None else mu.periodic_grid(xgrid.n)
+        if mu is None:
+            grid = periodic_following_grid(L, c, r, spec.delta, xgrid.n, spec.junction)
+        else:
+            grid = mu.periodic_grid(xgrid.n)
         return remap_periodic(xgrid, f, grid, axis=0, conserve_moment=self.conserve_x_moment), grid, new
 
     def _x_proxy(self, xgrid: PeriodicGrid) -> Grid:

@@ -313,6 +313,11 @@ def _parse_refine(data: Any, has_x: bool) -> tuple[RefineTable, tuple[str, ...]]
     for axis in ("v", "x"):
         if axis in data:
             table = asdict(parse_table(RefineAxisTable, data[axis], f"refine.{axis}"))
+            if table["junction"] != "paper" and table["bumps"] != 1:
+                raise SceneError(
+                    f"refine.{axis}.junction = {table['junction']!r} is built for one-bump maps: refine.{axis}.bumps "
+                    f"must be 1, got {table['bumps']}"
+                )
             # "auto" is resolved against f0 once the scene is built (_resolve_centre); a RefineSpec holds
             # only what the run does
             specs[axis] = RefineSpec(**{**table, "centre": "origin" if table["centre"] == "auto" else table["centre"]})

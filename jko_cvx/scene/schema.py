@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from typing import Any, TypeVar
 
 from jko_cvx.collision.problem import LOG_FORM_METHODS, MOMENTUM_METHODS, methods_text
+from jko_cvx.mesh.maps import JUNCTIONS
 from jko_cvx.mesh.policy import CENTRES, CONCENTRATION_SETS, RefineSpec
 from jko_cvx.stepping import HALVE_ON, POLICIES
 
@@ -321,6 +322,12 @@ class RefineAxisTable(Table):
         doc="origin (the paper's maps: one set at 0, or two symmetric about it), follow (each set where its bump "
         "is: centred at its point of max f, on v or on the periodic x) or auto (origin where f0's projection on "
         "the axis, max_x f0 or max_v f0, is even, follow elsewhere)",
+    )
+    junction: str = key(
+        Rule("str", choices=JUNCTIONS),
+        "paper",
+        doc="one-bump maps: how the refined part meets the outer piece: paper (the paper's piece, a kink at "
+        "s = delta whose node gathers mass) or c1 (a C^1 piece: no kink)",
     )
 
 
