@@ -79,3 +79,23 @@ def test_the_criterion_row_reads_the_control(tmp_path):
     d.to_csv(root / "criterion_control.csv", index=False)
     row = conclusions(root).set_index("claim").filter(like="min dv < eps_v is the blow-up time", axis=0).iloc[0]
     assert row.verdict == "supported" and "fires in 0 of" in row.ours
+
+
+def test_the_gamma3_row_reads_the_two_orders_of_the_dt_probe(tmp_path):
+    """The probe's second-order runs beside first-order ones at one dt enter the gamma = 3 row (ours: both peaks;
+    why: the ratio and which is right); a probe of first-order rows only (as written before the order was
+    recorded: no time_order column) leaves them out."""
+    root = _copy(tmp_path)
+    probe = pd.read_csv(root / "g3_dt_probe.csv")
+    if "time_order" in probe:
+        probe = probe[probe.time_order == 1].drop(columns=["time_order"])
+    base = probe
+    base.to_csv(root / "g3_dt_probe.csv", index=False)
+    row = conclusions(root).set_index("claim").filter(like="no blow-up for gamma = 3", axis=0).iloc[0]
+    assert "order 2" not in row.ours and "second-order" not in row.why
+    two = base[(base["lambda"] == 10) & (base.n == 61) & (base.dt == 0.05)].assign(time_order=2, max_f_peak=5000.0)
+    pd.concat([base.assign(time_order=1), two]).to_csv(root / "g3_dt_probe.csv", index=False)
+    row = conclusions(root).set_index("claim").filter(like="no blow-up for gamma = 3", axis=0).iloc[0]
+    first = float(base[(base["lambda"] == 10) & (base.n == 61) & (base.dt == 0.05)].max_f_peak.iloc[0])
+    assert f"lambda = 10, 61^2, dt = 0.05: peak max f {first:.3g} (order 1) against 5e+03 (order 2)" in row.ours
+    assert f"up to {5000 / first:.0f} times the first-order peak" in row.why
