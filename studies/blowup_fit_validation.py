@@ -54,6 +54,10 @@ HELD_OUT = {  # not used to choose the error bar's constants
     "A2.5r5c0.1": ([2.5], [5.0], [0.1]),
     "A1r1.5c-0.4": ([1.0], [1.5], [-0.4]),
     "two_asym2": ([0.8, 0.5], [3.0, 5.0], [-0.25, 0.4]),
+    # an audit's data: two narrow bumps apart from 0, even and nearly so; each concentrates where it is and moves
+    # towards the centre at about half a unit of v per unit of t (the first-order step's lag is largest there)
+    "even_pm0.8": ([1.0, 1.0], [8.0, 8.0], [-0.8, 0.8]),
+    "near_pm0.8": ([1.0, 0.98], [8.0, 8.0], [-0.8, 0.8]),
 }
 HELD_GRID = [(161, 0.008), (161, 0.004), (241, 0.0025), (361, 0.004), (361, 0.002), (601, 0.004)]
 NOMINAL = 0.9
