@@ -19,8 +19,9 @@ to the value that reaches :math:`(1, L)`, along the cubic :math:`3u^2 - 2u^3`,
           k_0 = r/\\delta, \\quad m = k_0 + 2\\Bigl(\\frac{L - r}{1 - \\delta} - k_0\\Bigr),
 
 a C^1 map, increasing wherever :math:`m > 0` (always for :math:`r \\le L\\delta`, which
-``from_density`` ensures), the same grid as the paper's inside the set.  Measured in
-``studies/results/blowup_fit_validation.md`` (section "The map's junction").
+``from_density`` ensures), the same grid as the paper's inside the set.  (On ``tab_bu_g1`` with
+second-order steps it halves the fitted blow-up time's grid error or better: the repository's
+blow-up estimator validation, section "The map's junction".)
 
 Two bumps (``mu2``): linear between :math:`(\\tfrac12 - \\tfrac\\delta2, r_1)` and
 :math:`(\\tfrac12 + \\tfrac\\delta2, r_2)`; outer piece to :math:`(1, L)` as for one bump; inner

@@ -203,6 +203,10 @@ def _gamma3(root: Path) -> dict[str, Any]:
     probe_all = _read(root, "g3_dt_probe.csv")
     if "time_order" not in probe_all:
         probe_all["time_order"] = 1  # rows written before the order was recorded: the shipped first-order steps
+    controls = pd.DataFrame()
+    if "variant" in probe_all:  # the controls (a weaker Fisher term, fewer remaps) are not the scenes as shipped
+        variant = probe_all["variant"].fillna("")
+        controls, probe_all = _control_ratios(probe_all, variant), probe_all[variant == ""]
     probe = probe_all[probe_all.time_order == 1]
     rise = []
     for (lam, n), g in probe.groupby(["lambda", "n"]):
@@ -224,6 +228,11 @@ def _gamma3(root: Path) -> dict[str, Any]:
     swept = max(n for (_lam, n), g in probe.groupby(["lambda", "n"]) if g["dt"].nunique() > 1)
     fired_text = ", ".join(f"lambda = {r['lambda']:g} on {r['n']}^2 at dt = {r['dt']:g}" for _, r in fired.iterrows())
     order2, time_text = _gamma3_orders(probe_all)
+    if len(controls):
+        time_text += "; controls of what else changes with dt (peak of max f against the run as shipped): " + "; ".join(
+            f"{r.variant}: {r.ratio:.2g}x at lambda = {r['lambda']:g}, {r.n}^2, dt = {r['dt']:g}"
+            for _, r in controls.iterrows()
+        )
     return {
         "claim": "sec:sp_inhom_gamma_3: no blow-up for gamma = 3 inhomogeneous (lambda = 2 to 10)",
         "paper": "the experiments firmly support no blow-up for gamma = 3",
@@ -247,6 +256,20 @@ def _gamma3(root: Path) -> dict[str, Any]:
             + time_text
         ),
     }
+
+
+def _control_ratios(probe: pd.DataFrame, variant: pd.Series) -> pd.DataFrame:
+    """Each variant row of the dt probe beside the run as shipped at its lambda, grid, dt and order: the ratio
+    of their peaks of max f."""
+    shipped = probe[variant == ""]
+    rows = []
+    for _, r in probe[variant != ""].iterrows():
+        same = shipped[(shipped["lambda"] == r["lambda"]) & (shipped["n"] == r["n"]) & (shipped["dt"] == r["dt"])
+                       & (shipped["time_order"] == r["time_order"])]  # fmt: skip
+        if len(same):
+            rows.append({"lambda": r["lambda"], "n": r["n"], "dt": r["dt"], "variant": r["variant"],
+                         "ratio": float(r["max_f_peak"] / same.max_f_peak.iloc[0])})  # fmt: skip
+    return pd.DataFrame(rows)
 
 
 def _gamma3_orders(probe: pd.DataFrame) -> tuple[str, str]:

@@ -87,8 +87,13 @@ def test_the_gamma3_row_reads_the_two_orders_of_the_dt_probe(tmp_path):
     recorded: no time_order column) leaves them out."""
     root = _copy(tmp_path)
     probe = pd.read_csv(root / "g3_dt_probe.csv")
+    shipped = conclusions(root).set_index("claim").filter(like="no blow-up for gamma = 3", axis=0).iloc[0]
+    for variant in probe.get("variant", pd.Series(dtype=object)).dropna().unique():  # the controls enter the why
+        assert f"{variant}: " in shipped.why
     if "time_order" in probe:
         probe = probe[probe.time_order == 1].drop(columns=["time_order"])
+    if "variant" in probe:
+        probe = probe[probe.variant.fillna("") == ""].drop(columns=["variant"])
     base = probe
     base.to_csv(root / "g3_dt_probe.csv", index=False)
     row = conclusions(root).set_index("claim").filter(like="no blow-up for gamma = 3", axis=0).iloc[0]
