@@ -4,8 +4,9 @@ For a phase-space density :math:`f(x_i, v_j)` (or a homogeneous :math:`f(v_j)`),
 grids' trapezoidal weights: mass :math:`\\iint f`, momentum :math:`\\iint v f`, moments
 :math:`\\iint |v|^p f` for p = 2, 3, 4 (non-increasing for p >= 2), the entropy integral
 :math:`\\iint f \\log f` (non-decreasing: the paper's "increase of internal energy" with
-:math:`U(f) = f\\log f`), max f, and the smallest spacings min dx, min dv that the
-blow-up criteria compare with :math:`\\epsilon_x, \\epsilon_v`.
+:math:`U(f) = f\\log f`), max f and the velocity where it is reached (``v_at_max``: a concentration
+that moves shows there), and the smallest spacings min dx, min dv that the blow-up criteria compare
+with :math:`\\epsilon_x, \\epsilon_v`.
 
 Two indicators do not depend on the mesh maps: the largest spatial density
 :math:`\\max_x \\rho(x)`, :math:`\\rho = \\int f \\,dv` (blow-up in x is :math:`\\rho \\to \\infty`), and
@@ -57,6 +58,7 @@ def diagnostics(vgrid: Grid, f: ArrayLike, xgrid: PeriodicGrid | None = None) ->
         "moment4": float(np.sum(w * f * v**4)),
         "entropy": float(np.sum(w * flogf)),
         "max_f": float(f.max()),
+        "v_at_max": float(v[np.unravel_index(np.argmax(f), f.shape)[-1]]),
         "min_dx": min_dx,
         "min_dv": float(vgrid.dv.min()),
         "max_rho": float(rho.max()),

@@ -477,7 +477,8 @@ def simulate(
 
 
 def _finish(scene: Scene, state: RunState, trackers: list[Tracker], snaps: Snapshots, rd: RunDir | None) -> Run:
-    state.verdict = state.verdict.with_fit(state.rows)  # before the last checkpoint, which records it
+    # before the last checkpoint, which records it
+    state.verdict = state.verdict.with_fit(state.rows, first_order=scene.time.order == 1)
     for tr in trackers:
         tr.finish(state)
     run = Run(scene, pd.DataFrame(state.rows), snaps.snapshots, state.f, state.vgrid, state.xgrid, state.t,
