@@ -146,7 +146,8 @@ class Run:
 
 
 def _time_error_words(d) -> str:
-    """", local time error ... at t = ...": the largest ``time_error`` of a second-order run (none recorded: "")."""
+    """The largest ``time_error`` of a second-order run and its time, as a clause of the records line ("" where
+    none was recorded: first-order steps, or a run written before the column)."""
     err = d["time_error"].to_numpy(dtype=float) if "time_error" in d else np.array([])
     if not np.isfinite(err).any():
         return ""
