@@ -19,6 +19,7 @@ state, verdict and timings.
 
 from __future__ import annotations
 
+import hashlib
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -219,8 +220,14 @@ def export_netcdf(run: Run, path: str | Path) -> Path:
 
 
 def _scene_from_record(record: dict[str, Any], fingerprint: str, where: Path) -> Scene:
-    """Rebuild the scene recorded in ``scene.json``; it must reproduce the recorded fingerprint."""
-    from jko_cvx.engine._rundir import flat_scene_record, scene_fingerprint
+    """Rebuild the scene recorded in ``scene.json``; it must reproduce the recorded fingerprint.
+
+    A record written by an earlier version lacks the scene keys added since: rebuilt, they take their defaults
+    and the scene's fingerprint is not the recorded one.  Such a record is read when it is itself what the
+    fingerprint was taken of (the SHA-256 of its canonical JSON) and the rebuilt scene differs from it only by
+    keys the record does not have; any other difference is refused.
+    """
+    from jko_cvx.engine._rundir import _ABSENT, flat_scene_record, scene_differences, scene_fingerprint
 
     if flat_scene_record(record):
         raise RunDirError(
@@ -232,9 +239,13 @@ def _scene_from_record(record: dict[str, Any], fingerprint: str, where: Path) ->
     except (ValueError, TypeError) as exc:
         raise RunDirError(f"{where} does not rebuild the scene the run's checkpoint was made from ({exc})") from None
     if scene_fingerprint(scene) != fingerprint:
-        raise RunDirError(
-            f"{where} does not rebuild the scene the run's checkpoint was made from (fingerprint differs)"
-        )
+        own = hashlib.sha256(json.dumps(record, sort_keys=True, separators=(",", ":"), default=str).encode())
+        added_only = all(d.split(": ", 1)[1].startswith(f"{_ABSENT!r} -> ")
+                         for d in scene_differences(record, scene.to_dict()))  # fmt: skip
+        if not (own.hexdigest() == fingerprint and added_only):
+            raise RunDirError(
+                f"{where} does not rebuild the scene the run's checkpoint was made from (fingerprint differs)"
+            )
     return scene
 
 

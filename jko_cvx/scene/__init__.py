@@ -48,9 +48,11 @@ A scene file (the shipped ones are package data, ``jko_cvx/scene/shipped/*.toml`
     delta = 0.5
     tol = 0.0                # 0: remesh every step (paper); > 0: when the set moved by tol x width
     conserve_energy = false  # refine.v only: the v-remap also restores each slice's second moment
-    centre = "auto"          # refine.v, bumps = 1: "origin" (the paper's map, centred at v = 0) | "follow"
-                             # (centred on the concentration: the grid point of max f) | "auto" (origin
-                             # where max_x f0 is even in v, follow elsewhere; two bumps: origin)
+    centre = "auto"          # "origin" (the paper's maps, centred at 0) | "follow" (each set where its
+                             # bump is: centred at its point of max f) | "auto" (origin where f0's profile
+                             # on the axis is even and, homogeneous with one bump, its maximum's bump
+                             # reaches 0; follow elsewhere)
+    junction = "paper"       # one-bump maps: "paper" (its outer piece; a kink at s = delta) | "c1"
 
     [collision]
     method = "newton"

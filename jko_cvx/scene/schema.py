@@ -321,7 +321,8 @@ class RefineAxisTable(Table):
         "auto",
         doc="origin (the paper's maps: one set at 0, or two symmetric about it), follow (each set where its bump "
         "is: centred at its point of max f, on v or on the periodic x) or auto (origin where f0's projection on "
-        "the axis, max_x f0 or max_v f0, is even, follow elsewhere)",
+        "the axis, max_x f0 or max_v f0, is even and, on a homogeneous scene with one bump, the bump about its "
+        "maximum reaches 0; follow elsewhere)",
     )
     junction: str = key(
         Rule("str", choices=JUNCTIONS),

@@ -366,3 +366,30 @@ def test_an_interrupted_run_checkpoints_says_how_to_resume_and_resumes_bit_for_b
     assert command == shlex.join(["jko-cvx", "run", str(scene_file), "--out", str(out), "--resume"])
     assert main([*shlex.split(command)[1:], "--quiet"]) == 0
     _assert_same_run(load_run(out), fresh)
+
+
+def test_a_run_written_before_a_scene_key_was_added_still_loads_and_an_edited_one_does_not(tmp_path, monkeypatch):
+    """A version without ``refine.v.junction`` wrote scene.json and its fingerprint without that key; read now, the
+    key takes its default (the run loads, the scene is the one that ran).  A record edited beyond that (a value
+    changed, digests and all) is still refused."""
+    from jko_cvx.scene.model import Scene, shipped_scene
+
+    plain = Scene.to_dict
+
+    def without_junction(self):
+        d = plain(self)
+        d["refine"]["v"].pop("junction")
+        return d
+
+    monkeypatch.setattr(Scene, "to_dict", without_junction)
+    simulate(shipped_scene("tab_bu_g1", {"v.n": 41, "t_end": 0.03}), out=tmp_path / "old")
+    assert "junction" not in json.loads((tmp_path / "old" / "scene.json").read_text())["refine"]["v"]
+    monkeypatch.setattr(Scene, "to_dict", plain)
+    run = load_run(tmp_path / "old")
+    assert run.scene.refine.v.junction == "paper" and run.scene.v.n == 41
+    # the same record with a value changed is no earlier version's: refused, even with its digest made to agree
+    record = json.loads((tmp_path / "old" / "scene.json").read_text())
+    record["collision"]["beta"] = 7000.0
+    (tmp_path / "old" / "scene.json").write_text(json.dumps(record))
+    with pytest.raises(RunDirError, match="does not rebuild the scene"):
+        load_run(tmp_path / "old")
