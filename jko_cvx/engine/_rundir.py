@@ -100,6 +100,13 @@ def scene_differences(old: dict[str, Any], new: dict[str, Any]) -> list[str]:
     return [f"{k}: {a.get(k, _ABSENT)!r} -> {b.get(k, _ABSENT)!r}" for k in keys]
 
 
+def only_added(old: dict[str, Any], new: dict[str, Any]) -> bool:
+    """Every dotted key whose value differs between two scene records is one that ``old`` lacks (a key added to
+    the scene since ``old`` was written, at the value ``new`` gives it)."""
+    a, b = _flatten(old), _flatten(new)
+    return all(k not in a for k in a.keys() | b.keys() if a.get(k, _ABSENT) != b.get(k, _ABSENT))
+
+
 class _Absent:
     def __repr__(self) -> str:
         return "(absent)"

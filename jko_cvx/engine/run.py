@@ -227,7 +227,7 @@ def _scene_from_record(record: dict[str, Any], fingerprint: str, where: Path) ->
     fingerprint was taken of (the SHA-256 of its canonical JSON) and the rebuilt scene differs from it only by
     keys the record does not have; any other difference is refused.
     """
-    from jko_cvx.engine._rundir import _ABSENT, flat_scene_record, scene_differences, scene_fingerprint
+    from jko_cvx.engine._rundir import flat_scene_record, only_added, scene_fingerprint
 
     if flat_scene_record(record):
         raise RunDirError(
@@ -240,9 +240,7 @@ def _scene_from_record(record: dict[str, Any], fingerprint: str, where: Path) ->
         raise RunDirError(f"{where} does not rebuild the scene the run's checkpoint was made from ({exc})") from None
     if scene_fingerprint(scene) != fingerprint:
         own = hashlib.sha256(json.dumps(record, sort_keys=True, separators=(",", ":"), default=str).encode())
-        added_only = all(d.split(": ", 1)[1].startswith(f"{_ABSENT!r} -> ")
-                         for d in scene_differences(record, scene.to_dict()))  # fmt: skip
-        if not (own.hexdigest() == fingerprint and added_only):
+        if not (own.hexdigest() == fingerprint and only_added(record, scene.to_dict())):
             raise RunDirError(
                 f"{where} does not rebuild the scene the run's checkpoint was made from (fingerprint differs)"
             )

@@ -8,7 +8,7 @@ One bump (``mu1``): linear :math:`\\mu = (r/\\delta) s` on :math:`[0, \\delta]`,
 :math:`(1, L)` by :math:`a s^5 + b s` if :math:`r/\\delta < L` (concave up) or by the logistic
 :math:`a/(1 + e^{-bs})` otherwise (concave down), constants from continuity at
 :math:`s = \\delta` and :math:`\\mu(1) = L`.  The map has a kink at :math:`s = \\delta`: the
-spacing jumps there (ninefold on ``tab_bu_g1`` near its blow-up), and the collision step
+spacing jumps there (7- to 11-fold on ``tab_bu_g1`` near its blow-up), and the collision step
 (``eqn:non-uniform JKO``) piles mass on the kink's node, a spike next to the concentration that holds
 back the peak's growth.  ``junction = "c1"`` (this package's option, not the paper's) replaces the
 outer piece by one whose slope rises from the linear part's :math:`r/\\delta` at :math:`s = \\delta`
