@@ -478,7 +478,9 @@ def simulate(
 
 def _finish(scene: Scene, state: RunState, trackers: list[Tracker], snaps: Snapshots, rd: RunDir | None) -> Run:
     # before the last checkpoint, which records it
-    state.verdict = state.verdict.with_fit(state.rows, first_order=scene.time.order == 1)
+    spec = scene.refine.v
+    set_points = scene.v.n * (spec.delta / spec.bumps if spec is not None else 1.0)  # a fixed grid: the whole of it
+    state.verdict = state.verdict.with_fit(state.rows, first_order=scene.time.order == 1, set_points=set_points)
     for tr in trackers:
         tr.finish(state)
     run = Run(scene, pd.DataFrame(state.rows), snaps.snapshots, state.f, state.vgrid, state.xgrid, state.t,

@@ -190,18 +190,18 @@ class Verdict(Mapping):
             self, e_f=True, uncertified_steps=self.uncertified_steps + 1, first_uncertified_t=first
         )
 
-    def with_fit(self, rows: list[dict[str, Any]], first_order: bool = False) -> Verdict:
+    def with_fit(self, rows: list[dict[str, Any]], first_order: bool = False, set_points: float = 0.0) -> Verdict:
         """The verdict with the blow-up fit of the diagnostics ``rows`` (``t``, ``max_f``, ``failed``).
 
         Only certified records feed the fit (those before the first step with a failed slice);
         a run stopped by a solver failure, a collapsed step or no step is cut short, so a fit
         that does not show a finite-time law is ``undetermined`` there.  ``first_order``: the run took
-        first-order steps; where its concentration moved over the fitted records (:func:`moved`) the reason
-        says that the fitted time lags by the step's O(dt), which the error bar does not hold, and
-        :meth:`describe_fit` warns.
+        first-order steps; where its concentration moved over the fitted records (:func:`moved`, with
+        ``set_points`` the grid points the v-map packs into one concentration set) the reason says that the
+        fitted time lags by the step's O(dt), which the error bar does not hold, and :meth:`describe_fit` warns.
         """
         fit = fit_rows(rows, self)
-        if first_order and fit.window is not None and (drift := moved(rows, fit.window)) is not None:
+        if first_order and fit.window is not None and (drift := moved(rows, fit.window, set_points)) is not None:
             fit = dataclasses.replace(fit, reason=fit.reason + drift)
         growth = None
         if rows and self.stop is StopReason.T_END:
@@ -277,20 +277,23 @@ def _optional_float(x: Any) -> float | None:
 
 MOVED = "the concentration moved"
 #: A concentration counts as moving when the place of max f travels, on average over the fitted records' steps,
-#: more than this many of the smallest spacings at the window's end per step.  Measured on gamma = 1 data at
-#: N_v = 121 to 601: still single bumps 0 to 1.1 a step; the asymmetric two_asym2 0.7 to 3.6 (fitted times within
-#: 1.1e-3); tab_bu_g4's mirror bumps 1.8 to 2.8; two_asym 9 to 19 and two bumps at -+0.8 4 to 27 (0.011 to 0.071
-#: late).
-MOVED_CELLS = 5.0
+#: more than this fraction of its refined set a step: the path in the smallest spacings at the window's end over
+#: the points the map packs into one set (delta N_v / bumps).  Measured on gamma = 1 data at N_v = 121 to 601 with
+#: first-order steps: still single bumps 0 to 0.006 a step; the asymmetric two_asym2 0.011 to 0.014 (fitted times
+#: within 1.1e-3); tab_bu_g4's mirror bumps 0.046 to 0.061, two bumps at -+0.8 0.066 to 0.15 and two_asym 0.061 to
+#: 0.15 (0.011 to 0.076 late).
+MOVED_FRACTION = 0.03
 #: A step of the place of max f longer than this many of that step's smallest spacings is a switch between two
 #: bumps of (nearly) equal height, not motion (``tab_bu_g4``'s mirror bumps switch on rounding).
 JUMP_CELLS = 100.0
 
 
-def moved(rows: list[dict[str, Any]], window: tuple[int, int]) -> str | None:
-    """``"; the concentration moved ..."`` where the velocity of max f (``v_at_max``) shifted over the fitted records
-    ``window`` over a path of more than :data:`MOVED_CELLS` of the smallest v-spacings at its end per step, switches
-    between two bumps (:data:`JUMP_CELLS`) left out; None otherwise (also for records without ``v_at_max``).
+def moved(rows: list[dict[str, Any]], window: tuple[int, int], set_points: float) -> str | None:
+    """``"; the concentration moved ..."`` where the velocity of max f (``v_at_max``) travelled over the fitted
+    records ``window`` more than :data:`MOVED_FRACTION` of its refined set a step (the path in the smallest
+    v-spacings at the window's end over ``set_points``, the points the map packs into one set), switches between
+    two bumps (:data:`JUMP_CELLS`) left out; None otherwise (also for records without ``v_at_max``, or
+    ``set_points <= 0``).
 
     First-order (implicit) steps lag a moving concentration by O(dt): two bumps at -0.8 and 0.8 that move half a
     unit of v per unit of t give fitted blow-up times 0.04 to 0.1 late at dt = 0.004 to 0.008, their error bars
@@ -298,7 +301,7 @@ def moved(rows: list[dict[str, Any]], window: tuple[int, int]) -> str | None:
     steps cover 24 of 24.
     """
     start, stop = window
-    if stop - start < 3 or any("v_at_max" not in r for r in rows[start:stop]):
+    if stop - start < 3 or not set_points > 0 or any("v_at_max" not in r for r in rows[start:stop]):
         return None
     v = np.array([float(r["v_at_max"]) for r in rows[start:stop]])
     cells = np.array([float(r["min_dv"]) for r in rows[start + 1 : stop]])
@@ -307,14 +310,14 @@ def moved(rows: list[dict[str, Any]], window: tuple[int, int]) -> str | None:
     # moved JUMP_CELLS of the smallest spacings in one step on the data measured
     kept = steps[np.abs(steps) <= JUMP_CELLS * cells]
     # the path length, not the net shift: the two mirror bumps' motions do not cancel across a switch
-    per_step = float(np.abs(kept).sum()) / steps.size / cells[-1]
-    if not per_step > MOVED_CELLS:
+    per_step = float(np.abs(kept).sum()) / steps.size / cells[-1] / set_points
+    if not per_step > MOVED_FRACTION:
         return None
     a, b = v[0], v[-1]
     t0, t1 = float(rows[start]["t"]), float(rows[stop - 1]["t"])
     return (
-        f"; {MOVED} (max f from v = {a:.4g} to {b:.4g} over t = {t0:.4g}..{t1:.4g}, {per_step:.2g} of the smallest "
-        "spacings a step): first-order steps lag a moving concentration by O(dt), not in the error bar; "
+        f"; {MOVED} (max f from v = {a:.4g} to {b:.4g} over t = {t0:.4g}..{t1:.4g}, {per_step:.2g} of its refined "
+        "set a step): first-order steps lag a moving concentration by O(dt), not in the error bar; "
         "time.order = 2 removes the lag"
     )
 
