@@ -26,12 +26,12 @@ import argparse
 import time
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 
 from jko_cvx.engine.loop import simulate
 from jko_cvx.environment import environment, environment_line, record_csv, write_markdown
 from jko_cvx.scene.model import shipped_scene
+from jko_cvx.studies.reproduce.dt_probe import control_ratios, order_pairs, probe_rows
 
 OUT = Path(__file__).parent / "results" / "reproduce"  # evidence of the conclusions table
 CSV = OUT / "g3_dt_probe.csv"
@@ -96,8 +96,8 @@ def run_case(lam: float, n: int, dt: float, order: int = 1, variant: str = "") -
 
 
 def _report(df: pd.DataFrame) -> str:
-    df = df.assign(variant=df["variant"].fillna("") if "variant" in df else "")
-    shipped, variants = df[df.variant == ""], df[df.variant != ""]
+    df = probe_rows(df)
+    shipped = df[df.variant == ""]
     lines = [
         "# gamma = 3 inhomogeneous runs against the time step",
         "",
@@ -126,7 +126,7 @@ def _report(df: pd.DataFrame) -> str:
                 f"{ratios}); min dx {g.min_dx.iloc[0]:.3g} to {g.min_dx.iloc[-1]:.3g}; blow-up flagged in "
                 f"{int(g.blowup.astype(bool).sum())} of {len(g)}."
             )
-    pairs = order_pairs(shipped)
+    pairs = order_pairs(df)
     if not pairs.empty:
         lines += [
             "",
@@ -141,15 +141,8 @@ def _report(df: pd.DataFrame) -> str:
             pairs.to_markdown(index=False, floatfmt=".4g"),
             "",
         ]
-    if len(variants):
-        rows = []
-        for _, r in variants.iterrows():
-            same = shipped[(shipped["lambda"] == r["lambda"]) & (shipped.n == r.n) & (shipped["dt"] == r["dt"])
-                           & (shipped.time_order == r.time_order)]  # fmt: skip
-            base = float(same.max_f_peak.iloc[0]) if len(same) else float("nan")
-            rows.append({"lambda": r["lambda"], "n": r.n, "dt": r["dt"], "time_order": r.time_order,
-                         "variant": r.variant, "peak": r.max_f_peak, "peak as shipped": base,
-                         "ratio": r.max_f_peak / base})  # fmt: skip
+    controls = control_ratios(df)
+    if len(controls):
         lines += [
             "## Controls: what else changes with dt",
             "",
@@ -159,31 +152,10 @@ def _report(df: pd.DataFrame) -> str:
             "beside the run as shipped: where the ratio stays near 1, that mechanism is not what makes the peak "
             "depend on dt.",
             "",
-            pd.DataFrame(rows).to_markdown(index=False, floatfmt=".4g"),
+            controls.to_markdown(index=False, floatfmt=".4g"),
             "",
         ]
     return "\n".join(lines) + "\n"
-
-
-def order_pairs(df: pd.DataFrame) -> pd.DataFrame:
-    """Per lambda, grid and dt with both orders: the two peaks of max f, their ratio, and the first-order dt
-    whose peak is closest (in log) to the second-order one's."""
-    out = []
-    for (lam, n), g in df.groupby(["lambda", "n"]):
-        first, second = g[g.time_order == 1], g[g.time_order == 2]
-        for _, r2 in second.sort_values("dt", ascending=False).iterrows():
-            r1 = first[first["dt"] == r2["dt"]]
-            if r1.empty:
-                continue
-            closest = first.iloc[int(np.abs(np.log(first.max_f_peak.to_numpy() / r2["max_f_peak"])).argmin())]
-            out.append({
-                "lambda": lam, "n": n, "dt": float(r2["dt"]), "peak_order1": float(r1.max_f_peak.iloc[0]),
-                "peak_order2": float(r2["max_f_peak"]),
-                "order2_over_order1": float(r2["max_f_peak"] / r1.max_f_peak.iloc[0]),
-                "t_peak_order1": float(r1.t_peak.iloc[0]), "t_peak_order2": float(r2["t_peak"]),
-                "order1_dt_matching": float(closest["dt"]), "peak_there": float(closest["max_f_peak"]),
-            })  # fmt: skip
-    return pd.DataFrame(out)
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -192,11 +164,7 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     cases = DEFAULT_CASES if args.cases is None else [parse_case(c) for c in args.cases]
     commit = environment().get("git_commit")
-    done = pd.read_csv(CSV) if CSV.exists() else pd.DataFrame()
-    if not done.empty and "time_order" not in done:
-        done["time_order"] = 1  # rows written before the order was recorded: the shipped first-order steps
-    if not done.empty:
-        done["variant"] = done["variant"].fillna("") if "variant" in done else ""  # as shipped: no variant
+    done = probe_rows(pd.read_csv(CSV)) if CSV.exists() else pd.DataFrame()
     rows = done.to_dict("records")
 
     def key(r: dict) -> tuple:

@@ -27,6 +27,7 @@ import numpy as np
 import pandas as pd
 
 from jko_cvx.environment import record_csv, write_markdown
+from jko_cvx.studies.reproduce.dt_probe import control_ratios, order_pairs, probe_rows
 
 __all__ = ["CONCLUSIONS", "EVIDENCE", "VERDICTS", "conclusions", "reproduce_conclusions"]
 
@@ -200,13 +201,9 @@ def _ibu(root: Path) -> dict[str, Any]:
 def _gamma3(root: Path) -> dict[str, Any]:
     d = _read(root, "inhom_gamma3.csv")
     flagged = int(d["blow-up flagged"].astype(str).str.lower().eq("true").sum())
-    probe_all = _read(root, "g3_dt_probe.csv")
-    if "time_order" not in probe_all:
-        probe_all["time_order"] = 1  # rows written before the order was recorded: the shipped first-order steps
-    controls = pd.DataFrame()
-    if "variant" in probe_all:  # the controls (a weaker Fisher term, fewer remaps) are not the scenes as shipped
-        variant = probe_all["variant"].fillna("")
-        controls, probe_all = _control_ratios(probe_all, variant), probe_all[variant == ""]
+    rows = probe_rows(_read(root, "g3_dt_probe.csv"))
+    controls = control_ratios(rows).dropna(subset=["ratio"])
+    probe_all = rows[rows.variant == ""]  # the controls (a weaker Fisher term, fewer remaps) are not as shipped
     probe = probe_all[probe_all.time_order == 1]
     rise = []
     for (lam, n), g in probe.groupby(["lambda", "n"]):
@@ -258,35 +255,16 @@ def _gamma3(root: Path) -> dict[str, Any]:
     }
 
 
-def _control_ratios(probe: pd.DataFrame, variant: pd.Series) -> pd.DataFrame:
-    """Each variant row of the dt probe beside the run as shipped at its lambda, grid, dt and order: the ratio
-    of their peaks of max f."""
-    shipped = probe[variant == ""]
-    rows = []
-    for _, r in probe[variant != ""].iterrows():
-        same = shipped[(shipped["lambda"] == r["lambda"]) & (shipped["n"] == r["n"]) & (shipped["dt"] == r["dt"])
-                       & (shipped["time_order"] == r["time_order"])]  # fmt: skip
-        if len(same):
-            rows.append({"lambda": r["lambda"], "n": r["n"], "dt": r["dt"], "variant": r["variant"],
-                         "ratio": float(r["max_f_peak"] / same.max_f_peak.iloc[0])})  # fmt: skip
-    return pd.DataFrame(rows)
-
-
 def _gamma3_orders(probe: pd.DataFrame) -> tuple[str, str]:
     """What the probe's second-order runs add to the gamma = 3 row: the two orders at one dt (``ours``) and which
     is right (``why``); empty where the probe has no second-order run beside a first-order one."""
-    pairs = []
-    for (lam, n), g in probe.groupby(["lambda", "n"]):
-        first, second = g[g.time_order == 1], g[g.time_order == 2]
-        for _, r2 in second.sort_values("dt", ascending=False).iterrows():
-            r1 = first[first["dt"] == r2["dt"]]
-            if len(r1):
-                pairs.append((lam, n, float(r2["dt"]), float(r1.max_f_peak.iloc[0]), float(r2["max_f_peak"]), r2))
-    if not pairs:
+    pairs = order_pairs(probe)
+    if pairs.empty:
         return "", ""
     text = "; ".join(
-        f"lambda = {lam:g}, {n}^2, dt = {dt:g}: peak max f {p1:.3g} (order 1) against {p2:.3g} (order 2)"
-        for lam, n, dt, p1, p2, _ in pairs
+        f"lambda = {r['lambda']:g}, {int(r.n)}^2, dt = {r['dt']:g}: peak max f {r.peak_order1:.3g} (order 1) against "
+        f"{r.peak_order2:.3g} (order 2)"
+        for _, r in pairs.iterrows()
     )
     settled = []
     for (lam, n), g in probe[probe.time_order == 2].groupby(["lambda", "n"]):
@@ -297,15 +275,15 @@ def _gamma3_orders(probe: pd.DataFrame) -> tuple[str, str]:
                 f"lambda = {lam:g}, {n}^2: {change:+.0%} from dt = {g.dt.iloc[-2]:g} to {g.dt.iloc[-1]:g} "
                 f"(final max f {g.max_f_final.iloc[-1]:.3g}, {g.blowup_kind.iloc[-1]})"
             )
-    worst = max(pairs, key=lambda q: abs(np.log(q[4] / q[3])))
-    ratio = worst[4] / worst[3]
+    worst = pairs.iloc[int(np.abs(np.log(pairs.order2_over_order1.to_numpy())).argmax())]
+    ratio = float(worst.order2_over_order1)
     verdict = (
         "so the first-order runs at the shipped dt are not converged in time and the smaller steps are the better "
         "answer" if abs(np.log(ratio)) > np.log(1.5) else "within a factor 1.5 of each other"
     )
     why = (
         f"; the second-order scheme (time.order = 2) at the same dt gives {ratio:.3g} times the first-order peak at "
-        f"most (lambda = {worst[0]:g}, {worst[1]}^2, dt = {worst[2]:g}), {verdict} (the probe's section "
+        f"most (lambda = {worst['lambda']:g}, {int(worst.n)}^2, dt = {worst['dt']:g}), {verdict} (the probe's section "
         "'The two orders at one dt')"
         + (f"; the second-order peak against dt: {'; '.join(settled)}" if settled else "")
     )
