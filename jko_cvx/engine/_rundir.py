@@ -72,7 +72,12 @@ def canonical_scene(scene: Scene) -> str:
 
 def scene_fingerprint(scene: Scene) -> str:
     """SHA-256 (hex) of :func:`canonical_scene`."""
-    return hashlib.sha256(canonical_scene(scene).encode()).hexdigest()
+    return record_fingerprint(scene.to_dict())
+
+
+def record_fingerprint(record: dict[str, Any]) -> str:
+    """SHA-256 (hex) of a scene record (``scene.json`` as read) in the canonical JSON of :func:`canonical_scene`."""
+    return hashlib.sha256(json.dumps(record, sort_keys=True, separators=(",", ":"), default=str).encode()).hexdigest()
 
 
 _FLAT_FIELDS = frozenset({"v_L", "v_n", "dt", "policy", "method", "every", "snapshot_times"})

@@ -19,7 +19,6 @@ state, verdict and timings.
 
 from __future__ import annotations
 
-import hashlib
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -227,7 +226,7 @@ def _scene_from_record(record: dict[str, Any], fingerprint: str, where: Path) ->
     fingerprint was taken of (the SHA-256 of its canonical JSON) and the rebuilt scene differs from it only by
     keys the record does not have; any other difference is refused.
     """
-    from jko_cvx.engine._rundir import flat_scene_record, only_added, scene_fingerprint
+    from jko_cvx.engine._rundir import flat_scene_record, only_added, record_fingerprint, scene_fingerprint
 
     if flat_scene_record(record):
         raise RunDirError(
@@ -239,8 +238,7 @@ def _scene_from_record(record: dict[str, Any], fingerprint: str, where: Path) ->
     except (ValueError, TypeError) as exc:
         raise RunDirError(f"{where} does not rebuild the scene the run's checkpoint was made from ({exc})") from None
     if scene_fingerprint(scene) != fingerprint:
-        own = hashlib.sha256(json.dumps(record, sort_keys=True, separators=(",", ":"), default=str).encode())
-        if not (own.hexdigest() == fingerprint and only_added(record, scene.to_dict())):
+        if not (record_fingerprint(record) == fingerprint and only_added(record, scene.to_dict())):
             raise RunDirError(
                 f"{where} does not rebuild the scene the run's checkpoint was made from (fingerprint differs)"
             )
