@@ -51,7 +51,9 @@ def bench(n: int, repeats: int, beta: float = 10.0, dt: float = 0.01, fisher: st
     grid = Grid.uniform(-2.0, 2.0, n)
     prob = CollisionProblem(grid, PowerKernel(1.0), np.exp(-2 * grid.points**2), dt, beta=beta, fisher=fisher)
     rows = []
-    methods = ("conic", "sqp", "newton", "nlp") if fisher != "log" else ("sqp", "newton", "nlp")
+    methods = ("conic", "sqp", "newton", "newton_compiled", "nlp")
+    if fisher == "log":
+        methods = methods[1:]
     first, first_wall = {}, {}
     for method in ("conic", "nlp"):
         if method not in methods:
@@ -60,12 +62,16 @@ def bench(n: int, repeats: int, beta: float = 10.0, dt: float = 0.01, fisher: st
         t0 = time.perf_counter()
         first[method] = solve_collision(prob, method=method)
         first_wall[method] = time.perf_counter() - t0
+    solve_collision(prob, method="newton", compiled=True)  # numba: load (or compile) outside the timings
     for method in methods:
         times, res = [], None
+        name, opts = _method(method)
         for _ in range(repeats):
             t0 = time.perf_counter()
-            res = solve_collision(prob, method=method)
+            res = solve_collision(prob, method=name, **opts)
             times.append(time.perf_counter() - t0)
+        if method == "newton_compiled" and not res.info["compiled"]:
+            raise RuntimeError(f"the compiled Newton iteration handed N = {n} ({fisher}) back: not its timing")
         row = {
             "fisher": fisher,
             "N": n,
@@ -90,6 +96,48 @@ def bench(n: int, repeats: int, beta: float = 10.0, dt: float = 0.01, fisher: st
     return rows
 
 
+def _method(label: str) -> tuple[str, dict]:
+    """The method and options of a benchmark label (``newton_compiled``: Newton with ``compiled=True``)."""
+    return ("newton", {"compiled": True}) if label == "newton_compiled" else (label, {})
+
+
+def bench_newton_sqp(repeats: int, sizes: list[int]) -> pd.DataFrame:
+    """Newton (NumPy and compiled) against the paper's SQP: both Fisher forms, beta = 10 and 1000, every N.
+
+    The three are interleaved in each round (they share the machine's conditions), each timed over
+    ``inner`` consecutive solves; every solve runs at the methods' defaults (the SQP's zeta test, Newton's
+    KKT tolerance 1e-10).
+    """
+    rows = []
+    for fisher in ("perspective", "log"):
+        for beta in (10.0, 1000.0):
+            for n in sizes:
+                grid = Grid.uniform(-2.0, 2.0, n)
+                f0 = np.exp(-2 * grid.points**2)
+                prob = CollisionProblem(grid, PowerKernel(1.0), f0, 0.01, beta=beta, fisher=fisher)
+                labels = ("sqp", "newton", "newton_compiled")
+                last = {k: solve_collision(prob, method=_method(k)[0], **_method(k)[1]) for k in labels}  # warm-up
+                inner = max(1, int(0.02 / max(1e-4, min(r.seconds for r in last.values()))))
+                times = {k: [] for k in labels}
+                for _ in range(repeats):
+                    for k in labels:
+                        t0 = time.perf_counter()
+                        for _ in range(inner):
+                            last[k] = solve_collision(prob, method=_method(k)[0], **_method(k)[1])
+                        times[k].append((time.perf_counter() - t0) / inner)
+                row = {"fisher": fisher, "beta": beta, "N": n}
+                for k in labels:
+                    row[f"{k}_s"] = statistics.median(times[k])
+                    row[f"{k}_it"] = last[k].iterations
+                    row[f"{k}_kkt"] = last[k].kkt_residual
+                    row[f"{k}_status"] = last[k].status.name
+                row["compiled_used"] = bool(last["newton_compiled"].info["compiled"])
+                row["sqp/newton"] = row["sqp_s"] / row["newton_s"]
+                row["sqp/newton_compiled"] = row["sqp_s"] / row["newton_compiled_s"]
+                rows.append(row)
+    return pd.DataFrame(rows)
+
+
 def _median_time(fn, repeats: int) -> tuple[float, object]:
     fn()  # warm-up (compilation, caches)
     times, res = [], None
@@ -104,21 +152,24 @@ def bench_newton(repeats: int) -> tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame
     grid = Grid.uniform(-2.0, 2.0, 121)
     f0 = np.exp(-2 * grid.points**2)
     rows = []
-    opts = {"conic": {}, "sqp": {"tol": 1e-12, "max_iter": 100000}, "newton": {"tol": 1e-9}}
+    opts = {
+        "conic": {}, "sqp": {"tol": 1e-12, "max_iter": 100000}, "newton": {"tol": 1e-9},
+        "newton_compiled": {"tol": 1e-9, "compiled": True},
+    }  # fmt: skip
     # Methods are interleaved inside each round so that they share the machine's
     # conditions; Newton is timed over `inner` consecutive solves (it is ~1 ms).
-    inner = {"conic": 1, "sqp": 1, "newton": 10}
+    inner = {"conic": 1, "sqp": 1, "newton": 10, "newton_compiled": 20}
     for beta in (1.0, 3.0, 10.0, 30.0):
         prob = CollisionProblem(grid, PowerKernel(1.0), f0, 0.01, beta=beta)
         times = {k: [] for k in opts}
-        last = {k: solve_collision(prob, method=k, **opts[k]) for k in opts}  # warm-up
+        last = {k: solve_collision(prob, method=_method(k)[0], **opts[k]) for k in opts}  # warm-up
         for r in range(repeats):
             for method in opts:
                 if method == "sqp" and beta <= 1 and r >= 3:
                     continue  # 0.7 s per solve: three rounds suffice
                 t0 = time.perf_counter()
                 for _ in range(inner[method]):
-                    last[method] = solve_collision(prob, method=method, **opts[method])
+                    last[method] = solve_collision(prob, method=_method(method)[0], **opts[method])
                 times[method].append((time.perf_counter() - t0) / inner[method])
         row = {"beta": beta}
         for method in opts:
@@ -127,6 +178,7 @@ def bench_newton(repeats: int) -> tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame
             row[f"{method}_kkt"] = last[method].kkt_residual
         row["conic/newton"] = row["conic_s"] / row["newton_s"]
         row["sqp/newton"] = row["sqp_s"] / row["newton_s"]
+        row["conic/newton_compiled"] = row["conic_s"] / row["newton_compiled_s"]
         rows.append(row)
     by_beta = pd.DataFrame(rows)
     # batched throughput: 121 slices of N = 121 (shifted and scaled Gaussians)
@@ -158,14 +210,21 @@ def _table(df: pd.DataFrame, floatfmt: str = ".3g") -> str:
 
 
 def report(
-    df: pd.DataFrame, by_beta: pd.DataFrame | None, by_n: pd.DataFrame | None, batch: pd.DataFrame | None, header: str
+    df: pd.DataFrame,
+    by_beta: pd.DataFrame | None,
+    by_n: pd.DataFrame | None,
+    batch: pd.DataFrame | None,
+    header: str,
+    newton_sqp: pd.DataFrame | None = None,
 ) -> str:
     """The Markdown report: the provenance ``header``, then every table the run measured."""
     parts = [header]
     for fisher, part in df.groupby("fisher", sort=False):
         parts.append(f"### {fisher} Fisher, median s per solve\n\n" + _table(part.drop(columns="fisher")))
         piv = part.pivot(index="N", columns="method", values="median_s")
-        for a, b in (("conic", "sqp"), ("conic", "newton"), ("sqp", "newton"), ("nlp", "conic"), ("nlp", "sqp")):
+        pairs = (("conic", "sqp"), ("conic", "newton"), ("sqp", "newton"), ("nlp", "conic"), ("nlp", "sqp"),
+                 ("conic", "newton_compiled"), ("sqp", "newton_compiled"), ("newton", "newton_compiled"))  # fmt: skip
+        for a, b in pairs:
             if a in piv and b in piv:
                 text = ", ".join(f"N = {n}: {r:.3g}" for n, r in (piv[a] / piv[b]).items())
                 parts.append(f"- {fisher}: {a} / {b} (medians per solve): {text}")
@@ -176,6 +235,13 @@ def report(
         parts.append(f"### Newton per solve against N (fitted exponent {expo:.2f})\n\n" + _table(by_n))
     if batch is not None:
         parts.append("### Batched Newton, 121 slices of N = 121\n\n" + _table(batch))
+    if newton_sqp is not None:
+        slowest = newton_sqp[["sqp/newton", "sqp/newton_compiled"]].min()
+        parts.append(
+            "### Newton against the paper's SQP (gamma = 1, dt = 0.01), median s per solve\n\n"
+            f"Smallest ratio SQP / Newton over the table: {slowest['sqp/newton']:.3g} (NumPy iteration), "
+            f"{slowest['sqp/newton_compiled']:.3g} (compiled).\n\n" + _table(newton_sqp)
+        )
     return "\n\n".join(parts) + "\n"
 
 
@@ -195,7 +261,7 @@ def main(argv: list[str] | None = None) -> None:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     df.to_csv(args.out, index=False)
     record_csv(args.out)
-    by_beta = by_n = batch = None
+    by_beta = by_n = batch = newton_sqp = None
     if args.newton:
         by_beta, by_n, batch = bench_newton(args.repeats)
         by_beta.to_csv(args.out.with_name("bench_newton.csv"), index=False)
@@ -204,6 +270,9 @@ def main(argv: list[str] | None = None) -> None:
         record_csv(args.out.with_name("bench_newton_growth.csv"))
         batch.to_csv(args.out.with_name("bench_newton_batch.csv"), index=False)
         record_csv(args.out.with_name("bench_newton_batch.csv"))
+        newton_sqp = bench_newton_sqp(args.repeats, args.sizes)
+        newton_sqp.to_csv(args.out.with_name("bench_newton_sqp.csv"), index=False)
+        record_csv(args.out.with_name("bench_newton_sqp.csv"))
     header = (
         "# One collision step, four methods (`studies/bench_collision.py`)\n\n"
         f"`{shlex.join(['bench_collision.py', *(argv if argv is not None else sys.argv[1:])])}`, finished "
@@ -213,7 +282,7 @@ def main(argv: list[str] | None = None) -> None:
         f"{load0:.2f} before, {os.getloadavg()[0]:.2f} after.  Medians of {args.repeats} solves per row, "
         "methods side by side in one process."
     )
-    text = report(df, by_beta, by_n, batch, header)
+    text = report(df, by_beta, by_n, batch, header, newton_sqp)
     write_markdown(args.out.with_suffix(".md"), text)
     print(text)
     print(f"wrote {args.out} and {args.out.with_suffix('.md').name}")

@@ -24,13 +24,15 @@ def test_a_small_run_writes_the_csv_and_the_report_with_its_provenance(tmp_path,
     _bench().main(["--sizes", "21", "--repeats", "1", "--no-newton", "--out", str(out)])
     df = pd.read_csv(out)
     assert sorted(zip(df.fisher, df.method, strict=True)) == sorted(
-        [("perspective", m) for m in ("conic", "sqp", "newton", "nlp")] + [("log", m) for m in ("sqp", "newton", "nlp")]
+        [("perspective", m) for m in ("conic", "sqp", "newton", "newton_compiled", "nlp")]
+        + [("log", m) for m in ("sqp", "newton", "newton_compiled", "nlp")]
     )
     assert (df.status == "CONVERGED").all() and (df.kkt_residual <= 1e-6).all()  # certified, re-checked
     report = out.with_suffix(".md").read_text()
     assert "OPENBLAS_NUM_THREADS=1" in report and "BLAS threads [1]" in report
     assert "code " in report and "UTC" in report and "1-minute load" in report
     assert "perspective: conic / newton (medians per solve): N = 21:" in report
+    assert "log: newton / newton_compiled (medians per solve): N = 21:" in report
     assert not (tmp_path / "bench_newton.csv").exists()  # --no-newton: the second part is not run
 
 

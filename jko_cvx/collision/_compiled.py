@@ -1,0 +1,456 @@
+"""The Newton iteration of one collision step as compiled code (numba), for a diagonal energy block.
+
+:func:`iterate` runs the undamped attempt of :mod:`jko_cvx.collision.newton` on one slice -- the same
+reduced gradient and pentadiagonal reduced Hessian (:mod:`jko_cvx.collision.terms`, written out per
+edge), the same banded Cholesky factorisation of ``diag (1 + pd_tol)``, fraction to the boundary and
+Armijo backtracking on :math:`J`, the same momentum-constrained direction -- for the energy blocks that
+are diagonal in the fluxes (:math:`\\gamma = 1`, :class:`~jko_cvx.kernels.FluxBlock` ``"diagonal"``).
+It runs only the plain path: it stops at the first iterate whose Newton decrement reached ``tol`` (where
+the NumPy iteration checks the KKT residual) and hands back everything else -- a Hessian that needs a
+shift, a short step (a possible jam at the vacuum boundary), a failed line search, a non-finite value,
+the iteration limit -- as "not handled", after which the caller runs the NumPy iteration with its
+retry cascade from the start.  The KKT residual and the certificate are not computed here: the caller
+judges the returned point with the one residual every method shares.
+
+The arithmetic follows the NumPy expressions term by term, so the iterates agree with the NumPy
+iteration's to rounding (not bit for bit: sums and the Cholesky run in another order).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import numpy as np
+from numpy.typing import NDArray
+
+try:
+    from numba import njit
+except ImportError as exc:  # an optional dependency: say how to get it
+    raise ImportError(
+        "the compiled Newton iteration (solve_newton(..., compiled=True)) needs numba: "
+        'python -m pip install "jko_cvx[fast]"'
+    ) from exc
+
+__all__ = ["HANDLED", "iterate"]
+
+
+def _jit(func: Callable) -> Callable:
+    """``numba.njit`` with its on-disk cache (compiled once per machine, about 10 s), or without one.
+
+    The cache lives in ``__pycache__`` beside this file, as Python's bytecode does, keyed by numba on this
+    file's contents and the CPU; where no cache directory is writable every process compiles anew.
+    """
+    try:
+        return njit(cache=True, nogil=True, error_model="numpy")(func)
+    except RuntimeError:  # numba: "cannot cache function ...: no locator available"
+        return njit(nogil=True, error_model="numpy")(func)
+
+
+HANDLED = 0
+"""``iterate``'s code for a point where the decrement reached ``tol`` and the Hessian is positive definite."""
+
+_NOT_HANDLED = 1
+_FISHER_CODES = {None: 0, "perspective": 1, "log": 2}
+
+
+@_jit
+def _evaluate(f, m, h, w, c, fisher, kf, ecoef, ediag, g, diag, off1, off2, gfw, gff, gfe, gm):  # pragma: no cover
+    """Reduced gradient ``g`` and the bands of the reduced Hessian at ``(f, m)``, given ``kf = K f``.
+
+    Also the gradient's split by term in f (``gfw``, ``gff``, ``gfe``) and in m (``gm``, the Wasserstein
+    term's), which the KKT residual scales by.
+    """
+    n = f.size
+    e = n - 1
+    for i in range(n):
+        gfe[i] = 2 * ecoef * kf[i]
+        gfw[i] = 0.0
+        gff[i] = 0.0
+    xx = np.empty(e)
+    yy = np.empty(e)
+    xy = np.empty(e)
+    hsm = np.empty(e)
+    hmm = np.empty(e)
+    for k in range(e):
+        x, y = f[k], f[k + 1]
+        s = x + y
+        u = m[k] / s
+        w2 = 2 * w[k]
+        g_m = w2 * u
+        g_s = -w[k] * u * u
+        h_ss = g_m * u / s
+        hsm[k] = -2 * w[k] * u / s
+        hmm[k] = w2 / s
+        gm[k] = g_m
+        gfw[k] += g_s
+        gfw[k + 1] += g_s
+        hx = hy = hxy = h_ss
+        if fisher == 1:
+            r = (y - x) / s
+            r2 = 2 * r * r
+            k16 = 16 * c[k] / (s * s * s)
+            gff[k] += c[k] * (-4 * r - r2)
+            gff[k + 1] += c[k] * (4 * r - r2)
+            hx = h_ss + k16 * y * y
+            hy = h_ss + k16 * x * x
+            hxy = h_ss - k16 * x * y
+        elif fisher == 2:
+            L = math.log(y) - math.log(x)
+            half = 0.5 * L * L
+            q = c[k] * (s + L * (y - x))
+            gff[k] += c[k] * (-L * s / x + half)
+            gff[k + 1] += c[k] * (L * s / y + half)
+            hx = h_ss + q / (x * x)
+            hy = h_ss + q / (y * y)
+            hxy = h_ss + c[k] * (-s + L * (x - y)) / (x * y)
+        xx[k], yy[k], xy[k] = hx, hy, hxy
+    d = np.zeros(n)
+    for k in range(e):
+        d[k] += xx[k]
+        d[k + 1] += yy[k]
+    for k in range(e):
+        a_k, b_k = -1 / h[k], 1 / h[k + 1]
+        gk0 = gfe[k] + gfw[k] + gff[k]
+        gk1 = gfe[k + 1] + gfw[k + 1] + gff[k + 1]
+        g[k] = gm[k] - (gk0 / h[k] - gk1 / h[k + 1])
+        diag[k] = (
+            hmm[k] + a_k * a_k * d[k] + 2 * a_k * b_k * xy[k] + b_k * b_k * d[k + 1] + 2 * (a_k + b_k) * hsm[k]
+        ) + ediag[k]
+        if k < e - 1:
+            a_1 = -1 / h[k + 1]
+            b_1 = 1 / h[k + 2]
+            off1[k] = a_k * a_1 * xy[k] + b_k * a_1 * d[k + 1] + b_k * b_1 * xy[k + 1] + b_k * hsm[k + 1] + a_1 * hsm[k]
+        if k < e - 2:
+            off2[k] = b_k * (-1 / h[k + 2]) * xy[k + 1]
+
+
+@_jit
+def _cholesky(diag, off1, off2, pd_tol, l0, l1, l2):  # pragma: no cover - compiled
+    """Lower Cholesky factor of the pentadiagonal matrix with ``diag (1 + pd_tol)``; False where not PD."""
+    e = diag.size
+    for k in range(e):
+        if not (diag[k] > 0 and math.isfinite(diag[k])):
+            return False
+    for k in range(e):
+        piv = diag[k] * (1 + pd_tol)
+        if k >= 1:
+            piv -= l1[k - 1] * l1[k - 1]
+        if k >= 2:
+            piv -= l2[k - 2] * l2[k - 2]
+        if not (piv > 0 and math.isfinite(piv)):
+            return False
+        l0[k] = math.sqrt(piv)
+        if k < e - 1:
+            o = off1[k]
+            if k >= 1:
+                o -= l2[k - 1] * l1[k - 1]
+            l1[k] = o / l0[k]
+        if k < e - 2:
+            l2[k] = off2[k] / l0[k]
+    return True
+
+
+@_jit
+def _solve(l0, l1, l2, rhs, out):  # pragma: no cover - compiled
+    """``out = (L L')^-1 rhs`` for the factor of :func:`_cholesky`."""
+    e = rhs.size
+    for k in range(e):
+        v = rhs[k]
+        if k >= 1:
+            v -= l1[k - 1] * out[k - 1]
+        if k >= 2:
+            v -= l2[k - 2] * out[k - 2]
+        out[k] = v / l0[k]
+    for k in range(e - 1, -1, -1):
+        v = out[k]
+        if k + 1 < e:
+            v -= l1[k] * out[k + 1]
+        if k + 2 < e:
+            v -= l2[k] * out[k + 2]
+        out[k] = v / l0[k]
+
+
+@_jit
+def _density(fstar, m, h, out):  # pragma: no cover - compiled
+    """``f = f* - D m / h`` (zero end fluxes)."""
+    n = fstar.size
+    for j in range(n):
+        dm = (m[j] if j < n - 1 else 0.0) - (m[j - 1] if j >= 1 else 0.0)
+        out[j] = fstar[j] - dm / h[j]
+
+
+@_jit
+def _objective(f, m, w, c, fisher, K, ecoef, kf):  # pragma: no cover - compiled
+    """:math:`J(f, m)` at interior points; ``kf = K f`` is written on the way."""
+    n = f.size
+    val = 0.0
+    for k in range(n - 1):
+        x, y = f[k], f[k + 1]
+        s = x + y
+        val += w[k] * (m[k] * m[k] / s)
+        if fisher == 1:
+            dd = y - x
+            val += c[k] * (2 * dd * dd / s)
+        elif fisher == 2:
+            L = math.log(y) - math.log(x)
+            val += c[k] * (0.5 * L * L * s)
+    kf[:] = np.dot(K, f)
+    quad = 0.0
+    for i in range(n):
+        quad += f[i] * kf[i]
+    return val + ecoef * quad
+
+
+@_jit
+def _explicit_start(fstar, h, w, c, fisher, K, ecoef, a, conserve, m, f, kf):  # pragma: no cover - compiled
+    """The damped explicit step from ``(f*, 0)`` where it lowers J, else 0 (``newton._explicit_start``).
+
+    The first step of the paper's SQP (:func:`jko_cvx.collision.sqp.explicit_step`: the tridiagonal
+    system of the diagonal Hessian at ``m = 0``, where the Wasserstein gradient and its (s, s) and
+    (s, m) curvatures vanish), damped to keep ``f >= f*/2`` and projected onto the momentum plane.
+    Writes ``m``, ``f`` and ``kf = K f``; returns J there.
+    """
+    n = fstar.size
+    e = n - 1
+    kf0 = np.empty(n)
+    phi0 = _objective(fstar, np.zeros(e), w, c, fisher, K, ecoef, kf0)
+    gf = np.empty(n)
+    hf = np.zeros(n)
+    for i in range(n):
+        gf[i] = 2 * ecoef * kf0[i]
+    for k in range(e):
+        x, y = fstar[k], fstar[k + 1]
+        s = x + y
+        if fisher == 1:
+            r = (y - x) / s
+            r2 = 2 * r * r
+            k16 = 16 * c[k] / (s * s * s)
+            gf[k] += c[k] * (-4 * r - r2)
+            gf[k + 1] += c[k] * (4 * r - r2)
+            hf[k] += k16 * y * y
+            hf[k + 1] += k16 * x * x
+        elif fisher == 2:
+            L = math.log(y) - math.log(x)
+            half = 0.5 * L * L
+            q = c[k] * (s + L * (y - x))
+            gf[k] += c[k] * (-L * s / x + half)
+            gf[k + 1] += c[k] * (L * s / y + half)
+            hf[k] += q / (x * x)
+            hf[k + 1] += q / (y * y)
+    # (A + diag(hm)) pm = D'(gf / h), A = D' diag(hf / h^2) D: Thomas' algorithm (positive definite)
+    dg = np.empty(e)
+    rhs = np.empty(e)
+    for k in range(e):
+        dg[k] = hf[k] / (h[k] * h[k]) + hf[k + 1] / (h[k + 1] * h[k + 1]) + 2 * w[k] / (fstar[k] + fstar[k + 1])
+        rhs[k] = gf[k] / h[k] - gf[k + 1] / h[k + 1]
+    cp = np.empty(e)
+    pm = np.empty(e)
+    piv = dg[0]
+    for k in range(e):
+        off = -hf[k] / (h[k] * h[k])  # the entry (k, k-1): -a_k
+        if k > 0:
+            piv = dg[k] - off * cp[k - 1]
+            pm[k] = (rhs[k] - off * pm[k - 1]) / piv
+        else:
+            pm[k] = rhs[k] / piv
+        if k < e - 1:
+            cp[k] = -hf[k + 1] / (h[k + 1] * h[k + 1]) / piv
+    for k in range(e - 2, -1, -1):
+        pm[k] -= cp[k] * pm[k + 1]
+    ratio = np.inf
+    for j in range(n):
+        dm = (pm[j] if j < e else 0.0) - (pm[j - 1] if j >= 1 else 0.0)
+        pf = -dm / h[j]
+        if pf < 0:
+            ratio = min(ratio, -fstar[j] / pf)
+    alpha = min(1.0, 0.5 * ratio)
+    for k in range(e):
+        m[k] = alpha * pm[k]
+    if conserve:
+        ma = 0.0
+        aa = 0.0
+        for k in range(e):
+            ma += m[k] * a[k]
+            aa += a[k] * a[k]
+        for k in range(e):
+            m[k] = m[k] - (ma / aa) * a[k]
+    _density(fstar, m, h, f)
+    ok = True
+    for k in range(e):
+        if not math.isfinite(m[k]):
+            ok = False
+    for j in range(n):
+        if not f[j] > 0:
+            ok = False
+    if ok:
+        phic = _objective(f, m, w, c, fisher, K, ecoef, kf)
+        if phic < phi0:
+            return phic
+    m[:] = 0.0
+    f[:] = fstar
+    kf[:] = kf0
+    return phi0
+
+
+@_jit
+def _iterate(
+    fstar, m, phi, start, h, w, c, fisher, K, ecoef, ediag, a, conserve, tol, max_iter, pd_tol, jam, jam_step
+):  # pragma: no cover - compiled
+    """The undamped Newton attempt (``newton._iterate`` for one slice), see :func:`iterate`."""
+    n = fstar.size
+    e = n - 1
+    f = np.empty(n)
+    kf = np.empty(n)
+    if start == 1:
+        phi = _explicit_start(fstar, h, w, c, fisher, K, ecoef, a, conserve, m, f, kf)
+    else:
+        _density(fstar, m, h, f)
+        phi = _objective(f, m, w, c, fisher, K, ecoef, kf) if start == 2 else phi
+        kf[:] = np.dot(K, f)
+    g = np.empty(e)
+    diag = np.empty(e)
+    off1 = np.zeros(max(e - 1, 0))
+    off2 = np.zeros(max(e - 2, 0))
+    gfw = np.empty(n)
+    gff = np.empty(n)
+    gfe = np.empty(n)
+    gm = np.empty(e)
+    l0 = np.empty(e)
+    l1 = np.zeros(max(e - 1, 0))
+    l2 = np.zeros(max(e - 2, 0))
+    p = np.empty(e)
+    q = np.empty(e)
+    minus_g = np.empty(e)
+    trial = np.empty(e)
+    ft = np.empty(n)
+    kft = np.empty(n)
+    near = False
+    iterations = 0
+    flat = 0
+    code = _NOT_HANDLED
+    for it in range(max_iter + 1):
+        _evaluate(f, m, h, w, c, fisher, kf, ecoef, ediag, g, diag, off1, off2, gfw, gff, gfe, gm)
+        pd = _cholesky(diag, off1, off2, pd_tol, l0, l1, l2)
+        if near:
+            code = HANDLED if pd else _NOT_HANDLED
+            break
+        if not pd or it == max_iter:
+            break
+        for k in range(e):
+            minus_g[k] = -g[k]
+        _solve(l0, l1, l2, minus_g, p)
+        if conserve:
+            _solve(l0, l1, l2, a, q)
+            aw = 0.0
+            pa = 0.0
+            for k in range(e):
+                aw += q[k] * a[k]
+                pa += p[k] * a[k]
+            if aw > 0:
+                r = pa / aw
+                for k in range(e):
+                    p[k] = p[k] - q[k] * r
+        slope = 0.0
+        finite = True
+        for k in range(e):
+            finite = finite and math.isfinite(p[k])
+            slope += g[k] * p[k]
+        if not finite:
+            break
+        ratio = np.inf  # fraction to the boundary along the f-components -D p / h
+        for j in range(n):
+            dp = (p[j] if j < e else 0.0) - (p[j - 1] if j >= 1 else 0.0)
+            pf = -dp / h[j]
+            if pf < 0:
+                ratio = min(ratio, -f[j] / pf)
+        alpha = min(1.0, 0.995 * ratio)
+        dec = -slope / max(abs(phi), 2.2250738585072014e-308)
+        near = dec <= max(tol, 1e-13)
+        accepted = dec <= 1e-12  # below J's rounding: the full, boundary-safe step (as the NumPy line search)
+        if accepted:
+            for k in range(e):
+                m[k] = m[k] + alpha * p[k]
+            _density(fstar, m, h, f)
+            phi = _objective(f, m, w, c, fisher, K, ecoef, kf)
+        else:
+            for _ in range(60):
+                for k in range(e):
+                    trial[k] = m[k] + alpha * p[k]
+                _density(fstar, trial, h, ft)
+                inside = True
+                for j in range(n):
+                    if not ft[j] > 0:
+                        inside = False
+                        break
+                if inside:
+                    phit = _objective(ft, trial, w, c, fisher, K, ecoef, kft)
+                    if phit <= phi + 1e-4 * alpha * slope:
+                        accepted = True
+                        m[:] = trial
+                        f[:] = ft
+                        kf[:] = kft
+                        phi = phit
+                        break
+                alpha = 0.5 * alpha
+            if not accepted:
+                break
+        iterations += 1
+        # a run of short steps while the model promises a decrease: a jam, which the cascade handles
+        flat = flat + 1 if (alpha < jam_step and dec > 1e-12) else 0
+        if flat >= jam:
+            break
+    return m, f, phi, iterations, code, gfw, gff, gfe, gm
+
+
+def iterate(
+    f_star: NDArray,
+    m: NDArray | None,
+    phi: float,
+    h: NDArray,
+    wass_coef: NDArray,
+    fisher_coef: NDArray | None,
+    fisher: str | None,
+    K: NDArray,
+    energy_coef: float,
+    energy_diag: NDArray,
+    momentum_normal: NDArray | None,
+    explicit: bool,
+    tol: float,
+    max_iter: int,
+    pd_tol: float,
+    jam: int,
+    jam_step: float,
+) -> tuple[NDArray, NDArray, float, int, int, tuple[NDArray, NDArray, NDArray, NDArray]]:
+    """Newton iterations on one slice from ``m`` (where J is ``phi``), or, with ``m=None``, from the explicit
+    step (``explicit``) or from 0.
+
+    Returns ``(m, f, phi, iterations, code, parts)``: ``code == HANDLED`` where the decrement reached
+    ``tol`` at a point whose reduced Hessian is positive definite (the caller then judges its KKT
+    residual), anything else where the NumPy iteration must take over; ``parts`` is the gradient's split
+    at the returned point, ``(Wasserstein in f, Fisher in f, energy in f, Wasserstein in m)``.
+    ``energy_diag`` is the energy's diagonal flux block times ``2 dt sigma``; ``momentum_normal`` the
+    constraint normal ``dv`` (or None); ``jam`` short steps (``alpha < jam_step``) in a row end the attempt.
+    """
+    e = f_star.size - 1
+    c = np.zeros(e) if fisher_coef is None else fisher_coef
+    a = np.zeros(e) if momentum_normal is None else momentum_normal
+    start = 0 if m is not None else (1 if explicit else 2)
+    m = np.zeros(e) if m is None else np.array(m, dtype=float)  # a copy: the iteration writes it
+    m, f, phi, its, code, gfw, gff, gfe, gm = _iterate(
+        _read_only(f_star), m, float(phi), start, _read_only(h), _read_only(wass_coef), _read_only(c),
+        _FISHER_CODES[fisher], _read_only(K), float(energy_coef), _read_only(energy_diag), _read_only(a),
+        momentum_normal is not None, float(tol), int(max_iter), float(pd_tol), int(jam), float(jam_step),
+    )  # fmt: skip
+    return m, f, float(phi), int(its), int(code), (gfw, gff, gfe, gm)
+
+
+def _read_only(x: NDArray) -> NDArray:
+    """A read-only C-contiguous float view (a copy only where needed): one numba signature for every caller.
+
+    numba compiles (and caches) once per argument type, and a read-only array is another type than a
+    writeable one; the problem's arrays come both ways (the energy matrix is read-only).
+    """
+    v = np.ascontiguousarray(x, dtype=float).view()
+    v.flags.writeable = False
+    return v

@@ -1,0 +1,149 @@
+"""The compiled Newton iteration (``solve_newton(..., compiled=True)``) against the NumPy one, in one process.
+
+Where the compiled attempt returns the point it must be the NumPy iteration's to rounding (same status,
+f within 1e-12 of max f, a KKT residual within ``tol``); where it hands the step back the result must be
+the NumPy iteration's bit for bit (the cascade runs from the start).  Kernels other than gamma = 1 and
+batched problems never take it.
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+
+from jko_cvx import CollisionProblem, Grid, PowerKernel, Status
+from jko_cvx.collision import newton as newton_module
+from jko_cvx.collision import solve_collision, solve_newton
+from jko_cvx.collision.newton import NewtonOptions
+from jko_cvx.testing import random_problem
+
+from .test_extremes import CASES
+
+pytest.importorskip("numba")
+
+
+def _bitwise(a, b) -> None:
+    assert a.status == b.status and a.iterations == b.iterations
+    assert np.array_equal(a.f, b.f) and np.array_equal(a.m, b.m)
+    assert a.kkt_residual == b.kkt_residual or (np.isnan(a.kkt_residual) and np.isnan(b.kkt_residual))
+
+
+def _agree(a, b) -> None:
+    assert a.status == b.status
+    assert np.abs(a.f - b.f).max() <= 1e-12 * np.abs(b.f).max()
+    assert np.abs(a.m - b.m).max() <= 1e-10 * max(np.abs(b.m).max(), 1e-300) + 1e-15 * np.abs(b.f).max()
+    assert abs(a.objective - b.objective) <= 1e-12 * abs(b.objective)
+    assert a.kkt_residual <= 1e-10 and a.mass_error <= 1e-13
+
+
+def _family():
+    """gamma = 1 on uniform and non-uniform grids: every Fisher form, with and without the momentum
+    constraint, weak to strong Fisher terms, small to large steps (the large ones need the NumPy devices)."""
+    rng = np.random.default_rng(7)
+    for fisher, conserve, beta, dt in itertools.product(
+        (None, "perspective", "log"), (False, True), (1.0, 30.0, 1000.0), (1e-3, 0.03, 0.3, 3.0)
+    ):
+        n = int(rng.integers(31, 130))
+        if rng.uniform() < 0.5:
+            grid = Grid.uniform(-2.0, 2.0, n)
+        else:
+            grid = Grid(np.cumsum(np.r_[-2.0, rng.uniform(0.2, 2.0, n - 1) * 4 / n]))
+        v = grid.points - grid.points.mean()
+        f = np.exp(-4 * v**2) + 0.5 * np.exp(-8 * (v - 0.7) ** 2) + 1e-3
+        yield CollisionProblem(grid, PowerKernel(1.0), f, dt, beta=beta, fisher=fisher, conserve_momentum=conserve)
+
+
+def test_the_compiled_iteration_is_the_numpy_one_to_rounding_and_hands_back_what_it_does_not_finish():
+    handled = 0
+    problems = list(_family())
+    for P in problems:
+        a, b = solve_newton(P, compiled=True), solve_newton(P)
+        assert b.info["compiled"] is False
+        if a.info["compiled"]:
+            handled += 1
+            _agree(a, b)
+            assert a.info["warm_started"] is False and a.info["jammed"] is False
+        else:
+            _bitwise(a, b)
+    # the test must exercise both branches: most steps are handled, the largest ones are handed back
+    assert 0.4 * len(problems) <= handled < len(problems)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_random_agreement_problems_take_the_compiled_path(seed):
+    rng = np.random.default_rng(seed)
+    P = random_problem(rng, 1.0, fisher=("perspective", "log", None)[seed % 3])
+    a, b = solve_newton(P, compiled=True), solve_newton(P)
+    assert a.info["compiled"]
+    _agree(a, b)
+
+
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_the_extremes_are_certified_or_flagged_as_by_the_numpy_iteration(name):
+    grid, gamma, f, dt, beta = CASES[name]
+    P = CollisionProblem(grid, PowerKernel(gamma), f, dt, beta=beta)
+    a, b = solve_newton(P, compiled=True), solve_newton(P)
+    if a.info["compiled"]:
+        assert gamma == 1.0
+        _agree(a, b)
+    else:
+        _bitwise(a, b)
+
+
+def test_a_warm_start_and_the_zero_start_are_those_of_the_numpy_iteration():
+    grid = Grid.uniform(-2.0, 2.0, 81)
+    P = CollisionProblem(grid, PowerKernel(1.0), np.exp(-2 * grid.points**2), 0.02, beta=30.0, fisher="log")
+    first = solve_newton(P)
+    near = 0.9 * first.m  # a start near the solution, keeping f > 0
+    for kwargs in ({"m0": near}, {"m0": 1e3 * np.ones(80)}, {"start": "zero"}):  # used, refused (f < 0), none
+        a, b = solve_newton(P, compiled=True, **kwargs), solve_newton(P, **kwargs)
+        assert a.info["compiled"] and a.info["warm_started"] == b.info["warm_started"]
+        _agree(a, b)
+    assert solve_newton(P, compiled=True, m0=near).info["warm_started"] is True
+
+
+@pytest.mark.parametrize("gamma", [1.5, 2.0, 3.0])
+def test_other_kernels_take_the_numpy_iteration(gamma):
+    grid = Grid.uniform(-2.0, 2.0, 61)
+    P = CollisionProblem(grid, PowerKernel(gamma), np.exp(-2 * grid.points**2), 0.01, beta=10.0)
+    a, b = solve_newton(P, compiled=True), solve_newton(P)
+    assert a.info["compiled"] is False
+    _bitwise(a, b)
+
+
+def test_a_batch_takes_the_numpy_iteration():
+    grid = Grid.uniform(-2.0, 2.0, 61)
+    F = np.stack([np.exp(-2 * grid.points**2), np.exp(-3 * (grid.points - 0.2) ** 2)])
+    P = CollisionProblem(grid, PowerKernel(1.0), F, 0.01, beta=10.0)
+    a, b = solve_newton(P, compiled=True), solve_newton(P)
+    assert not a.info["compiled"].any()
+    assert np.array_equal(a.f, b.f) and np.array_equal(a.iterations, b.iterations)
+
+
+def test_data_with_a_zero_is_refused_as_by_the_numpy_iteration():
+    grid = Grid.uniform(-2.0, 2.0, 41)
+    f = np.exp(-2 * grid.points**2)
+    f[3] = 0.0
+    P = CollisionProblem(grid, PowerKernel(1.0), f, 0.01, beta=10.0)
+    a, b = solve_newton(P, compiled=True), solve_newton(P)
+    assert a.status == b.status == Status.NUMERICAL_ERROR and a.info["compiled"] is False
+
+
+def test_the_option_is_checked_and_reaches_solve_collision():
+    grid = Grid.uniform(-2.0, 2.0, 41)
+    P = CollisionProblem(grid, PowerKernel(1.0), np.exp(-2 * grid.points**2), 0.01, beta=10.0)
+    with pytest.raises(TypeError, match="compiled"):
+        solve_newton(P, compiled="yes")
+    assert solve_collision(P, "newton", compiled=True).info["compiled"] is True
+
+
+def test_without_numba_compiled_true_is_refused_before_any_work(monkeypatch):
+    real = newton_module.importlib.util.find_spec
+    monkeypatch.setattr(
+        newton_module.importlib.util, "find_spec", lambda name, *a: None if name == "numba" else real(name, *a)
+    )
+    with pytest.raises(ImportError, match=r"jko_cvx\[fast\]"):
+        NewtonOptions(compiled=True)
+    NewtonOptions(compiled=False)  # the default needs nothing
