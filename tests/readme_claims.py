@@ -1247,7 +1247,10 @@ CLAIMS += (
 # --- the solver guide's benchmark section (studies/bench_collision.py): every cell of its tables ----------------------
 
 _BENCH_SIZES = (61, 121, 241, 481)
-_BENCH_METHODS = {"perspective": ("conic", "sqp", "newton", "nlp"), "log": ("sqp", "newton", "nlp")}
+_BENCH_METHODS = {
+    "perspective": ("conic", "sqp", "newton", "newton_compiled", "nlp"),
+    "log": ("sqp", "newton", "newton_compiled", "nlp"),
+}
 
 
 def _opt(x: float, fmt: str) -> str:
@@ -1282,6 +1285,23 @@ def _bench_ratios(d: pd.DataFrame) -> tuple[str, ...]:
         _bench_ratio(d, "perspective", "nlp", "conic"),
         _bench_ratio(d, "perspective", "nlp", "sqp"),
         _bench_ratio(d, "log", "nlp", "sqp"),
+        _bench_ratio(d, "perspective", "conic", "newton_compiled"),
+        _bench_ratio(d, "perspective", "sqp", "newton_compiled"),
+        _bench_ratio(d, "log", "sqp", "newton_compiled"),
+        _bench_ratio(d, "perspective", "newton", "newton_compiled"),
+        _bench_ratio(d, "log", "newton", "newton_compiled"),
+    )
+
+
+def _bench_newton_sqp(d: pd.DataFrame) -> tuple[str, ...]:
+    """SQP / Newton over both Fisher forms, beta = 10 and 1000 and every N: ranges, and the compiled path's use."""
+    return (
+        _g(d["sqp/newton_compiled"].min(), 3),
+        f"{d['sqp/newton_compiled'].max():.0f}",
+        _g(d["sqp/newton"].min(), 3),
+        f"{d['sqp/newton'].max():.0f}",
+        f"{int(d.compiled_used.sum())}",
+        f"{len(d)}",
     )
 
 
@@ -1337,6 +1357,8 @@ def _bench_beta_row(d: pd.DataFrame, beta: float) -> tuple[str, ...]:
         f"{int(r.newton_it)}",
         _g(r["conic/newton"], 3),
         _g(r["sqp/newton"], 3),
+        _g(r.newton_compiled_s, 3),
+        _g(r["conic/newton_compiled"], 3),
     )
 
 
@@ -1383,7 +1405,9 @@ def _bench_claims() -> tuple[Claim, ...]:
             "../bench_collision.csv",
             _bench_ratios,
             "Ratios of the medians at N = 61, 121, 241, 481: conic / Newton {} (perspective); SQP / Newton {} "
-            "(perspective) and {} (log); nlp / conic {} (perspective); nlp / SQP {} (perspective) and {} (log).",
+            "(perspective) and {} (log); nlp / conic {} (perspective); nlp / SQP {} (perspective) and {} (log). "
+            "With the compiled Newton iteration (`newton_compiled`): conic / Newton {} (perspective); SQP / Newton "
+            "{} (perspective) and {} (log); NumPy Newton / compiled Newton {} (perspective) and {} (log).",
             "medians per solve, bench_collision.csv",
             SOLVERS_PAGE,
         ),
@@ -1435,11 +1459,22 @@ def _bench_claims() -> tuple[Claim, ...]:
                 f"bench.beta.{beta:g}",
                 "../bench_newton.csv",
                 lambda d, b=beta: _bench_beta_row(d, b),
-                f"| {beta:g} |" + " {} |" * 8,
-                f"beta = {beta:g}: conic s, KKT, sqp s, iterations, newton s, iterations, ratios",
+                f"| {beta:g} |" + " {} |" * 10,
+                f"beta = {beta:g}: conic s, KKT, sqp s, iterations, newton s, iterations, ratios, compiled newton s "
+                "and conic / compiled newton",
                 SOLVERS_PAGE,
             )
             for beta in (1.0, 3.0, 10.0, 30.0)
+        ),
+        Claim(
+            "bench.newton_sqp",
+            "../bench_newton_sqp.csv",
+            _bench_newton_sqp,
+            "over both Fisher forms, beta = 10 and 1000 and N = 61 ... 481 the SQP takes {}-{}x the compiled "
+            "Newton's time per solve ({}-{}x the NumPy iteration's); the compiled iteration returned the point in {} "
+            "of the {} cells",
+            "min and max of sqp/newton_compiled and sqp/newton; compiled_used summed",
+            SOLVERS_PAGE,
         ),
         Claim(
             "bench.batch",

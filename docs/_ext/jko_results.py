@@ -83,6 +83,7 @@ PAGES: tuple[Page, ...] = (
             Entry("bench_newton.csv", title="Newton against the conic reference and the SQP, per Fisher weight"),
             Entry("bench_newton_growth.csv", title="Newton per solve against N"),
             Entry("bench_newton_batch.csv", title="Batched Newton against one slice at a time"),
+            Entry("bench_newton_sqp.csv", title="Newton (NumPy and compiled) against the paper's SQP"),
             Entry("newton_single_path.md"),
             Entry("newton_certification.md", data=("newton_certification.csv",)),
             Entry("newton_single_call.md", data=("newton_single_call.csv",)),

@@ -39,7 +39,10 @@ One algorithm for one problem and for a batch (a single problem is a batch of on
 iterating), and the phases as functions -- :func:`_start`, :func:`_residual_test`,
 :func:`_direction` (with the modified-Newton shifts), :func:`_step` (interior damping,
 :func:`_line_search`, jam bookkeeping), :func:`_finalise` -- driven by :func:`_iterate`;
-the retry cascade (:func:`_cascade`) is written once, per slice.
+the retry cascade (:func:`_cascade`) is written once, per slice.  With ``compiled=True`` the first
+attempt of an unbatched step with a diagonal energy block (gamma = 1) runs as compiled code
+(:mod:`jko_cvx.collision._compiled`, :func:`_compiled_single`), judged by the same residual and
+certificate, and hands back to the cascade whatever it does not finish cleanly.
 
 Statuses: ``CONVERGED`` (KKT residual within ``kkt_tol`` and the reduced Hessian positive
 definite), ``NOT_CERTIFIED`` (stopped, at ``tol`` or at the residual's rounding floor, above
