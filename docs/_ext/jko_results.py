@@ -259,7 +259,7 @@ PAGES: tuple[Page, ...] = (
             Entry("grid_convergence_failure.json", title="The 481 x 481 run that stops at the density's collapse"),
             Entry("grid_convergence_failure_no_floor.json", title="The same run without the floor every step"),
             Entry("grid_convergence_failure_before_fix.json", title="The same run before the fix"),
-            Entry(R + "g3_dt_probe.md", data=(R + "g3_dt_probe.csv",)),
+            Entry(R + "g3_dt_probe.md", figures=(R + "g3_dt_probe.png",), data=(R + "g3_dt_probe.csv",)),
         ),
     ),
     Page(

@@ -12,6 +12,7 @@ from jko_cvx.studies.reproduce.blowup_tables import reproduce_tab_bu, reproduce_
 from jko_cvx.studies.reproduce.conclusions import reproduce_conclusions
 from jko_cvx.studies.reproduce.criterion_control import reproduce_criterion_control
 from jko_cvx.studies.reproduce.discrimination import reproduce_discrimination
+from jko_cvx.studies.reproduce.dt_probe import reproduce_g3_dt_probe
 from jko_cvx.studies.reproduce.explicit import reproduce_explicit
 from jko_cvx.studies.reproduce.explicit_figures import reproduce_explicit_figures
 from jko_cvx.studies.reproduce.explicit_sketch import reproduce_explicit2_sketch
@@ -58,6 +59,7 @@ REPRODUCTIONS = {
     "gk2_bu": reproduce_gk2_bu,
     "explicit2_sketch": reproduce_explicit2_sketch,
     "grid_convergence": reproduce_grid_convergence,
+    "g3_dt_probe": reproduce_g3_dt_probe,
     "discrimination": reproduce_discrimination,
     "conclusions": reproduce_conclusions,
 }
@@ -73,6 +75,7 @@ __all__ = [
     "reproduce_fisher_width",
     "reproduce_g2bu_loglog",
     "reproduce_g2bu_records",
+    "reproduce_g3_dt_probe",
     "reproduce_gk1_final",
     "reproduce_gk1_records",
     "reproduce_gk2_bu",

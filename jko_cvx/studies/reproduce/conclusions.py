@@ -222,6 +222,17 @@ def _gamma3(root: Path) -> dict[str, Any]:
             grids.append(f"lambda = {lam:g}: " + ", ".join(f"{p:.3g}" for p in g.max_f_peak) + " on "
                          + ", ".join(f"{n}^2" for n in g.n))  # fmt: skip
     grid_text = f" (at dt = {coarse['dt'].iloc[0]:g}, peak max f: " + "; ".join(grids) + ")" if grids else ""
+    fine = []  # the same at the smallest dt each lambda ran on three grids or more
+    for lam, g in probe.groupby("lambda"):
+        on = g.groupby("dt").n.nunique()
+        if (on >= 3).any():
+            dt_small = float(on[on >= 3].index.min())
+            h = g[g["dt"] == dt_small].sort_values("n")
+            spread = h.max_f_peak.max() / h.max_f_peak.min()
+            fine.append(f"lambda = {lam:g} at dt = {dt_small:g}: " + ", ".join(f"{p:.3g}" for p in h.max_f_peak)
+                        + " on " + ", ".join(f"{n}^2" for n in h.n) + f", max / min {spread:.2g}")  # fmt: skip
+    if fine:
+        grid_text += "; the peak against the grid at the smallest dt run on three grids or more: " + "; ".join(fine)
     swept = max(n for (_lam, n), g in probe.groupby(["lambda", "n"]) if g["dt"].nunique() > 1)
     fired_text = ", ".join(f"lambda = {r['lambda']:g} on {r['n']}^2 at dt = {r['dt']:g}" for _, r in fired.iterrows())
     order2, time_text = _gamma3_orders(probe_all)

@@ -1,0 +1,54 @@
+"""``jko-cvx reproduce g3_dt_probe``: the gamma = 3 runs in the grid and in dt (quick form), and its report."""
+
+import pandas as pd
+import pytest
+
+from jko_cvx.studies.reproduce import REPRODUCTIONS
+from jko_cvx.studies.reproduce.dt_probe import (
+    FULL_CASES,
+    QUICK_CASES,
+    missing_cases,
+    parse_variant,
+    probe_report,
+)
+
+
+@pytest.fixture(scope="module")
+def quick(tmp_path_factory):
+    out = tmp_path_factory.mktemp("g3")
+    table = REPRODUCTIONS["g3_dt_probe"](out, quick=True, workers=1, progress=False)
+    return out, table
+
+
+def test_the_quick_form_writes_every_case_and_every_section(quick):
+    out, table = quick
+    written = pd.read_csv(out / "g3_dt_probe.csv").fillna({"variant": ""})
+    cases = {(r["lambda"], r["n"], r["dt"], r["time_order"], r["variant"]) for _, r in written.iterrows()}
+    assert cases == set(QUICK_CASES) and len(written) == len(table)
+    assert (written.steps >= 4).all() and (written.max_f_peak > 0).all() and written.commit.notna().all()
+    report = (out / "g3_dt_probe.md").read_text()
+    for section in ("## Each grid and order against dt", "## Each dt against the grid",
+                    "## The two orders at one dt: which is right", "## Controls: what else changes with dt"):  # fmt: skip
+        assert section in report
+    assert "Every case of the form has a row." in report and "(quick form)" in report
+    assert (out / "g3_dt_probe.png").stat().st_size > 0
+
+
+def test_the_report_names_the_cases_of_the_form_without_a_row(quick):
+    _, table = quick
+    dropped = table.iloc[1:]
+    assert missing_cases(dropped, QUICK_CASES) == [QUICK_CASES[0]]
+    assert str(QUICK_CASES[0]) in probe_report(dropped, cases=QUICK_CASES)
+
+
+def test_the_full_form_halves_dt_three_times_on_every_grid_up_to_481():
+    for lam in (4.0, 10.0):
+        for n in (121, 241, 481):
+            dts = {dt for (la, nn, dt, order, v) in FULL_CASES if (la, nn, order, v) == (lam, n, 1, "")}
+            assert {0.05, 0.025, 0.0125, 0.00625} <= dts
+
+
+def test_a_variant_key_outside_the_controls_is_refused():
+    assert parse_variant("collision.beta=1e5,refine.v.tol=0.1") == {"collision.beta": 1e5, "refine.v.tol": 0.1}
+    with pytest.raises(ValueError, match="variant key"):
+        parse_variant("time.dt=0.1")
