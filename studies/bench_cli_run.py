@@ -18,6 +18,7 @@ Writes ``studies/results/bench_cli_run.{csv,md}`` with the environment.
 from __future__ import annotations
 
 import argparse
+import os
 import resource
 import statistics
 import subprocess
@@ -34,15 +35,23 @@ from jko_cvx.threads import thread_environment
 
 RESULTS = Path(__file__).parent / "results"
 TARGET_S = 2.0
+WARM = "jko-cvx run, compiled Newton"
+COLD = "jko-cvx run, compiled Newton, cold cache"
 
 
-def _child_cpu(code: str, path: str) -> float:
-    """User + system CPU seconds of ``python -c code`` with ``path`` first on sys.path."""
+def _child_cpu(code: str, path: str, env: dict[str, str] | None = None) -> float:
+    """User + system CPU seconds of ``python -c code`` with ``path`` first on sys.path (and ``env`` added)."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     script = f"import sys; sys.path.insert(0, {path!r}); {code}"
-    subprocess.run([sys.executable, "-c", script], check=True, capture_output=True)
+    subprocess.run([sys.executable, "-c", script], check=True, capture_output=True, env={**os.environ, **(env or {})})
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     return (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+
+
+def _compiled_run(out: Path) -> str:
+    """The code of ``jko-cvx run --out OUT --set collision.options.compiled=true`` (this tree)."""
+    args = ["run", "--out", str(out), "--set", "collision.options.compiled=true"]
+    return f"from jko_cvx.cli import main; main({args!r})"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -55,16 +64,24 @@ def main(argv: list[str] | None = None) -> int:
         folder = Path(tmp) / "base"
         import_baseline(args.base, folder)
         sides = {"base": ("jko_cvx_base", str(folder)), "tree": ("jko_cvx", "")}
+        _child_cpu(_compiled_run(Path(tmp) / "warm"), "")  # compile into the on-disk cache (not timed)
         for r in range(args.repeats):
             for side, (pkg, path) in sides.items():
                 out = Path(tmp) / f"{side}{r}"
                 run = f"from {pkg}.cli import main; main(['run', '--out', {str(out)!r}])"
                 times.setdefault((side, "jko-cvx run"), []).append(_child_cpu(run, path))
                 times.setdefault((side, "imports"), []).append(_child_cpu(f"import {pkg}.cli, {pkg}.engine.plot", path))
+            # this tree with Newton's compiled iteration: its cache warm (above), and cold (an empty cache directory)
+            for what, name, env in (
+                (WARM, f"warm{r}", None),
+                (COLD, f"cold{r}", {"NUMBA_CACHE_DIR": str(Path(tmp) / f"numba{r}")}),
+            ):
+                times.setdefault(("tree", what), []).append(_child_cpu(_compiled_run(Path(tmp) / name), "", env))
             print(f"round {r + 1}/{args.repeats}", flush=True)
     rows = []
-    for what in ("jko-cvx run", "imports"):
-        base, tree = statistics.median(times[("base", what)]), statistics.median(times[("tree", what)])
+    for what in ("jko-cvx run", "imports", WARM, COLD):
+        base = statistics.median(times[("base", what)]) if ("base", what) in times else float("nan")
+        tree = statistics.median(times[("tree", what)])
         rows.append({"what": what, "base_cpu_s": base, "tree_cpu_s": tree, "tree/base": tree / base,
                      "tree_min_s": min(times[("tree", what)]), "tree_max_s": max(times[("tree", what)])})  # fmt: skip
     df = pd.DataFrame(rows)
@@ -81,6 +98,9 @@ def main(argv: list[str] | None = None) -> int:
         f"{args.repeats} rounds with the versions interleaved: the whole command on the built-in default scene "
         "(simulation, run directory, figures), and the interpreter with the command's imports alone.  Each side "
         "runs its own version's default scene (`jko_cvx.default_scene`; it may differ between the versions).  "
+        "This tree also runs the command with `--set collision.options.compiled=true` (Newton's compiled "
+        "iteration, numba): with its on-disk cache warm, and cold (an empty `NUMBA_CACHE_DIR`: the first use on "
+        "a machine, which compiles).  "
         f"Target: under {TARGET_S:g} s for the whole command ({'met' if run_s < TARGET_S else 'not met'}: "
         f"{run_s:.2f} s).\n\n" + df.to_markdown(index=False, floatfmt=".3g") + "\n",
     )

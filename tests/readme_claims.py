@@ -1477,6 +1477,18 @@ def _bench_claims() -> tuple[Claim, ...]:
             SOLVERS_PAGE,
         ),
         Claim(
+            "bench.cli_compiled",
+            "../bench_cli_run.csv",
+            lambda d: tuple(
+                f"{d.set_index('what').loc[w, 'tree_cpu_s']:.2f}"
+                for w in ("jko-cvx run", "jko-cvx run, compiled Newton", "jko-cvx run, compiled Newton, cold cache")
+            ),
+            "the default `jko-cvx run` (48 steps) takes {} s of CPU as it is, {} s with "
+            "`--set collision.options.compiled=true` and a warm cache, and {} s on a cold one",
+            "tree_cpu_s of bench_cli_run.csv (medians of fresh interpreters)",
+            SOLVERS_PAGE,
+        ),
+        Claim(
             "bench.batch",
             "../bench_newton_batch.csv",
             _bench_batch,

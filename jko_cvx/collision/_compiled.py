@@ -304,9 +304,11 @@ def _iterate(
     kf = np.empty(n)
     if start == 1:
         phi = _explicit_start(fstar, h, w, c, fisher, K, ecoef, a, conserve, m, f, kf)
-    else:
+    elif start == 2:
         _density(fstar, m, h, f)
-        phi = _objective(f, m, w, c, fisher, K, ecoef, kf) if start == 2 else phi
+        phi = _objective(f, m, w, c, fisher, K, ecoef, kf)
+    else:  # the caller's point, with J there
+        _density(fstar, m, h, f)
         kf[:] = np.dot(K, f)
     g = np.empty(e)
     diag = np.empty(e)
