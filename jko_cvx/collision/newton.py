@@ -1069,12 +1069,12 @@ def solve_newton(
         Run the first attempt of an unbatched problem whose energy block is diagonal in the fluxes
         (gamma = 1) as compiled code (:mod:`jko_cvx.collision._compiled`; needs numba, the ``fast``
         extra): the same iteration from the same start, its point judged by the same KKT residual and
-        certificate, equal to the NumPy iteration's to rounding, at a third to a quarter of its time
-        per solve.  A step it does not finish cleanly (a Hessian that needs a shift, a run of short
-        steps, the iteration limit) is solved by the NumPy iteration from the start.  Batched
-        problems, and other kernels, always take the NumPy iteration.  The first use on a machine
-        compiles (about 10 s, cached on disk), and each process pays about 0.4 s to load numba and
-        the cached code: worth it for many single solves, not for one short run.
+        certificate, equal to the NumPy iteration's to rounding, at a fraction of its time per solve.
+        A step it does not finish cleanly (a Hessian that needs a shift, a run of short steps, the
+        iteration limit) is solved by the NumPy iteration from the start.  Batched problems, and other
+        kernels, always take the NumPy iteration.  The first use on a machine compiles (cached on
+        disk), and each process pays to import numba and load the cached code: worth it for many
+        single solves, not for one short run (the solver guide measures both).
 
     Returns
     -------

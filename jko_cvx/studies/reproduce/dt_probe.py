@@ -13,11 +13,11 @@ order against dt, each dt against the grid, the two orders at one dt (which dt i
 the conclusions table reads the rows through :func:`probe_rows`, :func:`order_pairs` and
 :func:`control_ratios`.
 
-The full form (:data:`FULL_CASES`, the shipped table's cases) takes about ten hours on one core (the
-lambda = 10 runs at small dt on 481 x 481 most of it); ``studies/g3_dt_probe.py`` assembled the shipped table case
-by case over several sessions with the same :func:`probe_run` and :func:`probe_report` (each row names the
-commit that ran it).  Rows written before the order or the variant were recorded are first-order runs as
-shipped.  Written: ``g3_dt_probe.{csv,md,png}``.
+The full form (:data:`FULL_CASES`) takes about ten hours on one core (the lambda = 10 runs at small dt on
+481 x 481 most of it); the shipped table was assembled case by case over several sessions by the project's probe
+script with the same :func:`probe_run` and :func:`probe_report` (each row names the commit that ran it), and the
+report lists the cases of the full form it lacks.  Rows written before the order or the variant were
+recorded are first-order runs as shipped.  Written: ``g3_dt_probe.{csv,md,png}``.
 """
 
 from __future__ import annotations
@@ -41,8 +41,11 @@ __all__ = [
     "QUICK_CASES",
     "VARIANT_KEYS",
     "control_ratios",
+    "grid_table",
+    "missing_cases",
     "order_pairs",
     "parse_variant",
+    "probe_figure",
     "probe_report",
     "probe_rows",
     "probe_run",
@@ -294,7 +297,7 @@ def reproduce_g3_dt_probe(out: Path, quick: bool = False, **sweep_opts: Any) -> 
         for lam, n, dt, order, variant in cases
     ]
     df = run_sweep(probe_run, points, out / "cache" / "g3_dt_probe", desc="g3_dt_probe", **sweep_opts)
-    table = pd.DataFrame([probe_run_row(r) for _, r in df.iterrows()]).assign(commit=environment().get("git_commit"))
+    table = pd.DataFrame([_row(r) for _, r in df.iterrows()]).assign(commit=environment().get("git_commit"))
     csv = out / "g3_dt_probe.csv"
     table.to_csv(csv, index=False)
     record_csv(csv)
@@ -303,7 +306,7 @@ def reproduce_g3_dt_probe(out: Path, quick: bool = False, **sweep_opts: Any) -> 
     return table
 
 
-def probe_run_row(r: pd.Series) -> dict[str, Any]:
+def _row(r: pd.Series) -> dict[str, Any]:
     """The table's row of one sweep point (its inputs and :func:`probe_run`'s values, without the sweep's keys)."""
     keep = ("lambda", "n", "dt", "time_order", "variant", "steps", "max_f_peak", "t_peak", "max_f_final", "min_dx",
             "min_dv", "blowup", "reason", "T_b", "blowup_kind", "T_b_fit", "T_b_fit_err", "blowup_rate",
