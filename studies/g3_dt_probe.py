@@ -25,6 +25,7 @@ from jko_cvx.studies.reproduce.dt_probe import (
     probe_report,
     probe_rows,
     probe_run,
+    variant_key,
 )
 
 OUT = Path(__file__).parent / "results" / "reproduce"  # evidence of the conclusions table
@@ -57,11 +58,11 @@ def main(argv: list[str] | None = None) -> None:
     done = probe_rows(pd.read_csv(CSV)) if CSV.exists() else pd.DataFrame()
     rows = done.to_dict("records")
 
-    def key(r: dict) -> tuple:
-        return tuple(r[k] for k in KEY)
+    def key(r: dict) -> tuple:  # the variant by what it changes, not by its spelling
+        return (*(r[k] for k in KEY[:-1]), variant_key(r["variant"]))
 
     for lam, n, dt, order, variant in cases:
-        case = (lam, n, dt, order, variant)
+        case = (lam, n, dt, order, variant_key(variant))
         if any(key(r) == case and r.get("commit") == commit for r in rows):
             continue
         rows = [r for r in rows if key(r) != case]

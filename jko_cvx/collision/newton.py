@@ -948,8 +948,9 @@ def _compiled_single(P: CollisionProblem, m0: NDArray | None, opts: NewtonOption
     :mod:`jko_cvx.collision._compiled` runs the undamped iteration from the same start (that of
     :func:`_start`) for an energy block diagonal in the fluxes (gamma = 1).  Its point is judged here as
     the NumPy iteration's would be -- the shared KKT residual within ``tol``, the reduced Hessian positive
-    definite there -- and certified by :func:`_finalise`.  Anything else returns None: the caller then
-    runs :func:`_cascade` from the start, so a hard step gets every device of the NumPy iteration.
+    definite there -- and certified by :func:`_finalise`.  Anything else, a point the certificate does not
+    accept as ``CONVERGED`` included, returns None: the caller then runs :func:`_cascade` from the start,
+    so a hard step gets every device of the NumPy iteration (and its result bit for bit).
     """
     fb = P.energy.flux_structure()
     if fb.kind != "diagonal" or not (P.f_star > 0).all():
@@ -988,6 +989,8 @@ def _compiled_single(P: CollisionProblem, m0: NDArray | None, opts: NewtonOption
         "iterations": np.array([iterations]), "kkt": kkt, "kkt_here": ~no, "second": ~no, "jammed": no,
     }  # fmt: skip
     res = _finalise(P, out, warm, opts, t0)
+    if res.status[0] is not Status.CONVERGED:  # the cascade goes on from such a first attempt: solve it all there
+        return None
     res.info.update(interior_damping=no, barrier=no, lower_minimum=no, compiled=~no)
     return res
 

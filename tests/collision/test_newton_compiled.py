@@ -131,6 +131,34 @@ def test_data_with_a_zero_is_refused_as_by_the_numpy_iteration():
     assert a.status == b.status == Status.NUMERICAL_ERROR and a.info["compiled"] is False
 
 
+def test_a_point_the_certificate_does_not_accept_goes_through_the_whole_cascade():
+    """The cascade goes on from a first attempt that is not CONVERGED (damped, barrier attempts): so must the
+    compiled path, by handing the step back."""
+    grid = Grid.uniform(-2.0, 2.0, 21)
+    P = CollisionProblem(grid, PowerKernel(1.0), np.exp(-2 * grid.points**2) + 1e-3, 0.5, beta=10.0)
+    a, b = solve_newton(P, compiled=True, tol=1e-2, kkt_tol=1e-12), solve_newton(P, tol=1e-2, kkt_tol=1e-12)
+    assert b.status == Status.NOT_CERTIFIED and a.info["compiled"] is False
+    _bitwise(a, b)
+    assert a.info == {**b.info, "compiled": False}
+    huge = Grid.uniform(-2.0, 2.0, 41)  # J overflows at the point: NUMERICAL_ERROR, then the damped attempt
+    Q = CollisionProblem(huge, PowerKernel(1.0), 1e154 * np.exp(-(huge.points**2)), 1e-200, beta=30.0)
+    a, b = solve_newton(Q, compiled=True), solve_newton(Q)
+    assert a.info["compiled"] is False and a.info["interior_damping"] == b.info["interior_damping"]
+    _bitwise(a, b)
+
+
+def test_a_scene_asking_for_the_compiled_iteration_without_numba_is_refused_at_load(monkeypatch):
+    from jko_cvx.scene import SceneError
+    from jko_cvx.scene.model import default_scene, scene_from_dict, with_overrides
+
+    real = newton_module.importlib.util.find_spec
+    monkeypatch.setattr(
+        newton_module.importlib.util, "find_spec", lambda name, *a: None if name == "numba" else real(name, *a)
+    )
+    with pytest.raises(SceneError, match=r"collision\.options\.compiled.*jko_cvx\[fast\]"):
+        scene_from_dict(with_overrides(default_scene().to_dict(), {"collision.options.compiled": True}))
+
+
 def test_the_option_is_checked_and_reaches_solve_collision():
     grid = Grid.uniform(-2.0, 2.0, 41)
     P = CollisionProblem(grid, PowerKernel(1.0), np.exp(-2 * grid.points**2), 0.01, beta=10.0)

@@ -50,6 +50,7 @@ __all__ = [
     "probe_rows",
     "probe_run",
     "reproduce_g3_dt_probe",
+    "variant_key",
 ]
 
 VARIANT_KEYS = ("collision.beta", "refine.x.tol", "refine.v.tol")
@@ -90,8 +91,16 @@ def parse_variant(variant: str) -> dict[str, float]:
         key, _, value = item.partition("=")
         if key not in VARIANT_KEYS:
             raise ValueError(f"a variant key must be one of {list(VARIANT_KEYS)}, got {key!r}")
+        if key in out:
+            raise ValueError(f"a variant sets each key once, got {key!r} twice in {variant!r}")
         out[key] = float(value)
     return out
+
+
+def variant_key(variant: str) -> tuple[tuple[str, float], ...]:
+    """What a variant changes, as a sorted tuple: ``collision.beta=1e5`` and ``collision.beta=100000`` are one
+    variant, whatever the spelling or the order of the keys."""
+    return tuple(sorted(parse_variant(variant).items()))
 
 
 def probe_run(
@@ -105,12 +114,14 @@ def probe_run(
     over: dict[str, Any] = {"v.n": n, "x.n": n, "time.dt": dt, "time.order": time_order, **parse_variant(variant)}
     if t_end is not None:
         over["t_end"] = t_end
-    run = simulate(shipped_scene(f"inhom_gamma3_lambda{lam:g}", over))
+    scene = shipped_scene(f"inhom_gamma3_lambda{lam:g}", over)
+    run = simulate(scene)
     d = run.diagnostics
     peak = int(d.max_f.to_numpy().argmax())
     v = run.verdict
     return {
-        "lambda": lam, "n": n, "dt": dt, "time_order": time_order, "variant": variant, "steps": int(len(d) - 1),
+        "lambda": lam, "n": n, "dt": dt, "time_order": time_order, "variant": variant, "t_end": scene.t_end,
+        "steps": int(len(d) - 1),
         "max_f_peak": float(d.max_f.iloc[peak]), "t_peak": float(d.t.iloc[peak]),
         "max_f_final": float(d.max_f.iloc[-1]), "min_dx": float(d.min_dx.min()), "min_dv": float(d.min_dv.min()),
         "blowup": bool(v.blowup), "reason": v.reason, "T_b": v.T_b,
@@ -120,10 +131,13 @@ def probe_run(
 
 
 def probe_rows(df: pd.DataFrame) -> pd.DataFrame:
-    """The probe's rows with ``time_order`` (1 where not recorded) and ``variant`` ("" where not recorded)."""
+    """The probe's rows with ``time_order`` (1 where not recorded), ``variant`` ("" where not recorded) and ``t_end``
+    (the shipped scenes' where not recorded)."""
     df = df.copy()
     if "time_order" not in df:
         df["time_order"] = 1
+    if "t_end" not in df:  # rows written before it was recorded ran to the shipped scenes' t_end
+        df["t_end"] = shipped_scene("inhom_gamma3_lambda4").t_end
     df["variant"] = df["variant"].fillna("").astype(str) if "variant" in df else ""
     return df
 
@@ -178,9 +192,9 @@ def grid_table(df: pd.DataFrame) -> pd.DataFrame:
 
 def missing_cases(df: pd.DataFrame, cases=FULL_CASES) -> list[tuple[float, int, float, int, str]]:
     """The ``cases`` without a row in ``df``."""
-    have = {(float(r["lambda"]), int(r["n"]), float(r["dt"]), int(r["time_order"]), str(r["variant"]))
+    have = {(float(r["lambda"]), int(r["n"]), float(r["dt"]), int(r["time_order"]), variant_key(r["variant"]))
             for _, r in probe_rows(df).iterrows()}  # fmt: skip
-    return [c for c in cases if c not in have]
+    return [c for c in cases if (*c[:4], variant_key(c[4])) not in have]
 
 
 def probe_report(df: pd.DataFrame, title_note: str = "", cases=FULL_CASES) -> str:
@@ -193,7 +207,8 @@ def probe_report(df: pd.DataFrame, title_note: str = "", cases=FULL_CASES) -> st
         "# gamma = 3 inhomogeneous runs in the grid and in dt" + title_note,
         "",
         "The shipped scenes `inhom_gamma3_lambda4` and `_lambda10` (eps_x = eps_v = 1e-5, beta = 1000, log Fisher "
-        "form, Newton), on N x N grids, to t_end = 4 with the step dt halved from the shipped 0.05; first-order "
+        f"form, Newton), on N x N grids (N = {_listed(df.n)}), to t_end = {_listed(df.t_end)} with the step dt = "
+        f"{_listed(df['dt'], reverse=True)} (the scenes' own is 0.05); first-order "
         "steps as shipped (`time_order` 1) or the second-order scheme (`time_order` 2: Richardson-extrapolated "
         "collision steps and Strang splitting); everything else as shipped.  `T_b` is the paper's threshold time, "
         "`blowup_kind` / `T_b_fit` the run's own estimate from its max f records (jko_cvx.blowup; empty in rows "
@@ -266,6 +281,11 @@ def probe_report(df: pd.DataFrame, title_note: str = "", cases=FULL_CASES) -> st
     return "\n".join(lines) + "\n"
 
 
+def _listed(values: pd.Series, reverse: bool = False) -> str:
+    """The distinct values, sorted, as the report prints them."""
+    return ", ".join(f"{v:g}" for v in sorted(set(values), reverse=reverse))
+
+
 def probe_figure(df: pd.DataFrame, path: Path) -> None:
     """Peak of max f against dt, one line per lambda, grid and order (runs as shipped), log-log."""
     df = probe_rows(df)
@@ -308,7 +328,7 @@ def reproduce_g3_dt_probe(out: Path, quick: bool = False, **sweep_opts: Any) -> 
 
 def _row(r: pd.Series) -> dict[str, Any]:
     """The table's row of one sweep point (its inputs and :func:`probe_run`'s values, without the sweep's keys)."""
-    keep = ("lambda", "n", "dt", "time_order", "variant", "steps", "max_f_peak", "t_peak", "max_f_final", "min_dx",
-            "min_dv", "blowup", "reason", "T_b", "blowup_kind", "T_b_fit", "T_b_fit_err", "blowup_rate",
+    keep = ("lambda", "n", "dt", "time_order", "variant", "t_end", "steps", "max_f_peak", "t_peak", "max_f_final",
+            "min_dx", "min_dv", "blowup", "reason", "T_b", "blowup_kind", "T_b_fit", "T_b_fit_err", "blowup_rate",
             "failed_steps", "seconds")  # fmt: skip
     return {k: r[k] for k in keep}

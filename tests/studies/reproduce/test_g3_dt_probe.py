@@ -35,6 +35,7 @@ def test_the_quick_form_writes_every_case_and_every_section(quick):
     )
     assert all(section in report for section in sections)
     assert "Every case of the form has a row." in report and "(quick form)" in report
+    assert "to t_end = 0.4 with the step dt = 0.1, 0.05" in report and (written.t_end == 0.4).all()
     assert (out / "g3_dt_probe.png").stat().st_size > 0
 
 
@@ -52,7 +53,18 @@ def test_the_full_form_halves_dt_three_times_on_every_grid_up_to_481():
             assert {0.05, 0.025, 0.0125, 0.00625} <= dts
 
 
-def test_a_variant_key_outside_the_controls_is_refused():
+def test_a_variant_key_outside_the_controls_or_set_twice_is_refused():
     assert parse_variant("collision.beta=1e5,refine.v.tol=0.1") == {"collision.beta": 1e5, "refine.v.tol": 0.1}
     with pytest.raises(ValueError, match="variant key"):
         parse_variant("time.dt=0.1")
+    with pytest.raises(ValueError, match="twice"):
+        parse_variant("collision.beta=1e5,collision.beta=10")
+
+
+def test_a_variant_is_matched_by_what_it_changes_not_by_its_spelling():
+    base = {"n": 61, "dt": 0.05, "time_order": 1, "max_f_peak": 2.6, "t_peak": 1.9, "lambda": 4.0}
+    rows = pd.DataFrame([{**base, "variant": "collision.beta=100000"}, {**base, "variant": ""}])
+    cases = ((4.0, 61, 0.05, 1, "collision.beta=1e5"), (4.0, 61, 0.05, 1, ""))
+    assert missing_cases(rows, cases) == []
+    swapped = pd.DataFrame([{**base, "variant": "refine.v.tol=0.1,refine.x.tol=0.1"}])
+    assert missing_cases(swapped, ((4.0, 61, 0.05, 1, "refine.x.tol=0.1,refine.v.tol=0.1"),)) == []
