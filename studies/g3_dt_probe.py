@@ -1,7 +1,7 @@
 """Extend the shipped gamma = 3 table case by case: ``python studies/g3_dt_probe.py --cases CASE ...``.
 
 The study is ``jko-cvx reproduce g3_dt_probe`` (:mod:`jko_cvx.studies.reproduce.dt_probe`: the runs, the report,
-the figure); its full form takes about ten hours on one core, so the shipped
+the figure); its full form takes many hours on one core, so the shipped
 ``studies/results/reproduce/g3_dt_probe.{csv,md,png}`` were assembled by this driver over several sessions: it
 runs the given cases with the same :func:`~jko_cvx.studies.reproduce.dt_probe.probe_run`, writes the CSV after
 every run (a killed probe keeps what it ran), skips a case already in the CSV from the same commit, replaces

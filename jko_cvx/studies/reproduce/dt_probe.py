@@ -13,11 +13,11 @@ order against dt, each dt against the grid, the two orders at one dt (which dt i
 the conclusions table reads the rows through :func:`probe_rows`, :func:`order_pairs` and
 :func:`control_ratios`.
 
-The full form (:data:`FULL_CASES`) takes about ten hours on one core (the lambda = 10 runs at small dt on
-481 x 481 most of it); the shipped table was assembled case by case over several sessions by the project's probe
-script with the same :func:`probe_run` and :func:`probe_report` (each row names the commit that ran it), and the
-report lists the cases of the full form it lacks.  Rows written before the order or the variant were
-recorded are first-order runs as shipped.  Written: ``g3_dt_probe.{csv,md,png}``.
+The full form (:data:`FULL_CASES`) takes many hours on one core (the ``seconds`` column; the lambda = 10
+runs at small dt on 481 x 481 most of it); the shipped table was assembled case by case over several sessions
+by the project's probe script with the same :func:`probe_run` and :func:`probe_report` (each row names the
+commit that ran it), and the report lists the cases of the full form it lacks.  Rows written before the order
+or the variant were recorded are first-order runs as shipped.  Written: ``g3_dt_probe.{csv,md,png}``.
 """
 
 from __future__ import annotations

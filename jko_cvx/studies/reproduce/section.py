@@ -76,7 +76,7 @@ SECTION = (
 first, the entries of a few seconds last), then the entries that read others' files (an entry starts after
 the one before it has, so these come last).  ``grid_convergence``
 (the study the paper lacks, 41 minutes on its own) is not part of the section: run it by name; nor is
-``g3_dt_probe`` (the gamma = 3 runs in the grid and in dt, about ten hours on one core), nor
+``g3_dt_probe`` (the gamma = 3 runs in the grid and in dt: hours on one core, its table's ``seconds``), nor
 ``conclusions``, which reads its files and those of the paper-variants study script, nor
 ``inhom_gamma1p5_events``, which reads its files and those of ``inhom_gamma1p5``."""
 
