@@ -7,7 +7,7 @@ Armijo backtracking on :math:`J`, the same momentum-constrained direction -- for
 are diagonal in the fluxes (:math:`\\gamma = 1`, :class:`~jko_cvx.kernels.FluxBlock` ``"diagonal"``).
 It runs only the plain path: it stops at the first iterate whose Newton decrement reached ``tol`` (where
 the NumPy iteration checks the KKT residual) and hands back everything else -- a Hessian that needs a
-shift, a short step (a possible jam at the vacuum boundary), a failed line search, a non-finite value,
+shift, a run of short steps (a possible jam at the vacuum boundary), a failed line search, a non-finite value,
 the iteration limit -- as "not handled", after which the caller runs the NumPy iteration with its
 retry cascade from the start.  The KKT residual and the certificate are not computed here: the caller
 judges the returned point with the one residual every method shares.
