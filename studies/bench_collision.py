@@ -115,18 +115,18 @@ def bench_newton_sqp(repeats: int, sizes: list[int]) -> pd.DataFrame:
                 grid = Grid.uniform(-2.0, 2.0, n)
                 f0 = np.exp(-2 * grid.points**2)
                 prob = CollisionProblem(grid, PowerKernel(1.0), f0, 0.01, beta=beta, fisher=fisher)
-                labels = ("sqp", "newton", "newton_compiled")
-                last = {k: solve_collision(prob, method=_method(k)[0], **_method(k)[1]) for k in labels}  # warm-up
+                calls = {k: _method(k) for k in ("sqp", "newton", "newton_compiled")}
+                last = {k: solve_collision(prob, method=m, **o) for k, (m, o) in calls.items()}  # warm-up
                 inner = max(1, int(0.02 / max(1e-4, min(r.seconds for r in last.values()))))
-                times = {k: [] for k in labels}
+                times = {k: [] for k in calls}
                 for _ in range(repeats):
-                    for k in labels:
+                    for k, (method, opts) in calls.items():
                         t0 = time.perf_counter()
                         for _ in range(inner):
-                            last[k] = solve_collision(prob, method=_method(k)[0], **_method(k)[1])
+                            last[k] = solve_collision(prob, method=method, **opts)
                         times[k].append((time.perf_counter() - t0) / inner)
                 row = {"fisher": fisher, "beta": beta, "N": n}
-                for k in labels:
+                for k in calls:
                     row[f"{k}_s"] = statistics.median(times[k])
                     row[f"{k}_it"] = last[k].iterations
                     row[f"{k}_kkt"] = last[k].kkt_residual

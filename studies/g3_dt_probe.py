@@ -30,7 +30,7 @@ from jko_cvx.studies.reproduce.dt_probe import (
 
 OUT = Path(__file__).parent / "results" / "reproduce"  # evidence of the conclusions table
 CSV = OUT / "g3_dt_probe.csv"
-KEY = ("lambda", "n", "dt", "time_order", "variant")
+KEY = ("lambda", "n", "dt", "time_order")  # and the variant, by what it changes (variant_key)
 
 
 def parse_case(text: str) -> tuple[float, int, float, int, str]:
@@ -59,7 +59,7 @@ def main(argv: list[str] | None = None) -> None:
     rows = done.to_dict("records")
 
     def key(r: dict) -> tuple:  # the variant by what it changes, not by its spelling
-        return (*(r[k] for k in KEY[:-1]), variant_key(r["variant"]))
+        return (*(r[k] for k in KEY), variant_key(r["variant"]))
 
     for lam, n, dt, order, variant in cases:
         case = (lam, n, dt, order, variant_key(variant))
@@ -68,8 +68,11 @@ def main(argv: list[str] | None = None) -> None:
         rows = [r for r in rows if key(r) != case]
         row = {**probe_run(lam, n, dt, order, variant), "commit": commit}
         rows.append(row)
-        print(f"lambda {lam:g} n {n} dt {dt:g} order {order} {variant}: peak max f {row['max_f_peak']:.4g}, min dx "
-              f"{row['min_dx']:.3g}, {row['reason']}, {row['blowup_kind']} ({row['seconds']:.0f} s)", flush=True)
+        print(
+            f"lambda {lam:g} n {n} dt {dt:g} order {order} {variant}: peak max f {row['max_f_peak']:.4g}, min dx "
+            f"{row['min_dx']:.3g}, {row['reason']}, {row['blowup_kind']} ({row['seconds']:.0f} s)",
+            flush=True,
+        )
         df = pd.DataFrame(rows)
         df.to_csv(CSV, index=False)  # after every run: a killed probe keeps what it ran
         record_csv(CSV)

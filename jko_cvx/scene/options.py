@@ -155,12 +155,12 @@ def _check_supported(method: str, options: Mapping[str, Any], where: str) -> Non
         if options["solver"] not in conic_solvers():
             raise SceneError(f"{where}.solver = {options['solver']!r} is not installed; installed: {conic_solvers()}")
     if method == "newton" and options.get("compiled"):
-        import importlib.util
+        from jko_cvx.collision.newton import NewtonOptions
 
-        if importlib.util.find_spec("numba") is None:
-            raise SceneError(
-                f'{where}.compiled = true needs numba, which is not installed: python -m pip install "jko_cvx[fast]"'
-            )
+        try:  # the options' own check: compiled = true needs numba
+            NewtonOptions(compiled=True)
+        except ImportError as exc:
+            raise SceneError(f"{where}.compiled = true: {exc}") from None
     missing = sorted(set(options) - known)
     if missing:
         raise SceneError(

@@ -217,11 +217,13 @@ def probe_report(df: pd.DataFrame, title_note: str = "", cases=FULL_CASES) -> st
         "ran it, and rows of earlier sessions may come from another machine or BLAS kernel (the environment "
         "lines are those of the last write).",
         "",
-        f"Cases of the form not run (lambda, n, dt, order, variant): {missing}." if missing else
-        "Every case of the form has a row.",
+        f"Cases of the form not run (lambda, n, dt, order, variant): {missing}."
+        if missing
+        else "Every case of the form has a row.",
         "",
-        df.sort_values(["lambda", "n", "time_order", "variant", "dt"], ascending=[True, True, True, True, False])
-        .to_markdown(index=False, floatfmt=".4g"),
+        df.sort_values(
+            ["lambda", "n", "time_order", "variant", "dt"], ascending=[True, True, True, True, False]
+        ).to_markdown(index=False, floatfmt=".4g"),
         "",
         "## Each grid and order against dt",
         "",
@@ -317,18 +319,12 @@ def reproduce_g3_dt_probe(out: Path, quick: bool = False, **sweep_opts: Any) -> 
         for lam, n, dt, order, variant in cases
     ]
     df = run_sweep(probe_run, points, out / "cache" / "g3_dt_probe", desc="g3_dt_probe", **sweep_opts)
-    table = pd.DataFrame([_row(r) for _, r in df.iterrows()]).assign(commit=environment().get("git_commit"))
+    # probe_run's own row: the sweep adds the point's ``lam`` and its ``cached`` flag
+    table = df.drop(columns=["lam", "cached"]).assign(commit=environment().get("git_commit"))
+    table = table[["lambda", *(c for c in table.columns if c != "lambda")]]
     csv = out / "g3_dt_probe.csv"
     table.to_csv(csv, index=False)
     record_csv(csv)
     write_markdown(out / "g3_dt_probe.md", probe_report(table, " (quick form)" if quick else "", cases))
     probe_figure(table, out / "g3_dt_probe.png")
     return table
-
-
-def _row(r: pd.Series) -> dict[str, Any]:
-    """The table's row of one sweep point (its inputs and :func:`probe_run`'s values, without the sweep's keys)."""
-    keep = ("lambda", "n", "dt", "time_order", "variant", "t_end", "steps", "max_f_peak", "t_peak", "max_f_final",
-            "min_dx", "min_dv", "blowup", "reason", "T_b", "blowup_kind", "T_b_fit", "T_b_fit_err", "blowup_rate",
-            "failed_steps", "seconds")  # fmt: skip
-    return {k: r[k] for k in keep}
