@@ -87,6 +87,7 @@ PAGES: tuple[Page, ...] = (
             Entry("newton_single_path.md"),
             Entry("newton_certification.md", data=("newton_certification.csv",)),
             Entry("newton_single_call.md", data=("newton_single_call.csv",)),
+            Entry("bench_cost_model.md", data=("bench_cost_model.csv",)),
             Entry("bench_cli_run.md", data=("bench_cli_run.csv",)),
             Entry("conic_defaults.md", data=("conic_defaults.csv",)),
             Entry("extremes.md", data=("extremes.csv",)),
@@ -270,6 +271,11 @@ PAGES: tuple[Page, ...] = (
         (
             Entry("blowup_fit_validation.md", data=("blowup_fit_validation.csv",)),
             Entry("blowup_fit_validation_osgood.csv", title="Osgood criterion: finite-time or not, per gamma and dt"),
+            Entry(
+                "blowup_fit_convergence.md",
+                figures=("blowup_fit_convergence.png",),
+                data=("blowup_fit_convergence.csv",),
+            ),
         ),
     ),
     Page(

@@ -17,7 +17,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from jko_cvx.grid import Grid, PeriodicGrid
 
-__all__ = ["pchip_coefficients", "pchip_columns", "pchip_ppoly", "pchip_terms", "periodic_pchip"]
+__all__ = ["pchip_coefficients", "pchip_columns", "pchip_on", "pchip_ppoly", "pchip_terms", "periodic_pchip"]
 
 _PERIODIC_IMAGES = 3  # periodic images on each side for PCHIP's four-point stencils
 
@@ -117,6 +117,12 @@ def pchip_ppoly(terms: tuple[NDArray[np.float64], ...], vals: NDArray[np.float64
 
     c = pchip_coefficients(terms, np.moveaxis(vals, -1, 0))
     return PPoly.construct_fast(c, terms[0], extrapolate=True, axis=vals.ndim - 1)
+
+
+def pchip_on(x: ArrayLike, vals: NDArray[np.float64]):
+    """``PchipInterpolator(x, vals, axis=-1)`` on breakpoints ``x`` that are no grid's points (e.g. the
+    edges of a grid's dual cells), as :func:`pchip_ppoly` builds it."""
+    return pchip_ppoly(_spacing_terms(np.asarray(x, dtype=float)), vals)
 
 
 def periodic_pchip(

@@ -34,7 +34,7 @@ import numpy as np
 from jko_cvx.grid import Grid, PeriodicGrid
 from jko_cvx.mesh.following import ClusterMap, concentration_clusters, periodic_following_grid
 from jko_cvx.mesh.maps import JUNCTIONS, FollowingMap, OneBumpMap, TwoBumpMap, periodic_map_grid, quadrant_set
-from jko_cvx.mesh.remapping import remap, remap_periodic
+from jko_cvx.mesh.remapping import REMAPS, remap, remap_periodic
 
 __all__ = ["CENTRES", "CONCENTRATION_SETS", "UNIFORM_EXTENT", "RefineSpec", "RemeshPolicy"]
 
@@ -58,6 +58,9 @@ class RefineSpec:
     its concentration: the grid point of max f; its extent is recorded as (c - r, c + r) per set).
     ``junction`` (one-bump maps): ``"paper"`` (the paper's outer piece, with a kink at s = delta) or ``"c1"``
     (a C^1 outer piece, :mod:`jko_cvx.mesh.maps`).
+    ``remap``: how a new grid receives the density (:data:`jko_cvx.mesh.remapping.REMAPS`): ``"paper"``
+    (PCHIP of the values, rescaled to the mass) or ``"cumulative"`` (PCHIP of the cumulative mass: each new
+    cell gets the old mass it covers; no rescaling that lifts the peak).
     ``tol = 0`` remeshes every step (the paper's Algorithm ``alg:one_step_MR_JKO``); ``tol > 0``
     remeshes only when the concentration set's extent has moved by more than ``tol`` times
     its width.  Measured (``ibu_gamma3``): remeshing every step moves the bumps inward by as
@@ -72,10 +75,13 @@ class RefineSpec:
     conserve_energy: bool = False
     centre: str = "origin"
     junction: str = "paper"
+    remap: str = "paper"
 
     def __post_init__(self) -> None:
         if self.centre not in CENTRES:
             raise ValueError(f"centre must be one of {list(CENTRES)}, got {self.centre!r}")
+        if self.remap not in REMAPS:
+            raise ValueError(f"remap must be one of {list(REMAPS)}, got {self.remap!r}")
         if self.junction not in JUNCTIONS:
             raise ValueError(f"junction must be one of {list(JUNCTIONS)}, got {self.junction!r}")
         if self.junction != "paper" and self.bumps != 1:
@@ -228,7 +234,7 @@ class RemeshPolicy:
             return f, vgrid, params
         grid = mu.grid(vgrid.n)
         f = remap(vgrid, f, grid, axis=-1, conserve_momentum=self.conserve_momentum,
-                  conserve_energy=spec.conserve_energy)  # fmt: skip
+                  conserve_energy=spec.conserve_energy, method=spec.remap)  # fmt: skip
         return f, grid, new
 
     def _refine_x(self, xgrid: PeriodicGrid, f: np.ndarray, params: Extent):
@@ -246,7 +252,8 @@ class RemeshPolicy:
         if not _moved(spec, params, new):
             return f, xgrid, params
         grid = periodic_map_grid(mu, xgrid.n, xgrid.period)
-        return remap_periodic(xgrid, f, grid, axis=0, conserve_moment=self.conserve_x_moment), grid, new
+        f = remap_periodic(xgrid, f, grid, axis=0, conserve_moment=self.conserve_x_moment, method=spec.remap)
+        return f, grid, new
 
     def _follow_x(self, xgrid: PeriodicGrid, f: np.ndarray, fx: np.ndarray, params: Extent):
         """``refine.x.centre = "follow"``: the sets of max_v f on the periodic axis, each where its bump is."""
@@ -265,7 +272,8 @@ class RemeshPolicy:
             grid = periodic_following_grid(L, c, r, spec.delta, xgrid.n, spec.junction)
         else:
             grid = mu.periodic_grid(xgrid.n)
-        return remap_periodic(xgrid, f, grid, axis=0, conserve_moment=self.conserve_x_moment), grid, new
+        f = remap_periodic(xgrid, f, grid, axis=0, conserve_moment=self.conserve_x_moment, method=spec.remap)
+        return f, grid, new
 
     def _x_proxy(self, xgrid: PeriodicGrid) -> Grid:
         """The maps assume [-L, L]; x-grids are periodic cell-centred grids inside it."""
@@ -284,7 +292,7 @@ class RemeshPolicy:
             if _moved(spec_v, vp, new):
                 grid = Grid.uniform(-self.v_L, self.v_L, vgrid.n) if mu is None else mu.grid(vgrid.n)
                 f = remap(vgrid, f, grid, axis=-1, conserve_momentum=self.conserve_momentum,
-                          conserve_energy=spec_v.conserve_energy)  # fmt: skip
+                          conserve_energy=spec_v.conserve_energy, method=spec_v.remap)  # fmt: skip
                 vgrid, vp = grid, new
         if spec_x is not None:
             s = sets["x"]
@@ -293,6 +301,7 @@ class RemeshPolicy:
             if _moved(spec_x, xp, new):
                 grid = (PeriodicGrid.uniform(self.x_L, xgrid.n) if mu is None
                         else periodic_map_grid(mu, xgrid.n, xgrid.period))  # fmt: skip
-                f = remap_periodic(xgrid, f, grid, axis=0, conserve_moment=self.conserve_x_moment)
+                f = remap_periodic(xgrid, f, grid, axis=0, conserve_moment=self.conserve_x_moment,
+                                   method=spec_x.remap)  # fmt: skip
                 xgrid, xp = grid, new
         return f, vgrid, xgrid, vp, xp

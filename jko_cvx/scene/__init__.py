@@ -53,6 +53,8 @@ A scene file (the shipped ones are package data, ``jko_cvx/scene/shipped/*.toml`
                              # on the axis is even and, homogeneous with one bump, its maximum's bump
                              # reaches 0; follow elsewhere)
     junction = "paper"       # one-bump maps: "paper" (its outer piece; a kink at s = delta) | "c1"
+    remap = "paper"          # "paper" (PCHIP of f, rescaled to the mass) | "cumulative" (PCHIP of the
+                             # cumulative mass: each new cell gets the old mass it covers)
 
     [collision]
     method = "newton"

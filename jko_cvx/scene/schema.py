@@ -21,6 +21,7 @@ from typing import Any, TypeVar
 from jko_cvx.collision.problem import LOG_FORM_METHODS, MOMENTUM_METHODS, methods_text
 from jko_cvx.mesh.maps import JUNCTIONS
 from jko_cvx.mesh.policy import CENTRES, CONCENTRATION_SETS, RefineSpec
+from jko_cvx.mesh.remapping import REMAPS
 from jko_cvx.stepping import HALVE_ON, POLICIES
 
 __all__ = [
@@ -329,6 +330,13 @@ class RefineAxisTable(Table):
         "paper",
         doc="one-bump maps: how the refined part meets the outer piece: paper (the paper's piece, a kink at "
         "s = delta whose node gathers mass) or c1 (a C^1 piece: no kink)",
+    )
+    remap: str = key(
+        Rule("str", choices=REMAPS),
+        "paper",
+        doc="how a new grid receives f: paper (PCHIP of the values, then rescaled to the mass: eqn:mass_conserv_v; "
+        "the rescaling lifts the peak where f has a steep front, a little every remap) or cumulative (PCHIP of "
+        "the cumulative mass: each new cell gets the old mass it covers)",
     )
 
 
