@@ -105,3 +105,20 @@ def test_data_cut_by_the_walls_blow_up_at_the_exact_time_with_the_cumulative_rem
     if n == 241:
         paper = simulate(shipped_scene("tab_bu_g1", base)).verdict
         assert paper.T_b_fit - T < -5e-4  # the paper's remap: early (measured -6.9e-4)
+
+
+def test_an_inhomogeneous_run_remaps_both_axes_cumulatively_and_keeps_mass_and_momentum():
+    base = {"v.n": 31, "x.n": 31, "t_end": 0.5}
+    runs = {}
+    for axes in ((), ("v",), ("v", "x")):
+        over = {**base, **{f"refine.{a}.remap": "cumulative" for a in axes}}
+        runs[axes] = simulate(shipped_scene("inhom_gamma3_lambda10", over))
+    for run in runs.values():
+        d = run.diagnostics
+        assert run.steps == 10 and (d.failed == 0).all()
+        assert abs(d.mass.iloc[-1] / d.mass.iloc[0] - 1) < 1e-12
+        assert abs(d.momentum.iloc[-1] - d.momentum.iloc[0]) < 1e-12
+    # each axis's option takes effect: the three runs end in three different states
+    f = [run.f for run in runs.values()]
+    assert not np.array_equal(f[0], f[1]) and not np.array_equal(f[1], f[2])
+    assert runs[("v", "x")].scene.refine.x.remap == "cumulative" and runs[()].scene.refine.x.remap == "paper"
