@@ -9,8 +9,8 @@ Two ways to carry a density from the old grid to the new one (:data:`REMAPS`):
     interpolation's mass error over the whole line, the peak included: where the line has a
     steep front (a vacuum opening at a wall) every remap lifts the peak a little, and remapping
     every step adds that up (measured on homogeneous gamma = 1 with data cut by the walls: the
-    blow-up about 1.2e-3 early in T, whatever the grid and the step; see
-    ``studies/results/blowup_fit_convergence.md``).
+    blow-up about 1.2e-3 early in T, whatever the grid and the step; the blow-up estimator's
+    convergence study on the results pages).
 ``"cumulative"``
     each new dual cell receives the old mass it covers: the cumulative mass
     :math:`F(e_{j+1/2}) = \\sum_{i \\le j} h_i f_i` at the edges :math:`e_{j+1/2}` of the old grid's
