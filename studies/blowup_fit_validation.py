@@ -192,15 +192,15 @@ def main(argv: list[str] | None = None) -> None:
     x = g1.dropna(subset=["T_eps0"])
     if len(x):
         xe = (x.T_eps0 - x.T_exact).abs()
-        both = x.dropna(subset=["T_b_fit"])
-        agree = (both.T_eps0 - both.T_b_fit).abs() <= np.hypot(both.T_eps0_err, both.T_b_fit_err)
+        located = x.dropna(subset=["T_b_fit"])
+        agree = (located.T_eps0 - located.T_b_fit).abs() <= np.hypot(located.T_eps0_err, located.T_b_fit_err)
         lines += [
             f"Cross-check (jko_cvx.blowup.extrapolate_thresholds: the threshold times of eps_v = 3e-3 .. 1e-4, "
             f"10 values, replayed from each eps_v = 1e-4 run, fitted by T_0 - c eps^p): {len(x)} runs, "
             f"|T_0 - T| median {xe.median():.2g}, max {xe.max():.2g}; its bar covers {int((xe <= x.T_eps0_err).sum())}"
             f" / {len(x)}, bar median {x.T_eps0_err.median():.2g}; the paper's T_b at eps_v = 1e-4: |T_b - T| "
             f"median {(x.T_b - x.T_exact).abs().median():.2g}; T_0 and T_b_fit agree within their bars in "
-            f"{int(agree.sum())} / {len(both)}.", "",
+            f"{int(agree.sum())} / {len(located)}.", "",
         ]  # fmt: skip
     if len(tune) >= 5:
         lines += ["Calibration: the k that covers 90 % of the tune set for each c, and what it gives on both sets:", ""]
