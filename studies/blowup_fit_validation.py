@@ -132,6 +132,15 @@ def osgood_rows(quick: bool) -> list[dict]:
     return rows
 
 
+def _per_grid(fitted: pd.DataFrame, keys: list[str]) -> pd.DataFrame:
+    """Runs, |error| median and largest, the share within 1e-3, coverage, median bar and lag per group of ``keys``."""
+    return fitted.groupby(keys, sort=False).agg(
+        runs=("error", "size"), median_abs_err=("abs_err", "median"), max_abs_err=("abs_err", "max"),
+        within_1e_3=("abs_err", lambda e: float((e <= 1e-3).mean())), coverage=("covered", "mean"),
+        median_err_bar=("T_b_fit_err", "median"), median_lag=("lag_at_window_end", "median"),
+    )  # fmt: skip
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="a few runs (the test)")
@@ -277,11 +286,7 @@ def main(argv: list[str] | None = None) -> None:
     every_fit = every.dropna(subset=["error"]).assign(abs_err=lambda d: d.error.abs())
     joined = every_fit[every_fit.remap == "paper"]
     if (joined.junction == "c1").any():
-        by_junction = joined.groupby(["junction", "time_order", "N_v"], sort=False).agg(
-            runs=("error", "size"), median_abs_err=("abs_err", "median"), max_abs_err=("abs_err", "max"),
-            within_1e_3=("abs_err", lambda e: float((e <= 1e-3).mean())), coverage=("covered", "mean"),
-            median_err_bar=("T_b_fit_err", "median"), median_lag=("lag_at_window_end", "median"),
-        )  # fmt: skip
+        by_junction = _per_grid(joined, ["junction", "time_order", "N_v"])
         kinds = every[every.remap == "paper"].groupby(["junction", "time_order"]).kind.apply(
             lambda k: f"{(k == 'finite_time').sum()}/{len(k)}")  # fmt: skip
         c1 = joined[joined.junction == "c1"]
@@ -300,11 +305,7 @@ def main(argv: list[str] | None = None) -> None:
         ]  # fmt: skip
     c1 = every_fit[every_fit.junction == "c1"]
     if (c1.remap == "cumulative").any():
-        by_remap = c1.groupby(["remap", "time_order", "N_v"], sort=False).agg(
-            runs=("error", "size"), median_abs_err=("abs_err", "median"), max_abs_err=("abs_err", "max"),
-            within_1e_3=("abs_err", lambda e: float((e <= 1e-3).mean())), coverage=("covered", "mean"),
-            median_err_bar=("T_b_fit_err", "median"), median_lag=("lag_at_window_end", "median"),
-        )  # fmt: skip
+        by_remap = _per_grid(c1, ["remap", "time_order", "N_v"])
         kinds = every[every.junction == "c1"].groupby(["remap", "time_order"]).kind.apply(
             lambda k: f"{(k == 'finite_time').sum()}/{len(k)}")  # fmt: skip
         cum = c1[c1.remap == "cumulative"].assign(rel_bar=lambda d: d.T_b_fit_err / d.T_exact)
