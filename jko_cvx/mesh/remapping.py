@@ -80,13 +80,13 @@ def remap(
         raise ValueError(f"f must have length {old.n} along axis {axis}, got shape {f.shape}")
     if new.points[0] < old.points[0] - 1e-12 * old.length or new.points[-1] > old.points[-1] + 1e-12 * old.length:
         raise ValueError("the new grid must lie within the old grid's interval")
-    # SciPy's PchipInterpolator(old.points, f, axis=-1) without its checks (same coefficients:
-    # interpolate.pchip_coefficients); underflowed slopes give flat derivatives (as SciPy's)
     if method == "cumulative":
         lo, hi = old.points[0], old.points[-1]
         F = _cumulative_mass(f * old.h)
         g = np.diff(pchip_on(_dual_edges(old.points), F)(np.clip(_dual_edges(new.points), lo, hi)), axis=-1) / new.h
     else:
+        # SciPy's PchipInterpolator(old.points, f, axis=-1) without its checks (same coefficients:
+        # interpolate.pchip_coefficients); underflowed slopes give flat derivatives (as SciPy's)
         interp = pchip_ppoly(pchip_terms(old), f)
         g = interp(np.clip(new.points, old.points[0], old.points[-1]))
     g = np.maximum(g, floor)
