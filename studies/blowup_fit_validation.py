@@ -141,6 +141,11 @@ def _per_grid(fitted: pd.DataFrame, keys: list[str]) -> pd.DataFrame:
     )  # fmt: skip
 
 
+def _finite_time_counts(runs: pd.DataFrame, keys: list[str]) -> pd.Series:
+    """"finite_time runs/runs" per group of ``keys``."""
+    return runs.groupby(keys).kind.apply(lambda k: f"{(k == 'finite_time').sum()}/{len(k)}")
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="a few runs (the test)")
@@ -287,8 +292,7 @@ def main(argv: list[str] | None = None) -> None:
     joined = every_fit[every_fit.remap == "paper"]
     if (joined.junction == "c1").any():
         by_junction = _per_grid(joined, ["junction", "time_order", "N_v"])
-        kinds = every[every.remap == "paper"].groupby(["junction", "time_order"]).kind.apply(
-            lambda k: f"{(k == 'finite_time').sum()}/{len(k)}")  # fmt: skip
+        kinds = _finite_time_counts(every[every.remap == "paper"], ["junction", "time_order"])
         c1 = joined[joined.junction == "c1"]
         lines += [
             "## The map's junction (`refine.v.junction`)", "",
@@ -306,8 +310,7 @@ def main(argv: list[str] | None = None) -> None:
     c1 = every_fit[every_fit.junction == "c1"]
     if (c1.remap == "cumulative").any():
         by_remap = _per_grid(c1, ["remap", "time_order", "N_v"])
-        kinds = every[every.junction == "c1"].groupby(["remap", "time_order"]).kind.apply(
-            lambda k: f"{(k == 'finite_time').sum()}/{len(k)}")  # fmt: skip
+        kinds = _finite_time_counts(every[every.junction == "c1"], ["remap", "time_order"])
         cum = c1[c1.remap == "cumulative"].assign(rel_bar=lambda d: d.T_b_fit_err / d.T_exact)
         lines += [
             "## The remap (`refine.v.remap`)", "",

@@ -1,21 +1,16 @@
 """``studies/bench_collision.py`` writes every table the solver guide quotes, with the run's provenance."""
 
-import importlib.util
-from pathlib import Path
-
 import pandas as pd
 import pytest
 
+from tests.studies.scripts import load_study_script
+
 pytest.importorskip("cyipopt")
 
-ROOT = Path(__file__).resolve().parents[2]
 
 
 def _bench():
-    spec = importlib.util.spec_from_file_location("bench_collision", ROOT / "studies" / "bench_collision.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_study_script("bench_collision.py")
 
 
 def test_a_small_run_writes_the_csv_and_the_report_with_its_provenance(tmp_path, monkeypatch):

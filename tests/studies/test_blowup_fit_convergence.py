@@ -1,19 +1,14 @@
 """The estimator's convergence study runs, writes its tables, and its errors fall with the grid (slow: 16 runs)."""
 
-import importlib.util
-from pathlib import Path
-
 import pandas as pd
 import pytest
 
-SCRIPT = Path(__file__).resolve().parents[2] / "studies" / "blowup_fit_convergence.py"
+from tests.studies.scripts import load_study_script
 
 
 @pytest.mark.slow
 def test_the_quick_study_writes_its_tables_and_the_error_falls_with_the_grid(tmp_path):
-    spec = importlib.util.spec_from_file_location("blowup_fit_convergence", SCRIPT)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+    mod = load_study_script("blowup_fit_convergence.py")
     mod.main(["--quick", "--out", str(tmp_path)])
     df = pd.read_csv(tmp_path / "blowup_fit_convergence_quick.csv")
     assert len(df) == 16 and (df.kind == "finite_time").all() and set(df.remap) == {"paper", "cumulative"}

@@ -1,19 +1,14 @@
 """The estimator's validation study runs and writes its tables (slow: a dozen runs)."""
 
-import importlib.util
-from pathlib import Path
-
 import pandas as pd
 import pytest
 
-SCRIPT = Path(__file__).resolve().parents[2] / "studies" / "blowup_fit_validation.py"
+from tests.studies.scripts import load_study_script
 
 
 @pytest.mark.slow
 def test_the_quick_study_writes_its_tables(tmp_path):
-    spec = importlib.util.spec_from_file_location("blowup_fit_validation", SCRIPT)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+    mod = load_study_script("blowup_fit_validation.py")
     mod.main(["--quick", "--out", str(tmp_path)])
     every = pd.read_csv(tmp_path / "blowup_fit_validation_quick.csv")
     assert set(every.junction) == {"paper", "c1"} and set(every.time_order) == {1, 2}

@@ -1,15 +1,10 @@
 """The tutorial ``studies/examples/verify_sqp.py`` runs in quick form and says what its docstring says."""
 
-import importlib.util
-from pathlib import Path
-
-SCRIPT = Path(__file__).resolve().parents[2] / "studies" / "examples" / "verify_sqp.py"
+from tests.studies.scripts import load_study_script
 
 
 def test_the_quick_example_verifies_sqp_and_saves_the_figures(tmp_path):
-    spec = importlib.util.spec_from_file_location("verify_sqp", SCRIPT)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+    mod = load_study_script("examples/verify_sqp.py")
     g1, inhom = mod.main(["--quick", "--out", str(tmp_path)])
     # tab_bu_g1 (gamma = 1): SQP agrees with nlp step by step and along the run, to the blow-up criterion
     assert g1.verified and "trajectory agrees" in g1.verdict, g1.verdict

@@ -121,12 +121,9 @@ def test_quick_grid_convergence_runs_both_studies_and_keeps_the_invariants(tmp_p
 
 def test_partial_report_refuses_a_checkout_whose_code_it_cannot_name(tmp_path, monkeypatch, capsys):
     """Uncommitted changes to jko_cvx: nothing would say which code computed the points."""
-    import importlib.util
+    from tests.studies.scripts import load_study_script
 
-    path = Path(__file__).resolve().parents[3] / "studies" / "grid_convergence_partial.py"
-    spec = importlib.util.spec_from_file_location("grid_convergence_partial", path)
-    script = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(script)
+    script = load_study_script("grid_convergence_partial.py")
     prov = {"git_commit": "f" * 40, "jko_cvx_modified": True, "package_version": "0", "package_sha256": "a" * 64}
     monkeypatch.setattr(script, "code_provenance", lambda func: prov)
     (tmp_path / "c").mkdir()
