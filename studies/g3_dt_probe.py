@@ -7,7 +7,9 @@ runs the given cases with the same :func:`~jko_cvx.studies.reproduce.dt_probe.pr
 every run (a killed probe keeps what it ran), skips a case already in the CSV from the same commit, replaces
 one from another commit, and rewrites the report from every row (each row names the commit that ran it).
 Default cases: the entry's full form.  A case is ``lam:n:dt[:order[:key=value,...]]`` (order 1 or 2, default
-1; keys of :data:`~jko_cvx.studies.reproduce.dt_probe.VARIANT_KEYS`).
+1; keys of :data:`~jko_cvx.studies.reproduce.dt_probe.VARIANT_KEYS`).  ``--run-dir DIR`` runs each case in
+``DIR/<case>/``, a run directory checkpointed every step: a case longer than a session is continued where it
+stopped by the same command under the same code (a worktree at the same commit), bit for bit.
 """
 
 from __future__ import annotations
@@ -49,9 +51,19 @@ def parse_case(text: str) -> tuple[float, int, float, int, str]:
     return lam, n, dt, order, variant
 
 
+def case_dir(lam: float, n: int, dt: float, order: int, variant: str) -> str:
+    """The case's run directory name: ``lam10_n481_dt0.00625_o1`` (and the variant, characters other than letters,
+    digits, ``.`` and ``-`` as ``_``)."""
+    name = f"lam{lam:g}_n{n}_dt{dt:g}_o{order}"
+    if variant:
+        name += "_" + "".join(c if c.isalnum() or c in ".-" else "_" for c in variant)
+    return name
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--cases", nargs="*", default=None, help="lam:n:dt[:order[:variant]] (default: the full form)")
+    parser.add_argument("--run-dir", type=Path, default=None, help="checkpoint each case in DIR/<case>/, continued")
     args = parser.parse_args(argv)
     cases = FULL_CASES if args.cases is None else [parse_case(c) for c in args.cases]
     commit = environment().get("git_commit")
@@ -66,7 +78,8 @@ def main(argv: list[str] | None = None) -> None:
         if any(key(r) == case and r.get("commit") == commit for r in rows):
             continue
         rows = [r for r in rows if key(r) != case]
-        row = {**probe_run(lam, n, dt, order, variant), "commit": commit}
+        out = None if args.run_dir is None else args.run_dir / case_dir(lam, n, dt, order, variant)
+        row = {**probe_run(lam, n, dt, order, variant, out=out), "commit": commit}
         rows.append(row)
         print(
             f"lambda {lam:g} n {n} dt {dt:g} order {order} {variant}: peak max f {row['max_f_peak']:.4g}, min dx "

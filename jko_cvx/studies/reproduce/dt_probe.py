@@ -29,7 +29,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from jko_cvx.engine.errors import RunDirError
 from jko_cvx.engine.loop import simulate
+from jko_cvx.engine.run import load_run
 from jko_cvx.environment import environment, record_csv, write_markdown
 from jko_cvx.scene.model import shipped_scene
 from jko_cvx.studies.solvers.figures import finish_figure, pyplot
@@ -104,18 +106,39 @@ def variant_key(variant: str) -> tuple[tuple[str, float], ...]:
 
 
 def probe_run(
-    lam: float, n: int, dt: float, time_order: int = 1, variant: str = "", t_end: float | None = None
+    lam: float,
+    n: int,
+    dt: float,
+    time_order: int = 1,
+    variant: str = "",
+    t_end: float | None = None,
+    out: str | Path | None = None,
 ) -> dict[str, Any]:
     """One run of the shipped ``inhom_gamma3_lambda{lam}`` scene on n x n with step dt, the time order and variant.
 
-    ``t_end``: the scene's (4) unless given (the quick form).  Returns the row of the report's table.
+    ``t_end``: the scene's (4) unless given (the quick form).  ``out``: a run directory, checkpointed every step
+    and continued from its checkpoint when it holds one of this scene and code (a run longer than a session
+    continues where it stopped; an ended run is read back, not run again).  Returns the row of the report's
+    table; ``seconds`` is the run's wall time summed over its legs when ``out`` is given.
     """
     t0 = time.perf_counter()
     over: dict[str, Any] = {"v.n": n, "x.n": n, "time.dt": dt, "time.order": time_order, **parse_variant(variant)}
     if t_end is not None:
         over["t_end"] = t_end
-    scene = shipped_scene(f"inhom_gamma3_lambda{lam:g}", over)
-    run = simulate(scene)
+    if out is None:
+        run = simulate(shipped_scene(f"inhom_gamma3_lambda{lam:g}", over))
+        seconds = time.perf_counter() - t0
+    else:
+        out = Path(out)
+        scene = shipped_scene(f"inhom_gamma3_lambda{lam:g}", {**over, "output.checkpoint_every": 1})
+        if (out / "verdict.json").exists():
+            run = load_run(out)
+            if run.scene.to_dict() != scene.to_dict():
+                raise RunDirError(f"the run in {out} is not of the case asked for ({lam:g}:{n}:{dt:g}:{time_order})")
+        else:
+            run = simulate(scene, out=out, resume=(out / "checkpoint.npz").exists(), progress=True)
+        seconds = run.seconds["wall"]
+    scene = run.scene
     d = run.diagnostics
     peak = int(d.max_f.to_numpy().argmax())
     v = run.verdict
@@ -126,7 +149,7 @@ def probe_run(
         "max_f_final": float(d.max_f.iloc[-1]), "min_dx": float(d.min_dx.min()), "min_dv": float(d.min_dv.min()),
         "blowup": bool(v.blowup), "reason": v.reason, "T_b": v.T_b,
         "blowup_kind": v.blowup_kind, "T_b_fit": v.T_b_fit, "T_b_fit_err": v.T_b_fit_err, "blowup_rate": v.blowup_rate,
-        "failed_steps": int(run.failed_steps), "seconds": time.perf_counter() - t0,
+        "failed_steps": int(run.failed_steps), "seconds": seconds,
     }  # fmt: skip
 
 

@@ -68,3 +68,37 @@ def test_a_variant_is_matched_by_what_it_changes_not_by_its_spelling():
     assert missing_cases(rows, cases) == []
     swapped = pd.DataFrame([{**base, "variant": "refine.v.tol=0.1,refine.x.tol=0.1"}])
     assert missing_cases(swapped, ((4.0, 61, 0.05, 1, "refine.x.tol=0.1,refine.v.tol=0.1"),)) == []
+
+
+def test_a_case_in_a_run_directory_continues_from_its_checkpoint_to_the_row_of_an_uninterrupted_run(tmp_path):
+    """The probe's long cases outlast a session: run in a directory, a killed case continues bit for bit."""
+    from jko_cvx.engine import RunDirError
+    from jko_cvx.engine.loop import simulate
+    from jko_cvx.engine.trackers import Tracker
+    from jko_cvx.scene.model import shipped_scene
+    from jko_cvx.studies.reproduce.dt_probe import probe_run
+
+    case = (10.0, 15, 0.1, 1, "")
+    whole = probe_run(*case, t_end=0.5)
+
+    class Killed(Exception):
+        pass
+
+    class KillAtStep3(Tracker):
+        def handle(self, state, step):
+            if state.step == 3:
+                raise Killed
+
+    out = tmp_path / "case"
+    scene = shipped_scene("inhom_gamma3_lambda10", {"v.n": 15, "x.n": 15, "time.dt": 0.1, "time.order": 1,
+                                                     "t_end": 0.5, "output.checkpoint_every": 1})  # fmt: skip
+    with pytest.raises(Killed):
+        simulate(scene, out=out, observers=lambda rd: [KillAtStep3()])
+    assert (out / "checkpoint.npz").exists() and not (out / "verdict.json").exists()
+    continued = probe_run(*case, t_end=0.5, out=out)
+    read_back = probe_run(*case, t_end=0.5, out=out)  # an ended run is read back, not run again
+    for row in (continued, read_back):
+        assert {k: v for k, v in row.items() if k != "seconds"} == {k: v for k, v in whole.items() if k != "seconds"}
+    assert read_back["seconds"] == continued["seconds"] > 0
+    with pytest.raises(RunDirError, match="not of the case"):
+        probe_run(10.0, 15, 0.05, 1, "", t_end=0.5, out=out)
