@@ -109,28 +109,43 @@ def slice_workers() -> int:
 
 @contextmanager
 def blas_limits() -> Iterator[None]:
-    """Limit BLAS to :func:`blas_threads` threads inside the block (re-entrant; ~10 us; 0: no limit).
+    """Limit BLAS to :func:`blas_threads` threads inside the block (re-entrant; 0: no limit).
 
-    The threadpoolctl controller is built once, at the first use (it sees the BLAS
-    libraries loaded by then: NumPy's and SciPy's OpenBLAS).
+    The BLAS libraries are those loaded at the first use (NumPy's and SciPy's OpenBLAS), found
+    once by threadpoolctl.  Only a library whose thread count differs from the limit is set, and
+    set back on exit: a few microseconds where the limit holds already (``OPENBLAS_NUM_THREADS=1``),
+    two native calls per library otherwise -- a single small solve pays nothing like threadpoolctl's
+    full ``limit`` (about 100 us, which reads every library's information twice).
     """
-    global _controller
-    depth = getattr(_state, "depth", 0)
-    if depth or getattr(_state, "worker", False) or blas_threads() == 0:
+    if getattr(_state, "depth", 0) or getattr(_state, "worker", False):
         yield  # the outer block (or the pool's caller) has set the limit
         return
+    limit = blas_threads()
+    if limit == 0:
+        yield
+        return
+    changed = [(lib, n) for lib in _blas_controllers() if (n := lib.get_num_threads()) is not None and n != limit]
+    _state.depth = 1
+    try:
+        for lib, _ in changed:
+            lib.set_num_threads(limit)
+        yield
+    finally:
+        for lib, n in changed:
+            lib.set_num_threads(n)
+        _state.depth = 0
+
+
+def _blas_controllers() -> list:
+    """threadpoolctl's controllers of the BLAS libraries loaded at the first call (built once)."""
+    global _controller
     if _controller is None:
         from threadpoolctl import ThreadpoolController
 
         with _lock:
             if _controller is None:
-                _controller = ThreadpoolController()
-    _state.depth = 1
-    try:
-        with _controller.limit(limits=blas_threads(), user_api="blas"):
-            yield
-    finally:
-        _state.depth = 0
+                _controller = ThreadpoolController().select(user_api="blas").lib_controllers
+    return _controller
 
 
 def thread_environment() -> str:
@@ -154,6 +169,8 @@ def blas_limited(func: Callable[P, R]) -> Callable[P, R]:
 
     @functools.wraps(func)
     def wrapper(*args: P.args, **kwargs: P.kwargs) -> R:
+        if getattr(_state, "depth", 0) or getattr(_state, "worker", False):
+            return func(*args, **kwargs)  # inside a limit already: blas_limits would do nothing
         with blas_limits():
             return func(*args, **kwargs)
 

@@ -6,10 +6,11 @@ gamma = 1 and gamma = 3, N = 61, 121, 241 (``--sizes``), solved by ``solve_colli
 "newton")`` at its defaults:
 
 1. **single**: one unbatched problem; for gamma = 1 also ``compiled=True`` (numba; the compiled
-   iteration covers only unbatched gamma = 1 and is checked to have been used);
+   iteration covers only gamma = 1; ``compiled_used`` records that every slice took it);
 2. **batched**: the problem as a batch of B = 32 and B = 121 slices (``--batches``), either B
    identical copies (``same``) or the shifted and scaled Gaussians of ``bench_collision.py``'s
-   batch (``perturbed``); time and iterations per slice;
+   batch (``perturbed``), for gamma = 1 also with ``compiled=True`` (one compiled loop over the
+   slices); time and iterations per slice;
 3. **the cost model**: the LAPACK calls one Newton direction makes, replayed through
    ``scipy.linalg.lapack`` on the very matrices and right-hand sides the solver passed them
    (recorded during one single solve by a proxy of the ``lapack`` module of the collision
@@ -301,6 +302,8 @@ def paths(gamma: float, n: int, batches: list[int]) -> dict[str, tuple[Collision
     for b in batches:
         for kind in ("same", "perturbed"):
             out[f"batch {b} {kind}"] = (step_problem(gamma, n, b, kind), {})
+            if gamma == 1.0:
+                out[f"batch {b} {kind} compiled"] = (out[f"batch {b} {kind}"][0], {"compiled": True})
     return out
 
 
@@ -394,6 +397,7 @@ PHASES = [
     # (owner, attribute, label, within)
     (newton, "_compiled_single", "newton._compiled_single", "solve"),
     (_compiled, "iterate", "_compiled.iterate (numba)", "_compiled_single"),
+    (_compiled, "kkt_residual", "_compiled.kkt_residual (numba)", "_compiled_single"),
     (newton, "_attempt", "newton._attempt", "solve"),
     (newton, "_start", "newton._start", "_attempt"),
     (newton, "_iterate", "newton._iterate", "_attempt"),
@@ -409,7 +413,7 @@ PHASES = [
      "_structured_direction"),
     (newton, "pentadiagonal_solve_batch", "_linalg.pentadiagonal_solve_batch", "_structured_direction"),
     (newton, "_residual_test", "newton._residual_test", "_iterate"),
-    (_ProblemClass, "kkt_residual", "CollisionProblem.kkt_residual", "_residual_test / _compiled_single"),
+    (_ProblemClass, "kkt_residual", "CollisionProblem.kkt_residual", "_residual_test / _finalise"),
     (newton, "_step", "newton._step", "_iterate"),
     (newton, "_line_search", "newton._line_search", "_step"),
     (newton, "_retire", "newton._retire", "_iterate"),

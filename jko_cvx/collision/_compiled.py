@@ -9,8 +9,10 @@ It runs only the plain path: it stops at the first iterate whose Newton decremen
 the NumPy iteration checks the KKT residual) and hands back everything else -- a Hessian that needs a
 shift, a run of short steps (a possible jam at the vacuum boundary), a failed line search, a non-finite value,
 the iteration limit -- as "not handled", after which the caller runs the NumPy iteration with its
-retry cascade from the start.  The KKT residual and the certificate are not computed here: the caller
-judges the returned point with the one residual every method shares.
+retry cascade from the start.  The returned point's KKT residual is :func:`kkt_residual`: the expressions
+of the residual every method shares (:meth:`~jko_cvx.collision.problem.CollisionProblem.kkt_residual`) in
+loops, equal to it to rounding (the tests compare the two); the caller certifies the point with the
+certificate every method shares.
 
 The arithmetic follows the NumPy expressions term by term, so the iterates agree with the NumPy
 iteration's to rounding (not bit for bit: sums and the Cholesky run in another order).
@@ -32,7 +34,7 @@ except ImportError as exc:  # an optional dependency: say how to get it
         'python -m pip install "jko_cvx[fast]"'
     ) from exc
 
-__all__ = ["HANDLED", "iterate"]
+__all__ = ["HANDLED", "iterate", "iterate_rows", "kkt_residual"]
 
 
 def _jit(func: Callable) -> Callable:
@@ -52,6 +54,8 @@ HANDLED = 0
 
 _NOT_HANDLED = 1
 _FISHER_CODES = {None: 0, "perspective": 1, "log": 2}
+_NO_POINTS = np.zeros(0)
+_NO_POINTS.flags.writeable = False
 
 
 @_jit
@@ -127,7 +131,8 @@ def _evaluate(f, m, h, w, c, fisher, kf, ecoef, ediag, g, diag, off1, off2, gfw,
 
 @_jit
 def _cholesky(diag, off1, off2, pd_tol, l0, l1, l2):  # pragma: no cover - compiled
-    """Lower Cholesky factor of the pentadiagonal matrix with ``diag (1 + pd_tol)``; False where not PD."""
+    """Lower Cholesky factor of the pentadiagonal matrix with ``diag (1 + pd_tol)``, its diagonal ``l0`` inverted;
+    False where not PD."""
     e = diag.size
     for k in range(e):
         if not (diag[k] > 0 and math.isfinite(diag[k])):
@@ -140,20 +145,20 @@ def _cholesky(diag, off1, off2, pd_tol, l0, l1, l2):  # pragma: no cover - compi
             piv -= l2[k - 2] * l2[k - 2]
         if not (piv > 0 and math.isfinite(piv)):
             return False
-        l0[k] = math.sqrt(piv)
+        l0[k] = 1.0 / math.sqrt(piv)  # stored inverted: the sweeps multiply (a division's latency is 3-4x)
         if k < e - 1:
             o = off1[k]
             if k >= 1:
                 o -= l2[k - 1] * l1[k - 1]
-            l1[k] = o / l0[k]
+            l1[k] = o * l0[k]
         if k < e - 2:
-            l2[k] = off2[k] / l0[k]
+            l2[k] = off2[k] * l0[k]
     return True
 
 
 @_jit
 def _solve(l0, l1, l2, rhs, out):  # pragma: no cover - compiled
-    """``out = (L L')^-1 rhs`` for the factor of :func:`_cholesky`."""
+    """``out = (L L')^-1 rhs`` for the factor of :func:`_cholesky` (``l0`` inverted)."""
     e = rhs.size
     for k in range(e):
         v = rhs[k]
@@ -161,14 +166,14 @@ def _solve(l0, l1, l2, rhs, out):  # pragma: no cover - compiled
             v -= l1[k - 1] * out[k - 1]
         if k >= 2:
             v -= l2[k - 2] * out[k - 2]
-        out[k] = v / l0[k]
+        out[k] = v * l0[k]
     for k in range(e - 1, -1, -1):
         v = out[k]
         if k + 1 < e:
             v -= l1[k] * out[k + 1]
         if k + 2 < e:
             v -= l2[k] * out[k + 2]
-        out[k] = v / l0[k]
+        out[k] = v * l0[k]
 
 
 @_jit
@@ -181,7 +186,33 @@ def _density(fstar, m, h, out):  # pragma: no cover - compiled
 
 
 @_jit
-def _objective(f, m, w, c, fisher, K, ecoef, kf):  # pragma: no cover - compiled
+def _matvec(K, v, f, out):  # pragma: no cover - compiled
+    """``out = K f``.  With the points ``v`` (W = |v|: K_il = |v_i - v_l| h_i h_l, ``K`` the row ``h``) in O(N)
+    by two running sums, ``S_i = S_{i-1} + (v_i - v_{i-1}) sum_{l<i} h_l f_l`` and its mirror: sums of terms of
+    one sign, so no cancellation; without points (``v.size == 0``) the dense product."""
+    if v.size == 0:
+        out[:] = np.dot(K, f)
+        return
+    h = K[0]
+    n = f.size
+    mass = 0.0
+    left = 0.0
+    for i in range(n):
+        if i > 0:
+            left += (v[i] - v[i - 1]) * mass
+        out[i] = left
+        mass += h[i] * f[i]
+    mass = 0.0
+    right = 0.0
+    for i in range(n - 1, -1, -1):
+        if i < n - 1:
+            right += (v[i + 1] - v[i]) * mass
+        out[i] = h[i] * (out[i] + right)
+        mass += h[i] * f[i]
+
+
+@_jit
+def _objective(f, m, w, c, fisher, K, kv, ecoef, kf):  # pragma: no cover - compiled
     """:math:`J(f, m)` at interior points; ``kf = K f`` is written on the way."""
     n = f.size
     val = 0.0
@@ -195,7 +226,7 @@ def _objective(f, m, w, c, fisher, K, ecoef, kf):  # pragma: no cover - compiled
         elif fisher == 2:
             L = math.log(y) - math.log(x)
             val += c[k] * (0.5 * L * L * s)
-    kf[:] = np.dot(K, f)
+    _matvec(K, kv, f, kf)
     quad = 0.0
     for i in range(n):
         quad += f[i] * kf[i]
@@ -203,7 +234,7 @@ def _objective(f, m, w, c, fisher, K, ecoef, kf):  # pragma: no cover - compiled
 
 
 @_jit
-def _explicit_start(fstar, h, w, c, fisher, K, ecoef, a, conserve, m, f, kf):  # pragma: no cover - compiled
+def _explicit_start(fstar, h, w, c, fisher, K, kv, ecoef, a, conserve, m, f, kf):  # pragma: no cover - compiled
     """The damped explicit step from ``(f*, 0)`` where it lowers J, else 0 (``newton._explicit_start``).
 
     The first step of the paper's SQP (:func:`jko_cvx.collision.sqp.explicit_step`: the tridiagonal
@@ -214,7 +245,7 @@ def _explicit_start(fstar, h, w, c, fisher, K, ecoef, a, conserve, m, f, kf):  #
     n = fstar.size
     e = n - 1
     kf0 = np.empty(n)
-    phi0 = _objective(fstar, np.zeros(e), w, c, fisher, K, ecoef, kf0)
+    phi0 = _objective(fstar, np.zeros(e), w, c, fisher, K, kv, ecoef, kf0)
     gf = np.empty(n)
     hf = np.zeros(n)
     for i in range(n):
@@ -284,7 +315,7 @@ def _explicit_start(fstar, h, w, c, fisher, K, ecoef, a, conserve, m, f, kf):  #
         if not f[j] > 0:
             ok = False
     if ok:
-        phic = _objective(f, m, w, c, fisher, K, ecoef, kf)
+        phic = _objective(f, m, w, c, fisher, K, kv, ecoef, kf)
         if phic < phi0:
             return phic
     m[:] = 0.0
@@ -295,7 +326,7 @@ def _explicit_start(fstar, h, w, c, fisher, K, ecoef, a, conserve, m, f, kf):  #
 
 @_jit
 def _iterate(
-    fstar, m, phi, start, h, w, c, fisher, K, ecoef, ediag, a, conserve, tol, max_iter, pd_tol, jam, jam_step
+    fstar, m, phi, start, h, v, w, c, fisher, K, kv, ecoef, ediag, a, conserve, tol, max_iter, pd_tol, jam, jam_step
 ):  # pragma: no cover - compiled
     """The undamped Newton attempt (``newton._iterate`` for one slice), see :func:`iterate`."""
     n = fstar.size
@@ -303,13 +334,13 @@ def _iterate(
     f = np.empty(n)
     kf = np.empty(n)
     if start == 1:
-        phi = _explicit_start(fstar, h, w, c, fisher, K, ecoef, a, conserve, m, f, kf)
+        phi = _explicit_start(fstar, h, w, c, fisher, K, kv, ecoef, a, conserve, m, f, kf)
     elif start == 2:
         _density(fstar, m, h, f)
-        phi = _objective(f, m, w, c, fisher, K, ecoef, kf)
+        phi = _objective(f, m, w, c, fisher, K, kv, ecoef, kf)
     else:  # the caller's point, with J there
         _density(fstar, m, h, f)
-        kf[:] = np.dot(K, f)
+        _matvec(K, kv, f, kf)
     g = np.empty(e)
     diag = np.empty(e)
     off1 = np.zeros(max(e - 1, 0))
@@ -374,7 +405,7 @@ def _iterate(
             for k in range(e):
                 m[k] = m[k] + alpha * p[k]
             _density(fstar, m, h, f)
-            phi = _objective(f, m, w, c, fisher, K, ecoef, kf)
+            phi = _objective(f, m, w, c, fisher, K, kv, ecoef, kf)
         else:
             for _ in range(60):
                 for k in range(e):
@@ -386,7 +417,7 @@ def _iterate(
                         inside = False
                         break
                 if inside:
-                    phit = _objective(ft, trial, w, c, fisher, K, ecoef, kft)
+                    phit = _objective(ft, trial, w, c, fisher, K, kv, ecoef, kft)
                     if phit <= phi + 1e-4 * alpha * slope:
                         accepted = True
                         m[:] = trial
@@ -402,7 +433,247 @@ def _iterate(
         flat = flat + 1 if (alpha < jam_step and dec > 1e-12) else 0
         if flat >= jam:
             break
-    return m, f, phi, iterations, code, gfw, gff, gfe, gm
+    kkt = np.nan
+    if code == HANDLED:  # the point's KKT residual, from the gradient's split evaluated there
+        stat, feas, pos, _ = _kkt(f, m, fstar, h, v, a, gfw, gff, gfe, gm, conserve)
+        kkt = max(stat, max(feas, pos))
+    return m, f, phi, iterations, code, kkt
+
+
+@_jit
+def _tridiagonal_spd(diag, off, rhs, out):  # pragma: no cover - compiled
+    """``T x = rhs``, T symmetric tridiagonal (``diag``, ``off``): LDL' as LAPACK's ``dptsv``, Thomas' algorithm
+    without pivoting where a pivot is not positive (as ``_linalg.solve_sym_tridiagonal``)."""
+    n = diag.size
+    d = np.empty(n)
+    lo = np.empty(max(n - 1, 0))
+    spd = True
+    d[0] = diag[0]
+    for i in range(n - 1):
+        if not d[i] > 0:
+            spd = False
+            break
+        lo[i] = off[i] / d[i]
+        d[i + 1] = diag[i + 1] - lo[i] * off[i]
+    if spd and not d[n - 1] > 0:
+        spd = False
+    if spd:
+        out[0] = rhs[0]
+        for i in range(1, n):
+            out[i] = rhs[i] - lo[i - 1] * out[i - 1]
+        out[n - 1] = out[n - 1] / d[n - 1]
+        for i in range(n - 2, -1, -1):
+            out[i] = out[i] / d[i] - lo[i] * out[i + 1]
+        return
+    c = np.empty(n)  # Thomas
+    piv = diag[0]
+    out[0] = rhs[0] / piv
+    for i in range(1, n):
+        c[i - 1] = off[i - 1] / piv
+        piv = diag[i] - off[i - 1] * c[i - 1]
+        out[i] = (rhs[i] - off[i - 1] * out[i - 1]) / piv
+    for i in range(n - 2, -1, -1):
+        out[i] -= c[i] * out[i + 1]
+
+
+@_jit
+def _kkt(f, m, fstar, h, v, dv, gfw, gff, gfe, gm, conserve):  # pragma: no cover - compiled
+    """:meth:`CollisionProblem.kkt_residual <jko_cvx.collision.problem.CollisionProblem.kkt_residual>` of one
+    slice, term by term: ``(stationarity, feasibility, positivity)`` and the multiplier (see :func:`kkt_residual`)."""
+    n = f.size
+    e = n - 1
+    fmax = 0.0
+    for j in range(n):
+        fmax = max(fmax, max(f[j], 0.0))
+    if not fmax > 0:
+        fmax = 1.0
+    w = np.empty(n)
+    a = np.empty(n)
+    for j in range(n):
+        w[j] = max(f[j], 0.0) / fmax
+        a[j] = (gfw[j] + gff[j] + gfe[j]) / h[j] if w[j] > 0 else 0.0
+    om = np.empty(e)
+    gmw = np.empty(e)
+    o2 = np.empty(e)
+    off = np.empty(e)
+    for k in range(e):
+        om[k] = (max(f[k], 0.0) + max(f[k + 1], 0.0)) / (2 * fmax)
+        gmw[k] = gm[k] if om[k] > 0 else 0.0
+        o2[k] = om[k] * om[k]
+        off[k] = -o2[k]
+    diag = np.empty(n)
+    for j in range(n):
+        diag[j] = w[j] * w[j] + (o2[j] if j < e else 0.0) + (o2[j - 1] if j > 0 else 0.0)
+    eps = 0.0
+    for j in range(n):
+        eps = max(eps, diag[j])
+    eps = 1e-30 * eps
+    rhs = np.empty(n)
+    for j in range(n):
+        diag[j] += eps
+        div = (o2[j] * gmw[j] if j < e else 0.0) - (o2[j - 1] * gmw[j - 1] if j > 0 else 0.0)
+        rhs[j] = -(w[j] * w[j]) * a[j] - div - eps * a[j]
+    phi = np.empty(n)
+    _tridiagonal_spd(diag, off, rhs, phi)
+    rf = np.empty(n)
+    rm = np.empty(e)
+    for j in range(n):
+        rf[j] = a[j] + phi[j]
+    for k in range(e):
+        rm[k] = gmw[k] + (phi[k] - phi[k + 1])
+    if conserve:
+        z = np.empty(n)
+        for j in range(n):
+            rhs[j] = (o2[j] * dv[j] if j < e else 0.0) - (o2[j - 1] * dv[j - 1] if j > 0 else 0.0)
+        _tridiagonal_spd(diag, off, rhs, z)
+        den = 0.0
+        num = 0.0
+        for j in range(n):
+            den += w[j] * w[j] * z[j] * z[j]
+            num -= w[j] * w[j] * rf[j] * z[j]
+        for k in range(e):
+            zm = dv[k] - (z[k] - z[k + 1])
+            den += o2[k] * zm * zm
+            num += o2[k] * rm[k] * zm
+        u = -num / den if den > 0 else 0.0
+        for j in range(n):
+            phi[j] -= u * z[j]
+            rf[j] -= u * z[j]
+        for k in range(e):
+            rm[k] += u * (dv[k] - (z[k] - z[k + 1]))
+    stat = 0.0
+    scale = 0.0
+    for j in range(n):
+        stat = max(stat, w[j] * abs(rf[j]))
+        if w[j] > 0:
+            scale = max(scale, w[j] * ((abs(gfw[j]) + abs(gff[j]) + abs(gfe[j])) / h[j]))
+    for k in range(e):
+        stat = max(stat, om[k] * abs(rm[k]))
+        scale = max(scale, om[k] * abs(gmw[k]))
+    if not scale > 0:
+        scale = 2.2250738585072014e-308
+    stationarity = stat / scale
+    if not math.isfinite(stationarity):
+        stationarity = np.inf
+    res = 0.0
+    mass = 0.0
+    fmin = np.inf
+    for j in range(n):
+        div = (m[j] if j < e else 0.0) - (m[j - 1] if j > 0 else 0.0)
+        res += abs(h[j] * (f[j] - fstar[j]) + div)
+        mass += fstar[j] * h[j]
+        fmin = min(fmin, f[j])
+    feasibility = res / mass
+    if conserve:
+        num = 0.0
+        den = 0.0
+        for j in range(n):
+            num += (f[j] - fstar[j]) * (v[j] * h[j])
+            den += fstar[j] * (abs(v[j]) * h[j])
+        feasibility = max(feasibility, abs(num) / max(den, 2.2250738585072014e-308))
+    positivity = max(0.0, -fmin) / fmax
+    return stationarity, feasibility, positivity, phi
+
+
+def kkt_residual(
+    f: NDArray, m: NDArray, f_star: NDArray, h: NDArray, v: NDArray, dv: NDArray, parts: tuple, conserve: bool
+) -> tuple[float, float, float, NDArray]:
+    """The shared KKT residual of one slice at a finite point, as compiled code.
+
+    The same expressions as :meth:`~jko_cvx.collision.problem.CollisionProblem.kkt_residual` (the
+    weighted least-squares multiplier, the momentum multiplier, the scaled stationarity, feasibility and
+    positivity), in loops: equal to rounding (sums and the tridiagonal solves run in another order; the
+    tests compare the two on random points of every Fisher form).  ``parts``: the gradient's split
+    ``(Wasserstein in f, Fisher in f, energy in f, Wasserstein in m)`` at the point, as :func:`iterate`
+    returns it.  Returns ``(stationarity, feasibility, positivity, multiplier)``.
+    """
+    s, fe, po, phi = _kkt(
+        _read_only(f), _read_only(m), _read_only(f_star), _read_only(h), _read_only(v), _read_only(dv),
+        *(_read_only(x) for x in parts), bool(conserve),
+    )  # fmt: skip
+    return float(s), float(fe), float(po), phi
+
+
+@_jit
+def _iterate_rows(
+    fstar, m, phi, start, rows, h, v, w, c, fisher, K, kv, ecoef, ediag, a, conserve, tol, max_iter, pd_tol, jam,
+    jam_step, checks,
+):  # pragma: no cover - compiled
+    """:func:`_iterate` on each row ``b`` with ``rows[b]``, from ``m[b]`` (J there ``phi[b]``; ``start`` as in
+    :func:`_iterate`), continued from its point up to ``checks`` times while the KKT residual is above ``tol``."""
+    B, n = fstar.shape
+    f = np.zeros((B, n))
+    m_out = m.copy()
+    phi_out = phi.copy()
+    its = np.zeros(B, dtype=np.int64)
+    code = np.full(B, _NOT_HANDLED, dtype=np.int64)
+    kkt = np.full(B, np.nan)
+    for b in range(B):
+        if not rows[b]:
+            continue
+        mb = m[b].copy()
+        ph = phi[b]
+        st = start
+        total = 0
+        for _ in range(checks):
+            mb, fb, ph, it, cd, kk = _iterate(
+                fstar[b], mb, ph, st, h, v, w, c, fisher, K, kv, ecoef, ediag, a, conserve, tol, max_iter - total,
+                pd_tol, jam, jam_step,
+            )
+            total += it
+            st = 0  # continued from the point reached
+            code[b], kkt[b] = cd, kk
+            f[b] = fb
+            if cd != HANDLED or kk <= tol:
+                break
+        m_out[b] = mb
+        phi_out[b] = ph
+        its[b] = total
+    return m_out, f, phi_out, its, code, kkt
+
+
+def iterate_rows(
+    f_star: NDArray,
+    m: NDArray,
+    phi: NDArray,
+    start: int,
+    rows: NDArray,
+    h: NDArray,
+    wass_coef: NDArray,
+    fisher_coef: NDArray | None,
+    fisher: str | None,
+    K: NDArray,
+    energy_coef: float,
+    energy_diag: NDArray,
+    momentum_normal: NDArray | None,
+    tol: float,
+    max_iter: int,
+    pd_tol: float,
+    jam: int,
+    jam_step: float,
+    points: NDArray,
+    abs_kernel: bool,
+    checks: int,
+) -> tuple[NDArray, NDArray, NDArray, NDArray, NDArray, NDArray]:
+    """:func:`iterate` on the rows ``rows`` of a batch ``f_star`` of shape ``(B, N)``, in one compiled loop.
+
+    ``m`` (``(B, N - 1)``), ``phi`` (``(B,)``): each row's start and J there (``start = 0``), or ignored with
+    ``start`` 1 (the explicit step) or 2 (zero).  A row whose residual is still above ``tol`` where its
+    decrement reached ``tol`` is continued from its point, up to ``checks`` times (the stall test of the NumPy
+    iteration is its own).  Returns ``(m, f, phi, iterations, code, kkt)`` per row; a row is the caller's
+    where ``code == HANDLED`` and ``kkt <= tol``.
+    """
+    e = f_star.shape[1] - 1
+    c = np.zeros(e) if fisher_coef is None else fisher_coef
+    a = np.zeros(e) if momentum_normal is None else momentum_normal
+    K, kv = (h[None, :], points) if abs_kernel else (K, _NO_POINTS)
+    return _iterate_rows(
+        _read_only(f_star), np.array(m, dtype=float), np.array(phi, dtype=float), int(start),
+        np.ascontiguousarray(rows, dtype=np.bool_), _read_only(h), _read_only(points), _read_only(wass_coef),
+        _read_only(c), _FISHER_CODES[fisher], _read_only(K), _read_only(kv), float(energy_coef),
+        _read_only(energy_diag), _read_only(a), momentum_normal is not None, float(tol), int(max_iter), float(pd_tol),
+        int(jam), float(jam_step), int(checks),
+    )  # fmt: skip
 
 
 def iterate(
@@ -423,28 +694,34 @@ def iterate(
     pd_tol: float,
     jam: int,
     jam_step: float,
-) -> tuple[NDArray, NDArray, float, int, int, tuple[NDArray, NDArray, NDArray, NDArray]]:
+    points: NDArray,
+    abs_kernel: bool = False,
+) -> tuple[NDArray, NDArray, float, int, int, float]:
     """Newton iterations on one slice from ``m`` (where J is ``phi``), or, with ``m=None``, from the explicit
     step (``explicit``) or from 0.
 
-    Returns ``(m, f, phi, iterations, code, parts)``: ``code == HANDLED`` where the decrement reached
-    ``tol`` at a point whose reduced Hessian is positive definite (the caller then judges its KKT
-    residual), anything else where the NumPy iteration must take over; ``parts`` is the gradient's split
-    at the returned point, ``(Wasserstein in f, Fisher in f, energy in f, Wasserstein in m)``.
+    Returns ``(m, f, phi, iterations, code, kkt)``: ``code == HANDLED`` where the decrement reached
+    ``tol`` at a point whose reduced Hessian is positive definite, anything else where the NumPy
+    iteration must take over; ``kkt`` is the point's KKT residual (:func:`kkt_residual`, from the
+    gradient's split evaluated there; NaN where not handled), which the caller compares with ``tol``.
     ``energy_diag`` is the energy's diagonal flux block times ``2 dt sigma``; ``momentum_normal`` the
     constraint normal ``dv`` (or None); ``jam`` short steps (``alpha < jam_step``) in a row end the attempt.
+    ``points``: the grid points.  ``abs_kernel``: W = |v| (``K_il = |v_i - v_l| h_i h_l``), whose products
+    ``K f`` are then two running sums, O(N) (``K`` is not read); otherwise the dense ``K``.
     """
     e = f_star.size - 1
+    K, kv = (h[None, :], points) if abs_kernel else (K, _NO_POINTS)
     c = np.zeros(e) if fisher_coef is None else fisher_coef
     a = np.zeros(e) if momentum_normal is None else momentum_normal
     start = 0 if m is not None else (1 if explicit else 2)
     m = np.zeros(e) if m is None else np.array(m, dtype=float)  # a copy: the iteration writes it
-    m, f, phi, its, code, gfw, gff, gfe, gm = _iterate(
-        _read_only(f_star), m, float(phi), start, _read_only(h), _read_only(wass_coef), _read_only(c),
-        _FISHER_CODES[fisher], _read_only(K), float(energy_coef), _read_only(energy_diag), _read_only(a),
-        momentum_normal is not None, float(tol), int(max_iter), float(pd_tol), int(jam), float(jam_step),
+    m, f, phi, its, code, kkt = _iterate(
+        _read_only(f_star), m, float(phi), start, _read_only(h), _read_only(points), _read_only(wass_coef),
+        _read_only(c),
+        _FISHER_CODES[fisher], _read_only(K), _read_only(kv), float(energy_coef), _read_only(energy_diag),
+        _read_only(a), momentum_normal is not None, float(tol), int(max_iter), float(pd_tol), int(jam), float(jam_step),
     )  # fmt: skip
-    return m, f, float(phi), int(its), int(code), (gfw, gff, gfe, gm)
+    return m, f, float(phi), int(its), int(code), float(kkt)
 
 
 def _read_only(x: NDArray) -> NDArray:
@@ -453,6 +730,8 @@ def _read_only(x: NDArray) -> NDArray:
     numba compiles (and caches) once per argument type, and a read-only array is another type than a
     writeable one; the problem's arrays come both ways (the energy matrix is read-only).
     """
+    if type(x) is np.ndarray and x.dtype == np.float64 and x.flags.c_contiguous and not x.flags.writeable:
+        return x  # already one (the grid's arrays, the energy matrix): no view to make
     v = np.ascontiguousarray(x, dtype=float).view()
     v.flags.writeable = False
     return v

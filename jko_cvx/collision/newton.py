@@ -40,9 +40,10 @@ iterating), and the phases as functions -- :func:`_start`, :func:`_residual_test
 :func:`_direction` (with the modified-Newton shifts), :func:`_step` (interior damping,
 :func:`_line_search`, jam bookkeeping), :func:`_finalise` -- driven by :func:`_iterate`;
 the retry cascade (:func:`_cascade`) is written once, per slice.  With ``compiled=True`` the first
-attempt of an unbatched step with a diagonal energy block (gamma = 1) runs as compiled code
-(:mod:`jko_cvx.collision._compiled`, :func:`_compiled_single`), judged by the same residual and
-certificate, and hands back to the cascade whatever it does not finish cleanly.
+attempt of each slice with a diagonal energy block (gamma = 1) runs as compiled code
+(:mod:`jko_cvx.collision._compiled`; :func:`_compiled_single`, :func:`_compiled_batch`), judged by the
+same residual (compiled) and certificate, and hands back to the cascade whatever it does not finish
+cleanly.
 
 Statuses: ``CONVERGED`` (KKT residual within ``kkt_tol`` and the reduced Hessian positive
 definite), ``NOT_CERTIFIED`` (stopped, at ``tol`` or at the residual's rounding floor, above
@@ -87,7 +88,7 @@ from jko_cvx.collision.terms import (
     wasserstein_derivatives,
     wasserstein_value,
 )
-from jko_cvx.kernels import FluxBlock
+from jko_cvx.kernels import FluxBlock, PowerKernel
 from jko_cvx.threads import blas_limited
 
 __all__ = ["NewtonOptions", "NewtonState", "solve_newton"]
@@ -813,7 +814,8 @@ def _finalise(
             kkt[redo] = Pr.kkt_residual(f_out[redo], m_out[redo]).total
         # J at the last iterate, as the line search evaluated it: problem.objective's value bit
         # for bit where every f_j > 0 (no guards apply), when computed on the same batch
-        # shape (one problem; a batch's slices were evaluated in sub-batches as they retired).
+        # shape (one problem; a batch's slices were evaluated in sub-batches as they retired);
+        # the compiled iteration's to rounding (the same sums in loops).
         known = out["phi"] if out["phi"] is not None and f_out.shape[0] == 1 and positive.all() else None
         cert = certify_validated(
             P,
@@ -942,56 +944,120 @@ def _cascade(P: CollisionProblem, m0: NDArray | None, opts: NewtonOptions) -> Co
     return res
 
 
-def _compiled_single(P: CollisionProblem, m0: NDArray | None, opts: NewtonOptions, t0: float) -> CollisionResult | None:
-    """The first attempt of :func:`_cascade` on a batch of one, as compiled code, where it applies.
+def _compiled_single(P: CollisionProblem, opts: NewtonOptions, t0: float) -> CollisionResult | None:
+    """The first attempt of :func:`_cascade` on the unbatched problem ``P``, as compiled code, where it applies.
 
     :mod:`jko_cvx.collision._compiled` runs the undamped iteration from the same start (that of
     :func:`_start`) for an energy block diagonal in the fluxes (gamma = 1).  Its point is judged here as
-    the NumPy iteration's would be -- the shared KKT residual within ``tol``, the reduced Hessian positive
-    definite there -- and certified by :func:`_finalise`.  Anything else, a point the certificate does not
-    accept as ``CONVERGED`` included, returns None: the caller then runs :func:`_cascade` from the start,
-    so a hard step gets every device of the NumPy iteration (and its result bit for bit).
+    the NumPy iteration's would be -- the KKT residual (the shared one's expressions, compiled) within
+    ``tol``, the reduced Hessian positive definite there -- and certified by the shared certificate.
+    Anything else, a point the certificate does not accept as ``CONVERGED`` included, returns None: the
+    caller then runs :func:`_cascade` from the start, so a hard step gets every device of the NumPy
+    iteration (and its result bit for bit).
     """
     fb = P.energy.flux_structure()
-    if fb.kind != "diagonal" or not (P.f_star > 0).all():
+    if fb.kind != "diagonal" or not P.f_star.min() > 0:
         return None
-    m, phi, warm = None, np.nan, np.zeros(1, dtype=bool)
-    if m0 is not None:  # a warm start: where it is used, and J there, as the NumPy iteration decides
-        st, warm = _start(P, m0, opts)
-        m, phi = st.m[0], st.phi[0]
-    from jko_cvx.collision._compiled import HANDLED, iterate  # numba: imported at the first solve that uses it
+    m, phi, warm = None, np.nan, False
+    if opts.m0 is not None:  # a warm start: where it is used, and J there, as the NumPy iteration decides
+        st, used = _start(P.rows(slice(None)), opts.m0[None], opts)
+        m, phi, warm = st.m[0], st.phi[0], bool(used[0])
+    from jko_cvx.collision._compiled import HANDLED, iterate  # numba: at the first solve using it
 
     iterations, explicit = 0, opts.start == "explicit"
+    g = P.grid
     energy = (P.energy.dense(), P.energy_coef, 2 * P.energy_coef * fb.diag)
-    normal = P.grid.dv if P.conserve_momentum else None
+    normal = g.dv if P.conserve_momentum else None
+    # W = |v| (gamma = 1): the products K f by running sums, O(N) (the dense K's to rounding)
+    abs_kernel = type(P.kernel) is PowerKernel and P.kernel.gamma == 1.0
     with np.errstate(all="ignore"):
         # As in _iterate: the residual is checked where the decrement reached tol; where it is still above
         # tol the iteration goes on from there, up to _STALL_CHECKS checks (a stall is the NumPy path's case).
         for _ in range(_STALL_CHECKS):
-            m, f, phi, its, code, (gfw, gff, gfe, gm) = iterate(
-                P.f_star[0], m, phi, P.grid.h, P.wass_coef, P.fisher_coef if P.fisher else None, P.fisher,
-                *energy, normal, explicit, opts.tol, opts.max_iter - iterations, _PD_TOL, _JAM, _JAM_STEP,
+            m, f, phi, its, code, kkt = iterate(
+                P.f_star, m, phi, g.h, P.wass_coef, P.fisher_coef if P.fisher else None, P.fisher, *energy,
+                normal, explicit, opts.tol, opts.max_iter - iterations, _PD_TOL, _JAM, _JAM_STEP, g.points, abs_kernel,
             )  # fmt: skip
             iterations += its
             if code != HANDLED:
                 return None
-            zero = np.zeros((1, gm.size))
-            parts = TermParts((gfw[None], gm[None]), (gff[None], zero), (gfe[None], zero))
-            kkt = P.kkt_residual(f[None], m[None], parts).total
-            if kkt[0] <= opts.tol:
+            if kkt <= opts.tol:
                 break
         else:
             return None
-    f, m = f[None], m[None]
-    no = np.zeros(1, dtype=bool)
-    out = {
-        "m": m, "f": f, "phi": None, "status": np.array([Status.CONVERGED], dtype=object),
-        "iterations": np.array([iterations]), "kkt": kkt, "kkt_here": ~no, "second": ~no, "jammed": no,
-    }  # fmt: skip
-    res = _finalise(P, out, warm, opts, t0)
-    if res.status[0] is not Status.CONVERGED:  # the cascade goes on from such a first attempt: solve it all there
+        # J as the compiled iteration evaluated it at the point (problem.objective's to rounding); the
+        # second-order test is the factorisation's at the point (HANDLED: positive definite)
+        cert = certify_validated(
+            P, f, m, opts.kkt_tol, opts.check_convexity, Status.CONVERGED, residual=kkt, second_order=True,
+            objective=phi,
+        )  # fmt: skip
+    if cert.status is not Status.CONVERGED:  # the cascade goes on from such a first attempt: solve it all there
         return None
-    res.info.update(interior_damping=no, barrier=no, lower_minimum=no, compiled=~no)
+    info = {"warm_started": warm, "jammed": False, "interior_damping": False, "barrier": False,
+            "lower_minimum": False, "compiled": True}  # fmt: skip
+    return CollisionResult.from_certificate(P, f, m, cert, "newton", iterations, time.perf_counter() - t0, info)
+
+
+def _compiled_batch(P: CollisionProblem, opts: NewtonOptions, t0: float) -> CollisionResult | None:
+    """:func:`_compiled_single` for each slice of the batch ``P``, in one compiled loop; the rest by the cascade.
+
+    The slices whose compiled attempt returns a point that the shared certificate accepts as ``CONVERGED``
+    take it; every other slice (data with a zero, a slice the compiled attempt hands back, a point the
+    certificate does not accept) is solved by :func:`_cascade` from the start, in one batch of those slices.
+    None where no slice takes the compiled point (the caller then runs the cascade on the whole batch).
+    """
+    fb = P.energy.flux_structure()
+    if fb.kind != "diagonal":
+        return None
+    B, n = P.f_star.shape
+    eligible = P.f_star.min(axis=1) > 0
+    if not eligible.any():
+        return None
+    from jko_cvx.collision._compiled import HANDLED, iterate_rows  # numba: at the first solve using it
+
+    m0 = None if opts.m0 is None else np.broadcast_to(opts.m0, (B, n - 1))
+    warm = np.zeros(B, dtype=bool)
+    if m0 is not None:  # a warm start: where it is used, and J there, as the NumPy iteration decides
+        st, warm = _start(P, m0, opts)
+        m, phi, start = st.m, st.phi, 0
+    else:
+        m, phi, start = np.zeros((B, n - 1)), np.full(B, np.nan), 1 if opts.start == "explicit" else 2
+    g = P.grid
+    with np.errstate(all="ignore"):
+        m, f, phi, its, code, kkt = iterate_rows(
+            P.f_star, m, phi, start, eligible, g.h, P.wass_coef, P.fisher_coef if P.fisher else None, P.fisher,
+            P.energy.dense(), P.energy_coef, 2 * P.energy_coef * fb.diag, g.dv if P.conserve_momentum else None,
+            opts.tol, opts.max_iter, _PD_TOL, _JAM, _JAM_STEP, g.points,
+            type(P.kernel) is PowerKernel and P.kernel.gamma == 1.0, _STALL_CHECKS,
+        )  # fmt: skip
+        done = eligible & (code == HANDLED) & (kkt <= opts.tol)
+        if done.any():
+            k = int(done.sum())
+            cert = certify_validated(
+                P.rows(done), f[done], m[done], opts.kkt_tol, opts.check_convexity,
+                np.full(k, Status.CONVERGED, dtype=object), residual=kkt[done], second_order=np.ones(k, dtype=bool),
+                objective=phi[done],
+            )  # fmt: skip
+            done[done] = np.array([s is Status.CONVERGED for s in cert.status], dtype=bool)
+    if not done.any():
+        return None
+    status = np.full(B, Status.CONVERGED, dtype=object)
+    iterations = np.where(done, its, 0)
+    mass_error = np.zeros(B)
+    mass_error[done] = P.rows(done).mass_error(f[done])
+    info = {name: np.zeros(B, dtype=bool) for name in
+            ("warm_started", "jammed", "interior_damping", "barrier", "lower_minimum", "compiled")}  # fmt: skip
+    info["warm_started"][done] = warm[done]
+    info["compiled"][:] = done
+    res = CollisionResult(f, m, status, "newton", iterations, phi, kkt, mass_error, 0.0, info)
+    rest = ~done
+    if rest.any():  # the cascade on those slices, from the start
+        again = _cascade(P.rows(rest), _m0_rows(m0, rest), opts)
+        for name in ("f", "m", "status", "iterations", "objective", "kkt_residual", "mass_error"):
+            getattr(res, name)[rest] = getattr(again, name)
+        for name in ("warm_started", "jammed", "interior_damping", "barrier", "lower_minimum"):
+            info[name][rest] = again.info[name]
+    res.seconds = time.perf_counter() - t0
     return res
 
 
@@ -1069,15 +1135,16 @@ def solve_newton(
         two can be different local minimisers; see :func:`_cascade`).  False returns the first
         certified point (cheaper, and the higher minimiser where there are two).
     compiled : bool, default False
-        Run the first attempt of an unbatched problem whose energy block is diagonal in the fluxes
-        (gamma = 1) as compiled code (:mod:`jko_cvx.collision._compiled`; needs numba, the ``fast``
-        extra): the same iteration from the same start, its point judged by the same KKT residual and
-        certificate, equal to the NumPy iteration's to rounding, at a fraction of its time per solve.
-        A step it does not finish cleanly (a Hessian that needs a shift, a run of short steps, the
-        iteration limit) is solved by the NumPy iteration from the start.  Batched problems, and other
-        kernels, always take the NumPy iteration.  The first use on a machine compiles (cached on
+        Run the first attempt of each slice whose energy block is diagonal in the fluxes (gamma = 1)
+        as compiled code (:mod:`jko_cvx.collision._compiled`; needs numba, the ``fast`` extra; a batch
+        in one compiled loop over its slices): the same iteration from the same start, its point judged
+        by the same KKT residual (its expressions compiled) and the same certificate, equal to the NumPy
+        iteration's to rounding, at a fraction of its time per solve.  A slice it does not finish
+        cleanly (a Hessian that needs a shift, a run of short steps, the iteration limit, data with a
+        zero) is solved by the NumPy iteration from the start, with the other such slices of the batch.
+        Other kernels always take the NumPy iteration.  The first use on a machine compiles (cached on
         disk), and each process pays to import numba and load the cached code: worth it for many
-        single solves, not for one short run (the solver guide measures both).
+        solves, not for one short run (the solver guide measures both).
 
     Returns
     -------
@@ -1094,13 +1161,15 @@ def solve_newton(
     """
     opts = _check_newton_args(problem, tol, kkt_tol, max_iter, m0, start, check_convexity, second_start, compiled)
     t0 = time.perf_counter()
+    if opts.compiled:
+        res = _compiled_batch(problem, opts, t0) if problem.batched else _compiled_single(problem, opts, t0)
+        if res is not None:
+            return res
     batch = problem if problem.batched else problem.rows(slice(None))
     m0 = opts.m0
     m0 = None if m0 is None else np.broadcast_to(m0, batch.f_star.shape[:1] + m0.shape[-1:])
-    res = _compiled_single(batch, m0, opts, t0) if opts.compiled and not problem.batched else None
-    if res is None:
-        res = _cascade(batch, m0, opts)
-        res.info["compiled"] = np.zeros(batch.batch_size, dtype=bool)
+    res = _cascade(batch, m0, opts)
+    res.info["compiled"] = np.zeros(batch.batch_size, dtype=bool)
     res.seconds = time.perf_counter() - t0
     return res if problem.batched else _single(res)
 

@@ -262,6 +262,8 @@ class CollisionProblem:
             self.wass_coef = 2.0 * grid.dv
             self.fisher_coef = self.c_fisher / grid.dv
             self.energy_coef = float(np.float64(self.dt) * self.strength)
+        self.wass_coef.flags.writeable = False  # constants of the problem, as f_star
+        self.fisher_coef.flags.writeable = False
         if not np.all(np.isfinite(self.fisher_coef)):
             raise ValueError(
                 f"beta = {beta!r} and dt = {dt!r} give the Fisher weight (dt/beta)^2 / dv = inf: "

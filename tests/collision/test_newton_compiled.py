@@ -113,13 +113,67 @@ def test_other_kernels_take_the_numpy_iteration(gamma):
     _bitwise(a, b)
 
 
-def test_a_batch_takes_the_numpy_iteration():
+def _batches():
+    """gamma = 1 batches on one grid each: bumps moving across the grid, one row with an empty cell (never
+    compiled), every Fisher form, with and without the momentum constraint, small to large steps."""
+    rng = np.random.default_rng(3)
+    for fisher, conserve, dt in itertools.product((None, "perspective", "log"), (False, True), (1e-3, 0.03, 0.3, 3.0)):
+        n = int(rng.integers(31, 90))
+        grid = Grid.uniform(-2.0, 2.0, n) if rng.uniform() < 0.5 else Grid(
+            np.cumsum(np.r_[-2.0, rng.uniform(0.2, 2.0, n - 1) * 4 / n]))  # fmt: skip
+        v = grid.points - grid.points.mean()
+        rows = [np.exp(-4 * (v - c) ** 2) + 0.5 * np.exp(-8 * (v + c) ** 2) + 1e-3 for c in (-0.6, 0.0, 0.3, 0.9)]
+        if fisher != "log":
+            rows.append(rows[1].copy())
+            rows[-1][n // 4] = 0.0
+        yield CollisionProblem(grid, PowerKernel(1.0), np.stack(rows), dt, beta=30.0, fisher=fisher,
+                               conserve_momentum=conserve)  # fmt: skip
+
+
+def test_a_batch_is_its_slices_compiled_one_by_one_and_the_cascade_solves_the_rest():
+    """Each slice the batch's compiled loop returns is the compiled single solve's bit for bit (and the NumPy
+    iteration's to rounding); the others are the cascade's on the batch of those slices."""
+    handled = handed_back = 0
+    for P in _batches():
+        a, numpy_batch = solve_newton(P, compiled=True), solve_newton(P)
+        assert not numpy_batch.info["compiled"].any()
+        mine = a.info["compiled"]
+        for i in np.flatnonzero(mine):
+            single = solve_newton(P.slice(int(i)), compiled=True)
+            assert single.info["compiled"] is True
+            assert np.array_equal(a.f[i], single.f) and np.array_equal(a.m[i], single.m)
+            assert a.status[i] == single.status and a.iterations[i] == single.iterations
+            assert a.kkt_residual[i] == single.kkt_residual and a.objective[i] == single.objective
+            assert a.info["warm_started"][i] == single.info["warm_started"]
+            assert abs(a.mass_error[i] - single.mass_error) <= 1e-15
+            _agree(single, solve_newton(P.slice(int(i))))
+        rest = ~mine
+        if rest.any():
+            cascade = solve_newton(P.rows(rest))
+            for name in ("f", "m", "iterations", "kkt_residual", "objective"):
+                assert np.array_equal(getattr(a, name)[rest], getattr(cascade, name), equal_nan=name != "iterations")
+            assert list(a.status[rest]) == list(cascade.status)
+            for name in ("warm_started", "jammed", "interior_damping", "barrier", "lower_minimum"):
+                assert np.array_equal(a.info[name][rest], cascade.info[name])
+        handled += int(mine.sum())
+        handed_back += int(rest.sum())
+        if P.fisher != "log":
+            assert not mine[-1]  # the row with an empty cell
+    assert handled >= 40 and handed_back >= 12  # both branches exercised
+
+
+def test_a_warm_started_batch_takes_the_start_the_numpy_iteration_takes():
     grid = Grid.uniform(-2.0, 2.0, 61)
     F = np.stack([np.exp(-2 * grid.points**2), np.exp(-3 * (grid.points - 0.2) ** 2)])
     P = CollisionProblem(grid, PowerKernel(1.0), F, 0.01, beta=10.0)
-    a, b = solve_newton(P, compiled=True), solve_newton(P)
-    assert not a.info["compiled"].any()
-    assert np.array_equal(a.f, b.f) and np.array_equal(a.iterations, b.iterations)
+    first = solve_newton(P)
+    m0 = np.stack([0.9 * first.m[0], 1e3 * np.ones(60)])  # used, refused (f < 0)
+    a, b = solve_newton(P, compiled=True, m0=m0), solve_newton(P, m0=m0)
+    assert a.info["compiled"].all() and list(a.info["warm_started"]) == list(b.info["warm_started"]) == [True, False]
+    for i in range(2):  # the refused start's explicit step is the batch's (NumPy, batched): to rounding
+        b_i = solve_newton(P.slice(i), m0=m0[i])
+        assert a.status[i] == b_i.status and np.abs(a.f[i] - b_i.f).max() <= 1e-12 * b_i.f.max()
+        assert abs(a.objective[i] - b_i.objective) <= 1e-12 * abs(b_i.objective) and a.kkt_residual[i] <= 1e-10
 
 
 def test_data_with_a_zero_is_refused_as_by_the_numpy_iteration():
@@ -175,3 +229,66 @@ def test_without_numba_compiled_true_is_refused_before_any_work(monkeypatch):
     with pytest.raises(ImportError, match=r"jko_cvx\[fast\]"):
         NewtonOptions(compiled=True)
     NewtonOptions(compiled=False)  # the default needs nothing
+
+
+def _compiled_kkt(P: CollisionProblem, f, m):
+    from jko_cvx.collision._compiled import kkt_residual
+
+    parts = P.gradient_parts(f, m)
+    split = (parts.wasserstein[0], parts.fisher[0], parts.energy[0], parts.wasserstein[1])
+    g = P.grid
+    return kkt_residual(f, m, P.f_star, g.h, g.points, g.dv, split, P.conserve_momentum)
+
+
+def test_the_compiled_kkt_residual_is_the_shared_one_to_rounding():
+    """At the solver's points, near them and far from them, positive and with empty cells, every Fisher form."""
+    rng = np.random.default_rng(11)
+    compared = 0
+    for P in _family():
+        res = solve_newton(P)
+        n = P.grid.n
+        points = [(res.f, res.m)]
+        for size in (1e-9, 1e-4, 1e-1):
+            m = res.m + size * np.abs(res.m).max() * rng.standard_normal(n - 1)
+            points.append((P.density_from_flux(m), m))
+        if P.fisher is None:  # an emptied cell and a negative one: the weights w, omega vanish there
+            f = res.f.copy()
+            f[n // 3], f[n // 2] = 0.0, -1e-3 * f.max()
+            points.append((f, P.flux_from_density(f)))
+        for f, m in points:
+            with np.errstate(all="ignore"):
+                shared = P.kkt_residual(f, m)
+            s, fe, po, phi = _compiled_kkt(P, f, m)
+            for mine, theirs in ((s, shared.stationarity), (fe, shared.feasibility), (po, shared.positivity)):
+                assert abs(mine - theirs) <= 1e-9 * abs(theirs) + 1e-15, (P.fisher, P.conserve_momentum, mine, theirs)
+            theirs = shared.multiplier
+            assert np.array_equal(np.isnan(phi), np.isnan(theirs))  # NaN where a flux meets an emptied cell
+            ok = ~np.isnan(theirs)
+            size = max(np.abs(theirs[ok]).max(initial=0), 1e-300)
+            assert np.abs(phi[ok] - theirs[ok]).max(initial=0.0) <= 1e-8 * size
+            compared += 1
+    assert compared >= 24 * 4
+
+
+def test_a_step_the_compiled_path_returns_reports_the_shared_residual_of_its_point():
+    for P in _family():
+        res = solve_newton(P, compiled=True)
+        if res.info["compiled"]:
+            # the residual at its rounding floor (~1e-16) is noise in either form: an absolute 1e-14 above that
+            assert abs(res.kkt_residual - P.kkt_residual(res.f, res.m).total) <= 1e-9 * res.kkt_residual + 1e-14
+            assert abs(res.objective - P.objective(res.f, res.m)) <= 1e-13 * abs(res.objective)
+
+
+def test_the_compiled_products_with_the_abs_kernel_are_the_dense_ones_to_rounding():
+    from jko_cvx.collision._compiled import _matvec
+
+    rng = np.random.default_rng(5)
+    for n in (3, 4, 41, 300):
+        grid = Grid(np.sort(rng.uniform(-3, 2, n)) if n > 4 else np.linspace(-1.0, 1.5, n))
+        P = CollisionProblem(grid, PowerKernel(1.0), rng.uniform(0, 1, n), 0.01)
+        for f in (rng.uniform(0, 1, n), np.r_[np.zeros(n - 1), 1.0], rng.standard_normal(n)):
+            out = np.empty(n)
+            _matvec(grid.h[None, :], grid.points, f, out)
+            dense = P.energy.dense() @ f
+            scale = np.abs(grid.points).max() * (grid.h * np.abs(f)).sum() * grid.h
+            assert np.all(np.abs(out - dense) <= 1e-13 * scale)

@@ -111,3 +111,19 @@ def test_results_do_not_depend_on_the_slice_threads(monkeypatch, gamma, n):
         runs.append(solve_newton(P, tol=1e-10))
     for r in runs[1:]:
         assert np.array_equal(r.f, runs[0].f) and list(r.status) == list(runs[0].status)
+
+
+def test_a_library_at_another_thread_count_is_limited_inside_and_set_back(monkeypatch):
+    from threadpoolctl import threadpool_limits
+
+    monkeypatch.setenv(BLAS_THREADS_ENV, "1")
+    with threadpool_limits(limits=2, user_api="blas"):
+        outside = _blas_counts()
+        with blas_limits():
+            assert _blas_counts() == [1] * len(outside)
+        assert _blas_counts() == outside
+    monkeypatch.setenv(BLAS_THREADS_ENV, "2")
+    with threadpool_limits(limits=1, user_api="blas"):
+        with blas_limits():
+            inside = _blas_counts()
+        assert _blas_counts() == [1] * len(inside)
