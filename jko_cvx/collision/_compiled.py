@@ -1,21 +1,32 @@
-"""The Newton iteration of one collision step as compiled code (numba), for a diagonal energy block.
+"""The Newton iteration of one collision step as compiled code (numba): gamma = 1 and gamma = 3.
 
-:func:`iterate` runs the undamped attempt of :mod:`jko_cvx.collision.newton` on one slice -- the same
-reduced gradient and pentadiagonal reduced Hessian (:mod:`jko_cvx.collision.terms`, written out per
-edge), the same banded Cholesky factorisation of ``diag (1 + pd_tol)``, fraction to the boundary and
-Armijo backtracking on :math:`J`, the same momentum-constrained direction -- for the energy blocks that
-are diagonal in the fluxes (:math:`\\gamma = 1`, :class:`~jko_cvx.kernels.FluxBlock` ``"diagonal"``).
+:func:`iterate` runs the undamped attempt of :mod:`jko_cvx.collision.newton` on one slice, and
+:func:`iterate_rows` on the slices of a batch in one compiled loop -- the same reduced gradient and
+pentadiagonal reduced Hessian (:mod:`jko_cvx.collision.terms`, written out per edge), fraction to the
+boundary and Armijo backtracking on :math:`J`, the same momentum-constrained direction -- with the
+direction of the NumPy iteration's linear algebra:
+
+* an energy block diagonal in the fluxes (:math:`\\gamma = 1`, :class:`~jko_cvx.kernels.FluxBlock`
+  ``"diagonal"``): the banded Cholesky factorisation of ``diag (1 + pd_tol)``, which decides positive
+  definiteness; for W = |v| the products ``K f`` are two running sums (O(N), :func:`_matvec`);
+* :math:`\\gamma = 3`: the exact O(N) solve of
+  :class:`~jko_cvx.collision._structured.Semiseparable3` (:func:`_semiseparable3`: the Cholesky of the
+  pentadiagonal part G as the first test, the interleaved quasi-definite core by Gaussian elimination with
+  partial pivoting in band storage, :func:`_band_lu_solve`, as LAPACK's ``dgbsv``; Woodbury's 2 x 2
+  capacitance for the solve and, by Haynsworth's inertia formula, positive definiteness).
+
 It runs only the plain path: it stops at the first iterate whose Newton decrement reached ``tol`` (where
 the NumPy iteration checks the KKT residual) and hands back everything else -- a Hessian that needs a
-shift, a run of short steps (a possible jam at the vacuum boundary), a failed line search, a non-finite value,
-the iteration limit -- as "not handled", after which the caller runs the NumPy iteration with its
-retry cascade from the start.  The returned point's KKT residual is :func:`kkt_residual`: the expressions
-of the residual every method shares (:meth:`~jko_cvx.collision.problem.CollisionProblem.kkt_residual`) in
-loops, equal to it to rounding (the tests compare the two); the caller certifies the point with the
-certificate every method shares.
+shift, a structured solve the NumPy path would give to the dense Cholesky, a run of short steps (a
+possible jam at the vacuum boundary), a failed line search, a non-finite value, the iteration limit -- as
+"not handled", after which the caller runs the NumPy iteration with its retry cascade from the start.
+The returned point's KKT residual is :func:`kkt_residual`'s: the expressions of the residual every method
+shares (:meth:`~jko_cvx.collision.problem.CollisionProblem.kkt_residual`) in loops, equal to it to rounding
+(the tests compare the two); the caller certifies the point with the certificate every method shares.
 
 The arithmetic follows the NumPy expressions term by term, so the iterates agree with the NumPy
-iteration's to rounding (not bit for bit: sums and the Cholesky run in another order).
+iteration's to rounding (not bit for bit: sums, the factorisations and the products with K run in
+another order).
 """
 
 from __future__ import annotations
@@ -177,6 +188,129 @@ def _solve(l0, l1, l2, rhs, out):  # pragma: no cover - compiled
 
 
 @_jit
+def _band_lu_solve(W, kl, R):  # pragma: no cover - compiled
+    """Solve ``A X = R`` in place for a band matrix with ``kl`` sub- and super-diagonals, by Gaussian elimination
+    with partial pivoting (LAPACK's ``dgbsv``): ``W[i, j - i + kl] = A[i, j]``, ``3 kl + 1`` columns (the upper
+    ``kl`` for the fill that row interchanges bring), overwritten.  False where a pivot is zero or not finite."""
+    n = W.shape[0]
+    nr = R.shape[1]
+    top = 2 * kl  # the upper bandwidth after fill
+    for j in range(n):
+        last = min(j + kl, n - 1)
+        piv = j
+        big = abs(W[j, kl])
+        for r in range(j + 1, last + 1):
+            v = abs(W[r, j - r + kl])
+            if v > big:
+                big, piv = v, r
+        if not (big > 0 and math.isfinite(big)):
+            return False
+        if piv != j:
+            for jj in range(j, min(j + top, n - 1) + 1):
+                t = W[j, jj - j + kl]
+                W[j, jj - j + kl] = W[piv, jj - piv + kl]
+                W[piv, jj - piv + kl] = t
+            for c in range(nr):
+                t = R[j, c]
+                R[j, c] = R[piv, c]
+                R[piv, c] = t
+        inv = 1.0 / W[j, kl]
+        for r in range(j + 1, last + 1):
+            lr = W[r, j - r + kl] * inv
+            if lr != 0.0:
+                for jj in range(j + 1, min(j + top, n - 1) + 1):
+                    W[r, jj - r + kl] -= lr * W[j, jj - j + kl]
+                for c in range(nr):
+                    R[r, c] -= lr * R[j, c]
+    for i in range(n - 1, -1, -1):
+        for c in range(nr):
+            v = R[i, c]
+            for jj in range(i + 1, min(i + top, n - 1) + 1):
+                v -= W[i, jj - i + kl] * R[jj, c]
+            R[i, c] = v / W[i, kl]
+    return True
+
+
+@_jit
+def _semiseparable3(d, off1, off2, pd_tol, scale, lap_diag, lap_off, u0, u1, q00, rhs, k, x, l0, l1, l2, W, R):
+    """``x = H_s^-1 rhs`` (the first ``k`` columns) for gamma = 3 (``_structured.Semiseparable3``, one slice), and
+    whether ``H_s`` is positive definite; False also where the NumPy path would not decide it here (the dense
+    path's cases: G not positive definite, a failed band solve).
+
+    ``d``: the diagonal of H (bands and ``scale`` times the energy block's diagonal); the core
+    ``[[G, diag(dv)], [diag(dv), -L_D / (4 scale)]]`` interleaved, scaled by ``|diagonal|^-1/2``, solved with the
+    columns of ``V = [u0, u1]``; Woodbury's 2 x 2 capacitance ``S = -Q^-1 / (2 scale) + V' H_c^-1 V`` decides
+    positive definiteness (``det S < 0``) and gives ``H_s^-1 rhs``."""
+    e = d.size
+    for i in range(e):
+        if not (d[i] > 0 and math.isfinite(d[i])):
+            return False
+    if not _cholesky(d, off1, off2, pd_tol, l0, l1, l2):  # G: its factor only decides, as in the NumPy path
+        return False
+    kl = 4
+    zc = 1.0 / (4.0 * scale)
+    n2 = 2 * e
+    sc = np.empty(n2)
+    for i in range(e):
+        sc[2 * i] = abs(d[i] + pd_tol * d[i]) ** -0.5
+        sc[2 * i + 1] = abs(-lap_diag[i] * zc) ** -0.5
+    W[:, :] = 0.0
+    R[:, :] = 0.0
+    for i in range(e):
+        X = 2 * i
+        Z = X + 1
+        W[X, kl] = (d[i] + pd_tol * d[i]) * sc[X] * sc[X]
+        W[Z, kl] = (-lap_diag[i] * zc) * sc[Z] * sc[Z]
+        W[X, Z - X + kl] = u0[i] * sc[X] * sc[Z]
+        W[Z, X - Z + kl] = u0[i] * sc[X] * sc[Z]
+        if i < e - 1:
+            W[X, kl + 2] = off1[i] * sc[X] * sc[X + 2]
+            W[X + 2, kl - 2] = off1[i] * sc[X] * sc[X + 2]
+            W[Z, kl + 2] = (-lap_off[i] * zc) * sc[Z] * sc[Z + 2]
+            W[Z + 2, kl - 2] = (-lap_off[i] * zc) * sc[Z] * sc[Z + 2]
+        if i < e - 2:
+            W[X, kl + 4] = off2[i] * sc[X] * sc[X + 4]
+            W[X + 4, kl - 4] = off2[i] * sc[X] * sc[X + 4]
+        for j in range(k):
+            R[X, j] = rhs[i, j] * sc[X]
+        R[X, k] = u0[i] * sc[X]
+        R[X, k + 1] = u1[i] * sc[X]
+    if not _band_lu_solve(W, kl, R):
+        return False
+    s00 = -q00 / (2.0 * scale)
+    s01 = -1.0 / (2.0 * scale)
+    s10 = s01
+    s11 = 0.0
+    for i in range(e):
+        ya = R[2 * i, k] * sc[2 * i]
+        yb = R[2 * i, k + 1] * sc[2 * i]
+        s00 += u0[i] * ya
+        s01 += u0[i] * yb
+        s10 += u1[i] * ya
+        s11 += u1[i] * yb
+    det = s00 * s11 - s01 * s10
+    if not (math.isfinite(det) and det < 0):
+        return False
+    for j in range(k):
+        r0 = 0.0
+        r1 = 0.0
+        for i in range(e):
+            y = R[2 * i, j] * sc[2 * i]
+            r0 += u0[i] * y
+            r1 += u1[i] * y
+        t0 = (s11 * r0 - s01 * r1) / det
+        t1 = (s00 * r1 - s10 * r0) / det
+        for i in range(e):
+            X = 2 * i
+            x[i, j] = R[X, j] * sc[X] - (R[X, k] * sc[X] * t0 + R[X, k + 1] * sc[X] * t1)
+    for i in range(e):
+        for j in range(k):
+            if not math.isfinite(x[i, j]):
+                return False
+    return True
+
+
+@_jit
 def _density(fstar, m, h, out):  # pragma: no cover - compiled
     """``f = f* - D m / h`` (zero end fluxes)."""
     n = fstar.size
@@ -326,7 +460,8 @@ def _explicit_start(fstar, h, w, c, fisher, K, kv, ecoef, a, conserve, m, f, kf)
 
 @_jit
 def _iterate(
-    fstar, m, phi, start, h, v, w, c, fisher, K, kv, ecoef, ediag, a, conserve, tol, max_iter, pd_tol, jam, jam_step
+    fstar, m, phi, start, h, v, w, c, fisher, K, kv, ecoef, ediag, a, conserve, tol, max_iter, pd_tol, jam, jam_step,
+    ss, ss_lap_diag, ss_lap_off, ss_u0, ss_u1, ss_q00,
 ):  # pragma: no cover - compiled
     """The undamped Newton attempt (``newton._iterate`` for one slice), see :func:`iterate`."""
     n = fstar.size
@@ -362,19 +497,39 @@ def _iterate(
     iterations = 0
     flat = 0
     code = _NOT_HANDLED
+    ncol = 2 if conserve else 1
+    rhs = np.empty((e, 2))
+    xs = np.empty((e, 2))
+    W = np.empty((2 * e if ss else 0, 13))
+    R = np.empty((2 * e if ss else 0, 4))
     for it in range(max_iter + 1):
         _evaluate(f, m, h, w, c, fisher, kf, ecoef, ediag, g, diag, off1, off2, gfw, gff, gfe, gm)
-        pd = _cholesky(diag, off1, off2, pd_tol, l0, l1, l2)
+        if ss:  # gamma = 3: the structured solve decides positive definiteness and gives both columns
+            for k in range(e):
+                rhs[k, 0] = -g[k]
+                rhs[k, 1] = a[k]
+            pd = _semiseparable3(
+                diag, off1, off2, pd_tol, 2 * ecoef, ss_lap_diag, ss_lap_off, ss_u0, ss_u1, ss_q00, rhs, ncol, xs,
+                l0, l1, l2, W, R,
+            )
+        else:
+            pd = _cholesky(diag, off1, off2, pd_tol, l0, l1, l2)
         if near:
             code = HANDLED if pd else _NOT_HANDLED
             break
         if not pd or it == max_iter:
             break
-        for k in range(e):
-            minus_g[k] = -g[k]
-        _solve(l0, l1, l2, minus_g, p)
+        if ss:
+            for k in range(e):
+                p[k] = xs[k, 0]
+                q[k] = xs[k, 1]
+        else:
+            for k in range(e):
+                minus_g[k] = -g[k]
+            _solve(l0, l1, l2, minus_g, p)
+            if conserve:
+                _solve(l0, l1, l2, a, q)
         if conserve:
-            _solve(l0, l1, l2, a, q)
             aw = 0.0
             pa = 0.0
             for k in range(e):
@@ -597,7 +752,7 @@ def kkt_residual(
 @_jit
 def _iterate_rows(
     fstar, m, phi, start, rows, h, v, w, c, fisher, K, kv, ecoef, ediag, a, conserve, tol, max_iter, pd_tol, jam,
-    jam_step, checks,
+    jam_step, checks, ss, ss_lap_diag, ss_lap_off, ss_u0, ss_u1, ss_q00,
 ):  # pragma: no cover - compiled
     """:func:`_iterate` on each row ``b`` with ``rows[b]``, from ``m[b]`` (J there ``phi[b]``; ``start`` as in
     :func:`_iterate`), continued from its point up to ``checks`` times while the KKT residual is above ``tol``."""
@@ -618,7 +773,7 @@ def _iterate_rows(
         for _ in range(checks):
             mb, fb, ph, it, cd, kk = _iterate(
                 fstar[b], mb, ph, st, h, v, w, c, fisher, K, kv, ecoef, ediag, a, conserve, tol, max_iter - total,
-                pd_tol, jam, jam_step,
+                pd_tol, jam, jam_step, ss, ss_lap_diag, ss_lap_off, ss_u0, ss_u1, ss_q00,
             )
             total += it
             st = 0  # continued from the point reached
@@ -630,6 +785,15 @@ def _iterate_rows(
         phi_out[b] = ph
         its[b] = total
     return m_out, f, phi_out, its, code, kkt
+
+
+def _structure_args(semiseparable) -> tuple:
+    """The gamma = 3 structured solve's constants (``_structured.Semiseparable3``), or empty ones without it."""
+    if semiseparable is None:
+        return False, _NO_POINTS, _NO_POINTS, _NO_POINTS, _NO_POINTS, 0.0
+    S = semiseparable
+    return (True, _read_only(S.lap_diag), _read_only(np.r_[S.lap_off, 0.0]), _read_only(S.U[:, 0]),
+            _read_only(S.U[:, 1]), float(S.q_inv[0, 0]))  # fmt: skip
 
 
 def iterate_rows(
@@ -654,6 +818,7 @@ def iterate_rows(
     points: NDArray,
     abs_kernel: bool,
     checks: int,
+    semiseparable: object | None = None,
 ) -> tuple[NDArray, NDArray, NDArray, NDArray, NDArray, NDArray]:
     """:func:`iterate` on the rows ``rows`` of a batch ``f_star`` of shape ``(B, N)``, in one compiled loop.
 
@@ -661,7 +826,7 @@ def iterate_rows(
     ``start`` 1 (the explicit step) or 2 (zero).  A row whose residual is still above ``tol`` where its
     decrement reached ``tol`` is continued from its point, up to ``checks`` times (the stall test of the NumPy
     iteration is its own).  Returns ``(m, f, phi, iterations, code, kkt)`` per row; a row is the caller's
-    where ``code == HANDLED`` and ``kkt <= tol``.
+    where ``code == HANDLED`` and ``kkt <= tol``.  ``semiseparable``: as in :func:`iterate`.
     """
     e = f_star.shape[1] - 1
     c = np.zeros(e) if fisher_coef is None else fisher_coef
@@ -672,7 +837,7 @@ def iterate_rows(
         np.ascontiguousarray(rows, dtype=np.bool_), _read_only(h), _read_only(points), _read_only(wass_coef),
         _read_only(c), _FISHER_CODES[fisher], _read_only(K), _read_only(kv), float(energy_coef),
         _read_only(energy_diag), _read_only(a), momentum_normal is not None, float(tol), int(max_iter), float(pd_tol),
-        int(jam), float(jam_step), int(checks),
+        int(jam), float(jam_step), int(checks), *_structure_args(semiseparable),
     )  # fmt: skip
 
 
@@ -696,6 +861,7 @@ def iterate(
     jam_step: float,
     points: NDArray,
     abs_kernel: bool = False,
+    semiseparable: object | None = None,
 ) -> tuple[NDArray, NDArray, float, int, int, float]:
     """Newton iterations on one slice from ``m`` (where J is ``phi``), or, with ``m=None``, from the explicit
     step (``explicit``) or from 0.
@@ -708,6 +874,10 @@ def iterate(
     constraint normal ``dv`` (or None); ``jam`` short steps (``alpha < jam_step``) in a row end the attempt.
     ``points``: the grid points.  ``abs_kernel``: W = |v| (``K_il = |v_i - v_l| h_i h_l``), whose products
     ``K f`` are then two running sums, O(N) (``K`` is not read); otherwise the dense ``K``.
+    ``semiseparable``: gamma = 3, the :class:`~jko_cvx.collision._structured.Semiseparable3` of the grid, whose
+    structured solve (band LU with partial pivoting, Woodbury's 2 x 2 capacitance) then gives the directions and
+    decides positive definiteness (``energy_diag`` is the energy block's diagonal times ``2 dt sigma``);
+    None: a diagonal energy block, one banded Cholesky.
     """
     e = f_star.size - 1
     K, kv = (h[None, :], points) if abs_kernel else (K, _NO_POINTS)
@@ -720,6 +890,7 @@ def iterate(
         _read_only(c),
         _FISHER_CODES[fisher], _read_only(K), _read_only(kv), float(energy_coef), _read_only(energy_diag),
         _read_only(a), momentum_normal is not None, float(tol), int(max_iter), float(pd_tol), int(jam), float(jam_step),
+        *_structure_args(semiseparable),
     )  # fmt: skip
     return m, f, float(phi), int(its), int(code), float(kkt)
 

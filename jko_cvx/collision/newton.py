@@ -58,6 +58,7 @@ from __future__ import annotations
 import functools
 import importlib.util
 import time
+import weakref
 from dataclasses import dataclass, fields, replace
 from typing import Any
 
@@ -75,7 +76,7 @@ from jko_cvx.collision._linalg import (
     pentadiagonal_cholesky_batch,
     pentadiagonal_solve_batch,
 )
-from jko_cvx.collision._structured import dense_kernel_direction
+from jko_cvx.collision._structured import Semiseparable3, dense_kernel_direction, linalg_mode
 from jko_cvx.collision.certify import certify_validated
 from jko_cvx.collision.options import Options, Spec, option
 from jko_cvx.collision.problem import CollisionProblem, TermParts, add_pentadiagonal
@@ -944,6 +945,25 @@ def _cascade(P: CollisionProblem, m0: NDArray | None, opts: NewtonOptions) -> Co
     return res
 
 
+_SEMISEPARABLE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # energy operator -> its gamma = 3 solve
+
+
+def _compiled_energy(P: CollisionProblem) -> tuple[NDArray, Semiseparable3 | None] | None:
+    """What the compiled iteration needs of the energy block: its diagonal times ``2 dt sigma`` and, for gamma = 3,
+    the structured solve the NumPy iteration takes (``Semiseparable3``, where ``_structured`` takes it: the
+    ``auto`` linear algebra, at least 3 fluxes, a positive strength); None where the block is neither."""
+    fb = P.energy.flux_structure()
+    scale = 2 * P.energy_coef
+    if fb.kind == "diagonal":
+        return scale * fb.diag, None
+    if getattr(P.energy, "gamma", None) == 3.0 and P.n - 1 >= 3 and scale > 0 and linalg_mode() == "auto":
+        solve = _SEMISEPARABLE.get(P.energy)
+        if solve is None:
+            solve = _SEMISEPARABLE[P.energy] = Semiseparable3(P.grid)
+        return scale * solve.e_diag, solve
+    return None
+
+
 def _compiled_single(P: CollisionProblem, opts: NewtonOptions, t0: float) -> CollisionResult | None:
     """The first attempt of :func:`_cascade` on the unbatched problem ``P``, as compiled code, where it applies.
 
@@ -955,9 +975,10 @@ def _compiled_single(P: CollisionProblem, opts: NewtonOptions, t0: float) -> Col
     caller then runs :func:`_cascade` from the start, so a hard step gets every device of the NumPy
     iteration (and its result bit for bit).
     """
-    fb = P.energy.flux_structure()
-    if fb.kind != "diagonal" or not P.f_star.min() > 0:
+    energy = _compiled_energy(P)
+    if energy is None or not P.f_star.min() > 0:
         return None
+    energy_diag, semiseparable = energy
     m, phi, warm = None, np.nan, False
     if opts.m0 is not None:  # a warm start: where it is used, and J there, as the NumPy iteration decides
         st, used = _start(P.rows(slice(None)), opts.m0[None], opts)
@@ -966,7 +987,7 @@ def _compiled_single(P: CollisionProblem, opts: NewtonOptions, t0: float) -> Col
 
     iterations, explicit = 0, opts.start == "explicit"
     g = P.grid
-    energy = (P.energy.dense(), P.energy_coef, 2 * P.energy_coef * fb.diag)
+    energy = (P.energy.dense(), P.energy_coef, energy_diag)
     normal = g.dv if P.conserve_momentum else None
     # W = |v| (gamma = 1): the products K f by running sums, O(N) (the dense K's to rounding)
     abs_kernel = type(P.kernel) is PowerKernel and P.kernel.gamma == 1.0
@@ -977,6 +998,7 @@ def _compiled_single(P: CollisionProblem, opts: NewtonOptions, t0: float) -> Col
             m, f, phi, its, code, kkt = iterate(
                 P.f_star, m, phi, g.h, P.wass_coef, P.fisher_coef if P.fisher else None, P.fisher, *energy,
                 normal, explicit, opts.tol, opts.max_iter - iterations, _PD_TOL, _JAM, _JAM_STEP, g.points, abs_kernel,
+                semiseparable,
             )  # fmt: skip
             iterations += its
             if code != HANDLED:
@@ -1006,9 +1028,10 @@ def _compiled_batch(P: CollisionProblem, opts: NewtonOptions, t0: float) -> Coll
     certificate does not accept) is solved by :func:`_cascade` from the start, in one batch of those slices.
     None where no slice takes the compiled point (the caller then runs the cascade on the whole batch).
     """
-    fb = P.energy.flux_structure()
-    if fb.kind != "diagonal":
+    energy = _compiled_energy(P)
+    if energy is None:
         return None
+    energy_diag, semiseparable = energy
     B, n = P.f_star.shape
     eligible = P.f_star.min(axis=1) > 0
     if not eligible.any():
@@ -1026,9 +1049,9 @@ def _compiled_batch(P: CollisionProblem, opts: NewtonOptions, t0: float) -> Coll
     with np.errstate(all="ignore"):
         m, f, phi, its, code, kkt = iterate_rows(
             P.f_star, m, phi, start, eligible, g.h, P.wass_coef, P.fisher_coef if P.fisher else None, P.fisher,
-            P.energy.dense(), P.energy_coef, 2 * P.energy_coef * fb.diag, g.dv if P.conserve_momentum else None,
+            P.energy.dense(), P.energy_coef, energy_diag, g.dv if P.conserve_momentum else None,
             opts.tol, opts.max_iter, _PD_TOL, _JAM, _JAM_STEP, g.points,
-            type(P.kernel) is PowerKernel and P.kernel.gamma == 1.0, _STALL_CHECKS,
+            type(P.kernel) is PowerKernel and P.kernel.gamma == 1.0, _STALL_CHECKS, semiseparable,
         )  # fmt: skip
         done = eligible & (code == HANDLED) & (kkt <= opts.tol)
         if done.any():

@@ -38,8 +38,8 @@ def _agree(a, b) -> None:
     assert a.kkt_residual <= 1e-10 and a.mass_error <= 1e-13
 
 
-def _family():
-    """gamma = 1 on uniform and non-uniform grids: every Fisher form, with and without the momentum
+def _family(gamma: float = 1.0):
+    """gamma = 1 (or 3) on uniform and non-uniform grids: every Fisher form, with and without the momentum
     constraint, weak to strong Fisher terms, small to large steps (the large ones need the NumPy devices)."""
     rng = np.random.default_rng(7)
     for fisher, conserve, beta, dt in itertools.product(
@@ -52,12 +52,14 @@ def _family():
             grid = Grid(np.cumsum(np.r_[-2.0, rng.uniform(0.2, 2.0, n - 1) * 4 / n]))
         v = grid.points - grid.points.mean()
         f = np.exp(-4 * v**2) + 0.5 * np.exp(-8 * (v - 0.7) ** 2) + 1e-3
-        yield CollisionProblem(grid, PowerKernel(1.0), f, dt, beta=beta, fisher=fisher, conserve_momentum=conserve)
+        yield CollisionProblem(grid, PowerKernel(gamma), f, dt, beta=beta, fisher=fisher, conserve_momentum=conserve)
 
 
-def test_the_compiled_iteration_is_the_numpy_one_to_rounding_and_hands_back_what_it_does_not_finish():
+@pytest.mark.parametrize("gamma", [1.0, 3.0])
+def test_the_compiled_iteration_is_the_numpy_one_to_rounding_and_hands_back_what_it_does_not_finish(gamma):
+    """gamma = 3: the structured solve (band LU of the interleaved core, Woodbury's capacitance) compiled."""
     handled = 0
-    problems = list(_family())
+    problems = list(_family(gamma))
     for P in problems:
         a, b = solve_newton(P, compiled=True), solve_newton(P)
         assert b.info["compiled"] is False
@@ -86,7 +88,7 @@ def test_the_extremes_are_certified_or_flagged_as_by_the_numpy_iteration(name):
     P = CollisionProblem(grid, PowerKernel(gamma), f, dt, beta=beta)
     a, b = solve_newton(P, compiled=True), solve_newton(P)
     if a.info["compiled"]:
-        assert gamma == 1.0
+        assert gamma in (1.0, 3.0)  # the kernels with a compiled direction
         _agree(a, b)
     else:
         _bitwise(a, b)
@@ -104,7 +106,7 @@ def test_a_warm_start_and_the_zero_start_are_those_of_the_numpy_iteration():
     assert solve_newton(P, compiled=True, m0=near).info["warm_started"] is True
 
 
-@pytest.mark.parametrize("gamma", [1.5, 2.0, 3.0])
+@pytest.mark.parametrize("gamma", [1.5, 2.0, 4.0])
 def test_other_kernels_take_the_numpy_iteration(gamma):
     grid = Grid.uniform(-2.0, 2.0, 61)
     P = CollisionProblem(grid, PowerKernel(gamma), np.exp(-2 * grid.points**2), 0.01, beta=10.0)
@@ -113,8 +115,8 @@ def test_other_kernels_take_the_numpy_iteration(gamma):
     _bitwise(a, b)
 
 
-def _batches():
-    """gamma = 1 batches on one grid each: bumps moving across the grid, one row with an empty cell (never
+def _batches(gamma: float):
+    """gamma = 1 (or 3) batches on one grid each: bumps moving across the grid, one row with an empty cell (never
     compiled), every Fisher form, with and without the momentum constraint, small to large steps."""
     rng = np.random.default_rng(3)
     for fisher, conserve, dt in itertools.product((None, "perspective", "log"), (False, True), (1e-3, 0.03, 0.3, 3.0)):
@@ -126,15 +128,16 @@ def _batches():
         if fisher != "log":
             rows.append(rows[1].copy())
             rows[-1][n // 4] = 0.0
-        yield CollisionProblem(grid, PowerKernel(1.0), np.stack(rows), dt, beta=30.0, fisher=fisher,
+        yield CollisionProblem(grid, PowerKernel(gamma), np.stack(rows), dt, beta=30.0, fisher=fisher,
                                conserve_momentum=conserve)  # fmt: skip
 
 
-def test_a_batch_is_its_slices_compiled_one_by_one_and_the_cascade_solves_the_rest():
+@pytest.mark.parametrize("gamma", [1.0, 3.0])
+def test_a_batch_is_its_slices_compiled_one_by_one_and_the_cascade_solves_the_rest(gamma):
     """Each slice the batch's compiled loop returns is the compiled single solve's bit for bit (and the NumPy
     iteration's to rounding); the others are the cascade's on the batch of those slices."""
     handled = handed_back = 0
-    for P in _batches():
+    for P in _batches(gamma):
         a, numpy_batch = solve_newton(P, compiled=True), solve_newton(P)
         assert not numpy_batch.info["compiled"].any()
         mine = a.info["compiled"]
@@ -292,3 +295,28 @@ def test_the_compiled_products_with_the_abs_kernel_are_the_dense_ones_to_roundin
             dense = P.energy.dense() @ f
             scale = np.abs(grid.points).max() * (grid.h * np.abs(f)).sum() * grid.h
             assert np.all(np.abs(out - dense) <= 1e-13 * scale)
+
+
+def test_the_compiled_band_lu_pivots_as_dense_elimination_does():
+    """Gaussian elimination with partial pivoting in band storage, against the dense solve: matrices whose
+    diagonal is small (every column pivots off it), indefinite ones, and a singular one refused."""
+    from jko_cvx.collision._compiled import _band_lu_solve
+
+    rng = np.random.default_rng(2)
+    kl = 4
+    for n, diag_size in ((9, 1.0), (40, 1e-8), (61, 0.0), (200, 3.0)):
+        A = np.zeros((n, n))
+        for d in range(-kl, kl + 1):
+            A += np.diag(rng.standard_normal(n - abs(d)), d)
+        A[np.arange(n), np.arange(n)] *= diag_size
+        X = rng.standard_normal((n, 3))
+        W = np.zeros((n, 3 * kl + 1))
+        for i in range(n):
+            for j in range(max(0, i - kl), min(n, i + kl + 1)):
+                W[i, j - i + kl] = A[i, j]
+        R = A @ X
+        assert _band_lu_solve(W, kl, R)
+        assert np.abs(R - X).max() <= 1e-8 * np.abs(X).max() * np.linalg.cond(A) ** 0.5
+    W = np.zeros((5, 3 * kl + 1))
+    W[:, kl] = [1.0, 2.0, 0.0, 1.0, 1.0]  # a zero column: no pivot
+    assert not _band_lu_solve(W, kl, np.ones((5, 1)))
