@@ -5,12 +5,12 @@ dt = 0.01, strength 1, perspective Fisher term with beta = 10 -- for the power k
 gamma = 1 and gamma = 3, N = 61, 121, 241 (``--sizes``), solved by ``solve_collision(problem,
 "newton")`` at its defaults:
 
-1. **single**: one unbatched problem; for gamma = 1 also ``compiled=True`` (numba; the compiled
-   iteration covers only gamma = 1; ``compiled_used`` records that every slice took it);
+1. **single**: one unbatched problem, with the NumPy iteration and with ``compiled=True`` (numba;
+   ``compiled_used`` records that every slice took the compiled path);
 2. **batched**: the problem as a batch of B = 32 and B = 121 slices (``--batches``), either B
    identical copies (``same``) or the shifted and scaled Gaussians of ``bench_collision.py``'s
-   batch (``perturbed``), for gamma = 1 also with ``compiled=True`` (one compiled loop over the
-   slices); time and iterations per slice;
+   batch (``perturbed``), with the NumPy iteration and with ``compiled=True`` (one compiled loop over
+   the slices); time and iterations per slice;
 3. **the cost model**: the LAPACK calls one Newton direction makes, replayed through
    ``scipy.linalg.lapack`` on the very matrices and right-hand sides the solver passed them
    (recorded during one single solve by a proxy of the ``lapack`` module of the collision
@@ -32,8 +32,8 @@ Timing: CPU time (``time.process_time``), median over ``--rounds`` rounds of abo
 repetitions each, every path and model call of one (gamma, N) interleaved in each round.
 Then, at N = 121 (``--profile-n``), a profile: wall-clock timers wrapped around the solver's
 phases (module attributes replaced for the run and restored) for the single solves (gamma =
-1 NumPy and compiled, gamma = 3) and the perturbed batch of 121 slices, and cProfile's top
-functions for the gamma = 1 compiled and the gamma = 3 single solve.
+1 and 3, NumPy and compiled) and the perturbed batch of 121 slices, and cProfile's top functions
+for the compiled single solves and the gamma = 3 NumPy one.
 
 Run with one BLAS thread::
 
@@ -297,13 +297,11 @@ class Chained:
 def paths(gamma: float, n: int, batches: list[int]) -> dict[str, tuple[CollisionProblem, dict]]:
     """The solves of one (gamma, N): label -> (problem, options)."""
     out = {"single": (step_problem(gamma, n), {})}
-    if gamma == 1.0:
-        out["single compiled"] = (out["single"][0], {"compiled": True})
+    out["single compiled"] = (out["single"][0], {"compiled": True})
     for b in batches:
         for kind in ("same", "perturbed"):
             out[f"batch {b} {kind}"] = (step_problem(gamma, n, b, kind), {})
-            if gamma == 1.0:
-                out[f"batch {b} {kind} compiled"] = (out[f"batch {b} {kind}"][0], {"compiled": True})
+            out[f"batch {b} {kind} compiled"] = (out[f"batch {b} {kind}"][0], {"compiled": True})
     return out
 
 
@@ -504,6 +502,20 @@ def _table(df: pd.DataFrame, floatfmt: str = ".3g") -> str:
     return df.to_markdown(index=False, floatfmt=floatfmt)
 
 
+def targets_section(df: pd.DataFrame, n: int = 121) -> str:
+    """The targets at N = ``n``: a single solve within 5x and a batched slice within 2x of the model, per gamma
+    and path (NumPy iteration, compiled), from the rows of this run."""
+    rows = []
+    for (gamma, path), r in df[df.N == n].set_index(["gamma", "path"]).iterrows():
+        target = 5.0 if r["slices"] == 1 else 2.0
+        rows.append({"gamma": gamma, "path": path, "time/model": r["time/model"], "target": target,
+                     "met": bool(r["time/model"] <= target), "compiled_used": r["compiled_used"]})  # fmt: skip
+    if not rows:
+        return f"## The targets at N = {n}\n\nN = {n} was not measured in this run."
+    return (f"## The targets at N = {n}: a single solve within 5x, a batched slice within 2x of the model\n\n"
+            + _table(pd.DataFrame(rows)))  # fmt: skip
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--sizes", type=int, nargs="+", default=[61, 121, 241])
@@ -516,7 +528,9 @@ def main(argv: list[str] | None = None) -> int:
     commit, dirty = git_state()
     load0 = os.getloadavg()[0]
     wall0 = time.perf_counter()
-    solve_collision(step_problem(1.0, 61), "newton", compiled=True)  # numba: load (or compile) outside the timings
+    for gamma in (1.0, 3.0):  # numba: load (or compile) outside the timings
+        solve_collision(step_problem(gamma, 61), "newton", compiled=True)
+        solve_collision(step_problem(gamma, 61, 8, "perturbed"), "newton", compiled=True)
     rows, calls = [], []
     for gamma in args.gammas:
         for n in args.sizes:
@@ -536,6 +550,7 @@ def main(argv: list[str] | None = None) -> int:
         ("gamma = 1, single, compiled=True", 1.0, 0, {"compiled": True}, 400),
         ("gamma = 1, single, NumPy iteration", 1.0, 0, {}, 200),
         ("gamma = 3, single", 3.0, 0, {}, 100),
+        ("gamma = 3, single, compiled=True", 3.0, 0, {"compiled": True}, 400),
         ("gamma = 1, batch of 121 perturbed slices (per batched solve)", 1.0, 121, {}, 10),
         ("gamma = 3, batch of 121 perturbed slices (per batched solve)", 3.0, 121, {}, 5),
     ):
@@ -544,6 +559,7 @@ def main(argv: list[str] | None = None) -> int:
     cprofiles = [
         ("gamma = 1, single, compiled=True", c_profile(step_problem(1.0, pn), {"compiled": True}, 400, 15)),
         ("gamma = 3, single", c_profile(step_problem(3.0, pn), {}, 100, 15)),
+        ("gamma = 3, single, compiled=True", c_profile(step_problem(3.0, pn), {"compiled": True}, 400, 15)),
     ]
     load1 = os.getloadavg()[0]
     runtime = time.perf_counter() - wall0
@@ -572,6 +588,7 @@ def main(argv: list[str] | None = None) -> int:
         "instrumented solves, 3 for a batch), `lapack_share` that time over the instrumented solve's wall time "
         "(median).",
         "## Time against the model\n\n" + _table(df[show]),
+        targets_section(df),
         "## The model's LAPACK calls (us per call through scipy, median)\n\n"
         "`systems`: the directions recorded in one single solve (all replayed, the time per system); "
         "`refresh_us`: the copy of a matrix that dgbsv overwrites (subtracted in `model_call_us`).\n\n"

@@ -70,8 +70,11 @@ _NO_POINTS.flags.writeable = False
 
 
 @_jit
-def _evaluate(f, m, h, w, c, fisher, kf, ecoef, ediag, g, diag, off1, off2, gfw, gff, gfe, gm):  # pragma: no cover
-    """Reduced gradient ``g`` and the bands of the reduced Hessian at ``(f, m)``, given ``kf = K f``.
+def _evaluate(
+    f, m, hinv, w, c, fisher, kf, ecoef, ediag, g, diag, off1, off2, gfw, gff, gfe, gm, work
+):  # pragma: no cover - compiled
+    """Reduced gradient ``g`` and the bands of the reduced Hessian at ``(f, m)``, given ``kf = K f`` (``hinv = 1/h``;
+    ``work``: six rows of n scratch values).
 
     Also the gradient's split by term in f (``gfw``, ``gff``, ``gfe``) and in m (``gm``, the Wasserstein
     term's), which the KKT residual scales by.
@@ -82,11 +85,7 @@ def _evaluate(f, m, h, w, c, fisher, kf, ecoef, ediag, g, diag, off1, off2, gfw,
         gfe[i] = 2 * ecoef * kf[i]
         gfw[i] = 0.0
         gff[i] = 0.0
-    xx = np.empty(e)
-    yy = np.empty(e)
-    xy = np.empty(e)
-    hsm = np.empty(e)
-    hmm = np.empty(e)
+    xx, yy, xy, hsm, hmm, d = work[0], work[1], work[2], work[3], work[4], work[5]  # (6, n): no allocations
     for k in range(e):
         x, y = f[k], f[k + 1]
         s = x + y
@@ -120,56 +119,60 @@ def _evaluate(f, m, h, w, c, fisher, kf, ecoef, ediag, g, diag, off1, off2, gfw,
             hy = h_ss + q / (y * y)
             hxy = h_ss + c[k] * (-s + L * (x - y)) / (x * y)
         xx[k], yy[k], xy[k] = hx, hy, hxy
-    d = np.zeros(n)
+    d[:] = 0.0
     for k in range(e):
         d[k] += xx[k]
         d[k + 1] += yy[k]
     for k in range(e):
-        a_k, b_k = -1 / h[k], 1 / h[k + 1]
+        a_k, b_k = -hinv[k], hinv[k + 1]
         gk0 = gfe[k] + gfw[k] + gff[k]
         gk1 = gfe[k + 1] + gfw[k + 1] + gff[k + 1]
-        g[k] = gm[k] - (gk0 / h[k] - gk1 / h[k + 1])
+        g[k] = gm[k] - (gk0 * hinv[k] - gk1 * hinv[k + 1])
         diag[k] = (
             hmm[k] + a_k * a_k * d[k] + 2 * a_k * b_k * xy[k] + b_k * b_k * d[k + 1] + 2 * (a_k + b_k) * hsm[k]
         ) + ediag[k]
         if k < e - 1:
-            a_1 = -1 / h[k + 1]
-            b_1 = 1 / h[k + 2]
+            a_1 = -hinv[k + 1]
+            b_1 = hinv[k + 2]
             off1[k] = a_k * a_1 * xy[k] + b_k * a_1 * d[k + 1] + b_k * b_1 * xy[k + 1] + b_k * hsm[k + 1] + a_1 * hsm[k]
         if k < e - 2:
-            off2[k] = b_k * (-1 / h[k + 2]) * xy[k + 1]
+            off2[k] = b_k * (-hinv[k + 2]) * xy[k + 1]
 
 
 @_jit
-def _cholesky(diag, off1, off2, pd_tol, l0, l1, l2):  # pragma: no cover - compiled
-    """Lower Cholesky factor of the pentadiagonal matrix with ``diag (1 + pd_tol)``, its diagonal ``l0`` inverted;
-    False where not PD."""
+def _cholesky(diag, off1, off2, pd_tol, l0, l1, l2, dd):  # pragma: no cover - compiled
+    """Factor the pentadiagonal matrix with ``diag (1 + pd_tol)`` as ``L D L'`` (L unit lower, sub-diagonals ``l1``,
+    ``l2``; ``l0`` holds ``1 / D``: no square roots on the pivots' chain); False where a pivot is not positive
+    (not positive definite, as a Cholesky factorisation fails)."""
     e = diag.size
     for k in range(e):
         if not (diag[k] > 0 and math.isfinite(diag[k])):
             return False
-    for k in range(e):
+    for k in range(e):  # dd: the pivots D (scratch)
         piv = diag[k] * (1 + pd_tol)
+        o = off1[k] if k < e - 1 else 0.0
         if k >= 1:
-            piv -= l1[k - 1] * l1[k - 1]
+            t = l1[k - 1] * dd[k - 1]
+            piv -= l1[k - 1] * t
+            if k < e - 1:
+                o -= l2[k - 1] * t
         if k >= 2:
-            piv -= l2[k - 2] * l2[k - 2]
+            piv -= l2[k - 2] * l2[k - 2] * dd[k - 2]
         if not (piv > 0 and math.isfinite(piv)):
             return False
-        l0[k] = 1.0 / math.sqrt(piv)  # stored inverted: the sweeps multiply (a division's latency is 3-4x)
+        dd[k] = piv
+        inv = 1.0 / piv
+        l0[k] = inv
         if k < e - 1:
-            o = off1[k]
-            if k >= 1:
-                o -= l2[k - 1] * l1[k - 1]
-            l1[k] = o * l0[k]
+            l1[k] = o * inv
         if k < e - 2:
-            l2[k] = off2[k] * l0[k]
+            l2[k] = off2[k] * inv
     return True
 
 
 @_jit
 def _solve(l0, l1, l2, rhs, out):  # pragma: no cover - compiled
-    """``out = (L L')^-1 rhs`` for the factor of :func:`_cholesky` (``l0`` inverted)."""
+    """``out = (L D L')^-1 rhs`` for the factor of :func:`_cholesky` (``l0 = 1 / D``)."""
     e = rhs.size
     for k in range(e):
         v = rhs[k]
@@ -177,14 +180,16 @@ def _solve(l0, l1, l2, rhs, out):  # pragma: no cover - compiled
             v -= l1[k - 1] * out[k - 1]
         if k >= 2:
             v -= l2[k - 2] * out[k - 2]
-        out[k] = v * l0[k]
+        out[k] = v
+    for k in range(e):
+        out[k] *= l0[k]
     for k in range(e - 1, -1, -1):
         v = out[k]
         if k + 1 < e:
             v -= l1[k] * out[k + 1]
         if k + 2 < e:
             v -= l2[k] * out[k + 2]
-        out[k] = v * l0[k]
+        out[k] = v
 
 
 @_jit
@@ -245,7 +250,7 @@ def _semiseparable3(d, off1, off2, pd_tol, scale, lap_diag, lap_off, u0, u1, q00
     for i in range(e):
         if not (d[i] > 0 and math.isfinite(d[i])):
             return False
-    if not _cholesky(d, off1, off2, pd_tol, l0, l1, l2):  # G: its factor only decides, as in the NumPy path
+    if not _cholesky(d, off1, off2, pd_tol, l0, l1, l2, np.empty(e)):  # G's factor only decides, as in NumPy
         return False
     kl = 4
     zc = 1.0 / (4.0 * scale)
@@ -311,12 +316,12 @@ def _semiseparable3(d, off1, off2, pd_tol, scale, lap_diag, lap_off, u0, u1, q00
 
 
 @_jit
-def _density(fstar, m, h, out):  # pragma: no cover - compiled
-    """``f = f* - D m / h`` (zero end fluxes)."""
+def _density(fstar, m, hinv, out):  # pragma: no cover - compiled
+    """``f = f* - D m / h`` (zero end fluxes; ``hinv = 1/h``)."""
     n = fstar.size
     for j in range(n):
         dm = (m[j] if j < n - 1 else 0.0) - (m[j - 1] if j >= 1 else 0.0)
-        out[j] = fstar[j] - dm / h[j]
+        out[j] = fstar[j] - dm * hinv[j]
 
 
 @_jit
@@ -368,7 +373,7 @@ def _objective(f, m, w, c, fisher, K, kv, ecoef, kf):  # pragma: no cover - comp
 
 
 @_jit
-def _explicit_start(fstar, h, w, c, fisher, K, kv, ecoef, a, conserve, m, f, kf):  # pragma: no cover - compiled
+def _explicit_start(fstar, h, hinv, w, c, fisher, K, kv, ecoef, a, conserve, m, f, kf):  # pragma: no cover - compiled
     """The damped explicit step from ``(f*, 0)`` where it lowers J, else 0 (``newton._explicit_start``).
 
     The first step of the paper's SQP (:func:`jko_cvx.collision.sqp.explicit_step`: the tridiagonal
@@ -426,7 +431,7 @@ def _explicit_start(fstar, h, w, c, fisher, K, kv, ecoef, a, conserve, m, f, kf)
     ratio = np.inf
     for j in range(n):
         dm = (pm[j] if j < e else 0.0) - (pm[j - 1] if j >= 1 else 0.0)
-        pf = -dm / h[j]
+        pf = -dm * hinv[j]
         if pf < 0:
             ratio = min(ratio, -fstar[j] / pf)
     alpha = min(1.0, 0.5 * ratio)
@@ -440,7 +445,7 @@ def _explicit_start(fstar, h, w, c, fisher, K, kv, ecoef, a, conserve, m, f, kf)
             aa += a[k] * a[k]
         for k in range(e):
             m[k] = m[k] - (ma / aa) * a[k]
-    _density(fstar, m, h, f)
+    _density(fstar, m, hinv, f)
     ok = True
     for k in range(e):
         if not math.isfinite(m[k]):
@@ -468,13 +473,14 @@ def _iterate(
     e = n - 1
     f = np.empty(n)
     kf = np.empty(n)
+    hinv = 1.0 / h
     if start == 1:
-        phi = _explicit_start(fstar, h, w, c, fisher, K, kv, ecoef, a, conserve, m, f, kf)
+        phi = _explicit_start(fstar, h, hinv, w, c, fisher, K, kv, ecoef, a, conserve, m, f, kf)
     elif start == 2:
-        _density(fstar, m, h, f)
+        _density(fstar, m, hinv, f)
         phi = _objective(f, m, w, c, fisher, K, kv, ecoef, kf)
     else:  # the caller's point, with J there
-        _density(fstar, m, h, f)
+        _density(fstar, m, hinv, f)
         _matvec(K, kv, f, kf)
     g = np.empty(e)
     diag = np.empty(e)
@@ -497,13 +503,15 @@ def _iterate(
     iterations = 0
     flat = 0
     code = _NOT_HANDLED
+    work = np.empty((6, n))
+    dd = np.empty(e)
     ncol = 2 if conserve else 1
     rhs = np.empty((e, 2))
     xs = np.empty((e, 2))
     W = np.empty((2 * e if ss else 0, 13))
     R = np.empty((2 * e if ss else 0, 4))
     for it in range(max_iter + 1):
-        _evaluate(f, m, h, w, c, fisher, kf, ecoef, ediag, g, diag, off1, off2, gfw, gff, gfe, gm)
+        _evaluate(f, m, hinv, w, c, fisher, kf, ecoef, ediag, g, diag, off1, off2, gfw, gff, gfe, gm, work)
         if ss:  # gamma = 3: the structured solve decides positive definiteness and gives both columns
             for k in range(e):
                 rhs[k, 0] = -g[k]
@@ -513,7 +521,7 @@ def _iterate(
                 l0, l1, l2, W, R,
             )
         else:
-            pd = _cholesky(diag, off1, off2, pd_tol, l0, l1, l2)
+            pd = _cholesky(diag, off1, off2, pd_tol, l0, l1, l2, dd)
         if near:
             code = HANDLED if pd else _NOT_HANDLED
             break
@@ -549,7 +557,7 @@ def _iterate(
         ratio = np.inf  # fraction to the boundary along the f-components -D p / h
         for j in range(n):
             dp = (p[j] if j < e else 0.0) - (p[j - 1] if j >= 1 else 0.0)
-            pf = -dp / h[j]
+            pf = -dp * hinv[j]
             if pf < 0:
                 ratio = min(ratio, -f[j] / pf)
         alpha = min(1.0, 0.995 * ratio)
@@ -559,13 +567,13 @@ def _iterate(
         if accepted:
             for k in range(e):
                 m[k] = m[k] + alpha * p[k]
-            _density(fstar, m, h, f)
+            _density(fstar, m, hinv, f)
             phi = _objective(f, m, w, c, fisher, K, kv, ecoef, kf)
         else:
             for _ in range(60):
                 for k in range(e):
                     trial[k] = m[k] + alpha * p[k]
-                _density(fstar, trial, h, ft)
+                _density(fstar, trial, hinv, ft)
                 inside = True
                 for j in range(n):
                     if not ft[j] > 0:

@@ -171,9 +171,16 @@ def certify_validated(
     status = np.empty(f.shape[0], dtype=object)
     # the finiteness test for the whole batch at once (per row, the same booleans as _judge's)
     finite = (np.isfinite(f).all(axis=-1) & np.isfinite(m).all(axis=-1) & np.isfinite(objective)).tolist()
+    passed = (np.asarray(total, dtype=float) <= kkt_tol).tolist()  # NaN: False
     for i in range(f.shape[0]):
+        claim, order = claims[i], orders[i]
+        if finite[i] and passed[i] and (claim is None or claim is Status.CONVERGED) and (
+            not check_convexity or (order is not None and bool(order))
+        ):
+            status[i] = Status.CONVERGED  # what _judge decides for such a row, without the call
+            continue
         status[i] = _judge(
-            problem, f[i], m[i], total[i], objective[i], kkt_tol, check_convexity, claims[i], orders[i], i, finite[i]
+            problem, f[i], m[i], total[i], objective[i], kkt_tol, check_convexity, claim, order, i, finite[i]
         )
     return Certificate(status, np.asarray(total, dtype=float).copy(), np.asarray(objective, dtype=float), kkt)
 

@@ -948,6 +948,12 @@ def _cascade(P: CollisionProblem, m0: NDArray | None, opts: NewtonOptions) -> Co
 _SEMISEPARABLE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # energy operator -> its gamma = 3 solve
 
 
+@functools.cache
+def _compiled_module():
+    """:mod:`jko_cvx.collision._compiled`, imported at the first solve that uses it (numba loads then)."""
+    return importlib.import_module("jko_cvx.collision._compiled")
+
+
 def _compiled_energy(P: CollisionProblem) -> tuple[NDArray, Semiseparable3 | None] | None:
     """What the compiled iteration needs of the energy block: its diagonal times ``2 dt sigma`` and, for gamma = 3,
     the structured solve the NumPy iteration takes (``Semiseparable3``, where ``_structured`` takes it: the
@@ -983,36 +989,34 @@ def _compiled_single(P: CollisionProblem, opts: NewtonOptions, t0: float) -> Col
     if opts.m0 is not None:  # a warm start: where it is used, and J there, as the NumPy iteration decides
         st, used = _start(P.rows(slice(None)), opts.m0[None], opts)
         m, phi, warm = st.m[0], st.phi[0], bool(used[0])
-    from jko_cvx.collision._compiled import HANDLED, iterate  # numba: at the first solve using it
-
+    compiled = _compiled_module()
     iterations, explicit = 0, opts.start == "explicit"
     g = P.grid
     energy = (P.energy.dense(), P.energy_coef, energy_diag)
     normal = g.dv if P.conserve_momentum else None
     # W = |v| (gamma = 1): the products K f by running sums, O(N) (the dense K's to rounding)
     abs_kernel = type(P.kernel) is PowerKernel and P.kernel.gamma == 1.0
-    with np.errstate(all="ignore"):
-        # As in _iterate: the residual is checked where the decrement reached tol; where it is still above
-        # tol the iteration goes on from there, up to _STALL_CHECKS checks (a stall is the NumPy path's case).
-        for _ in range(_STALL_CHECKS):
-            m, f, phi, its, code, kkt = iterate(
-                P.f_star, m, phi, g.h, P.wass_coef, P.fisher_coef if P.fisher else None, P.fisher, *energy,
-                normal, explicit, opts.tol, opts.max_iter - iterations, _PD_TOL, _JAM, _JAM_STEP, g.points, abs_kernel,
-                semiseparable,
-            )  # fmt: skip
-            iterations += its
-            if code != HANDLED:
-                return None
-            if kkt <= opts.tol:
-                break
-        else:
-            return None
-        # J as the compiled iteration evaluated it at the point (problem.objective's to rounding); the
-        # second-order test is the factorisation's at the point (HANDLED: positive definite)
-        cert = certify_validated(
-            P, f, m, opts.kkt_tol, opts.check_convexity, Status.CONVERGED, residual=kkt, second_order=True,
-            objective=phi,
+    # As in _iterate: the residual is checked where the decrement reached tol; where it is still above
+    # tol the iteration goes on from there, up to _STALL_CHECKS checks (a stall is the NumPy path's case).
+    for _ in range(_STALL_CHECKS):
+        m, f, phi, its, code, kkt = compiled.iterate(
+            P.f_star, m, phi, g.h, P.wass_coef, P.fisher_coef if P.fisher else None, P.fisher, *energy,
+            normal, explicit, opts.tol, opts.max_iter - iterations, _PD_TOL, _JAM, _JAM_STEP, g.points, abs_kernel,
+            semiseparable,
         )  # fmt: skip
+        iterations += its
+        if code != compiled.HANDLED:
+            return None
+        if kkt <= opts.tol:
+            break
+    else:
+        return None
+    # J as the compiled iteration evaluated it at the point (problem.objective's to rounding); the
+    # second-order test is the factorisation's at the point (HANDLED: positive definite)
+    cert = certify_validated(
+        P, f, m, opts.kkt_tol, opts.check_convexity, Status.CONVERGED, residual=kkt, second_order=True,
+        objective=phi,
+    )  # fmt: skip
     if cert.status is not Status.CONVERGED:  # the cascade goes on from such a first attempt: solve it all there
         return None
     info = {"warm_started": warm, "jammed": False, "interior_damping": False, "barrier": False,
@@ -1036,7 +1040,7 @@ def _compiled_batch(P: CollisionProblem, opts: NewtonOptions, t0: float) -> Coll
     eligible = P.f_star.min(axis=1) > 0
     if not eligible.any():
         return None
-    from jko_cvx.collision._compiled import HANDLED, iterate_rows  # numba: at the first solve using it
+    compiled = _compiled_module()
 
     m0 = None if opts.m0 is None else np.broadcast_to(opts.m0, (B, n - 1))
     warm = np.zeros(B, dtype=bool)
@@ -1047,27 +1051,34 @@ def _compiled_batch(P: CollisionProblem, opts: NewtonOptions, t0: float) -> Coll
         m, phi, start = np.zeros((B, n - 1)), np.full(B, np.nan), 1 if opts.start == "explicit" else 2
     g = P.grid
     with np.errstate(all="ignore"):
-        m, f, phi, its, code, kkt = iterate_rows(
+        m, f, phi, its, code, kkt = compiled.iterate_rows(
             P.f_star, m, phi, start, eligible, g.h, P.wass_coef, P.fisher_coef if P.fisher else None, P.fisher,
             P.energy.dense(), P.energy_coef, energy_diag, g.dv if P.conserve_momentum else None,
             opts.tol, opts.max_iter, _PD_TOL, _JAM, _JAM_STEP, g.points,
             type(P.kernel) is PowerKernel and P.kernel.gamma == 1.0, _STALL_CHECKS, semiseparable,
         )  # fmt: skip
-        done = eligible & (code == HANDLED) & (kkt <= opts.tol)
-        if done.any():
-            k = int(done.sum())
-            cert = certify_validated(
-                P.rows(done), f[done], m[done], opts.kkt_tol, opts.check_convexity,
-                np.full(k, Status.CONVERGED, dtype=object), residual=kkt[done], second_order=np.ones(k, dtype=bool),
-                objective=phi[done],
-            )  # fmt: skip
-            done[done] = np.array([s is Status.CONVERGED for s in cert.status], dtype=bool)
+        done = eligible & (code == compiled.HANDLED) & (kkt <= opts.tol)
+        if not done.any():
+            return None
+        every = bool(done.all())  # the common case: no copies of the batch
+        Pd = P if every else P.rows(done)
+        fd, md = (f, m) if every else (f[done], m[done])
+        k = Pd.batch_size
+        cert = certify_validated(
+            Pd, fd, md, opts.kkt_tol, opts.check_convexity, _converged(k), residual=kkt if every else kkt[done],
+            second_order=np.ones(k, dtype=bool), objective=phi if every else phi[done],
+        )  # fmt: skip
+        accepted = np.array([s is Status.CONVERGED for s in cert.status], dtype=bool)
+        if every:
+            mass_error = Pd.mass_error(fd)
+        else:
+            mass_error = np.zeros(B)
+            mass_error[done] = Pd.mass_error(fd)
+        done[done] = accepted
     if not done.any():
         return None
-    status = np.full(B, Status.CONVERGED, dtype=object)
+    status = _converged(B)
     iterations = np.where(done, its, 0)
-    mass_error = np.zeros(B)
-    mass_error[done] = P.rows(done).mass_error(f[done])
     info = {name: np.zeros(B, dtype=bool) for name in
             ("warm_started", "jammed", "interior_damping", "barrier", "lower_minimum", "compiled")}  # fmt: skip
     info["warm_started"][done] = warm[done]
@@ -1082,6 +1093,13 @@ def _compiled_batch(P: CollisionProblem, opts: NewtonOptions, t0: float) -> Coll
             info[name][rest] = again.info[name]
     res.seconds = time.perf_counter() - t0
     return res
+
+
+def _converged(k: int) -> NDArray:
+    """``k`` statuses ``CONVERGED`` (an object array; ``fill`` costs a fifth of ``np.full``'s object path)."""
+    out = np.empty(k, dtype=object)
+    out.fill(Status.CONVERGED)
+    return out
 
 
 def _m0_rows(m0: NDArray | None, rows: NDArray[np.bool_]) -> NDArray | None:
