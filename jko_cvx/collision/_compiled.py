@@ -65,6 +65,7 @@ HANDLED = 0
 
 _NOT_HANDLED = 1
 _FISHER_CODES = {None: 0, "perspective": 1, "log": 2}
+_F64 = np.dtype(np.float64)
 _NO_POINTS = np.zeros(0)
 _NO_POINTS.flags.writeable = False
 
@@ -909,8 +910,10 @@ def _read_only(x: NDArray) -> NDArray:
     numba compiles (and caches) once per argument type, and a read-only array is another type than a
     writeable one; the problem's arrays come both ways (the energy matrix is read-only).
     """
-    if type(x) is np.ndarray and x.dtype == np.float64 and x.flags.c_contiguous and not x.flags.writeable:
-        return x  # already one (the grid's arrays, the energy matrix): no view to make
+    if type(x) is np.ndarray and x.dtype is _F64:
+        flags = x.flags
+        if flags.c_contiguous and not flags.writeable:
+            return x  # already one (the grid's arrays, the energy matrix): no view to make
     v = np.ascontiguousarray(x, dtype=float).view()
     v.flags.writeable = False
     return v
