@@ -395,7 +395,6 @@ PHASES = [
     # (owner, attribute, label, within)
     (newton, "_compiled_single", "newton._compiled_single", "solve"),
     (_compiled, "iterate", "_compiled.iterate (numba)", "_compiled_single"),
-    (_compiled, "kkt_residual", "_compiled.kkt_residual (numba)", "_compiled_single"),
     (newton, "_attempt", "newton._attempt", "solve"),
     (newton, "_start", "newton._start", "_attempt"),
     (newton, "_iterate", "newton._iterate", "_attempt"),

@@ -45,7 +45,7 @@ except ImportError as exc:  # an optional dependency: say how to get it
         'python -m pip install "jko_cvx[fast]"'
     ) from exc
 
-__all__ = ["HANDLED", "iterate", "iterate_rows", "kkt_residual"]
+__all__ = ["HANDLED", "constants", "iterate", "iterate_rows", "kkt_residual"]
 
 
 def _jit(func: Callable) -> Callable:
@@ -796,13 +796,42 @@ def _iterate_rows(
     return m_out, f, phi_out, its, code, kkt
 
 
-def _structure_args(semiseparable) -> tuple:
-    """The gamma = 3 structured solve's constants (``_structured.Semiseparable3``), or empty ones without it."""
+def constants(
+    h: NDArray,
+    points: NDArray,
+    wass_coef: NDArray,
+    fisher_coef: NDArray | None,
+    fisher: str | None,
+    K: NDArray,
+    energy_coef: float,
+    energy_diag: NDArray,
+    momentum_normal: NDArray | None,
+    abs_kernel: bool = False,
+    semiseparable: object | None = None,
+) -> tuple[tuple, tuple]:
+    """A step's constants as :func:`iterate` and :func:`iterate_rows` take them (read-only float arrays).
+
+    ``energy_diag``: the energy block's diagonal times ``2 dt sigma``; ``momentum_normal``: the constraint
+    normal ``dv`` (or None).  ``abs_kernel``: W = |v| (``K_il = |v_i - v_l| h_i h_l``), whose products ``K f``
+    are then two running sums, O(N) (``K`` is not read); otherwise the dense ``K``.  ``semiseparable``: gamma =
+    3, the :class:`~jko_cvx.collision._structured.Semiseparable3` of the grid, whose structured solve (band LU
+    with partial pivoting, Woodbury's 2 x 2 capacitance) then gives the directions and decides positive
+    definiteness; None: a diagonal energy block, one banded Cholesky.
+    """
+    e = h.size - 1
+    c = np.zeros(e) if fisher_coef is None else fisher_coef
+    a = np.zeros(e) if momentum_normal is None else momentum_normal
+    K, kv = (h[None, :], points) if abs_kernel else (K, _NO_POINTS)
+    problem = (
+        _read_only(h), _read_only(points), _read_only(wass_coef), _read_only(c), _FISHER_CODES[fisher], _read_only(K),
+        _read_only(kv), float(energy_coef), _read_only(energy_diag), _read_only(a), momentum_normal is not None,
+    )  # fmt: skip
     if semiseparable is None:
-        return False, _NO_POINTS, _NO_POINTS, _NO_POINTS, _NO_POINTS, 0.0
+        return problem, (False, _NO_POINTS, _NO_POINTS, _NO_POINTS, _NO_POINTS, 0.0)
     S = semiseparable
-    return (True, _read_only(S.lap_diag), _read_only(np.r_[S.lap_off, 0.0]), _read_only(S.U[:, 0]),
-            _read_only(S.U[:, 1]), float(S.q_inv[0, 0]))  # fmt: skip
+    structure = (True, _read_only(S.lap_diag), _read_only(np.r_[S.lap_off, 0.0]), _read_only(S.U[:, 0]),
+                 _read_only(S.U[:, 1]), float(S.q_inv[0, 0]))  # fmt: skip
+    return problem, structure
 
 
 def iterate_rows(
@@ -811,42 +840,27 @@ def iterate_rows(
     phi: NDArray,
     start: int,
     rows: NDArray,
-    h: NDArray,
-    wass_coef: NDArray,
-    fisher_coef: NDArray | None,
-    fisher: str | None,
-    K: NDArray,
-    energy_coef: float,
-    energy_diag: NDArray,
-    momentum_normal: NDArray | None,
+    consts: tuple[tuple, tuple],
     tol: float,
     max_iter: int,
     pd_tol: float,
     jam: int,
     jam_step: float,
-    points: NDArray,
-    abs_kernel: bool,
     checks: int,
-    semiseparable: object | None = None,
 ) -> tuple[NDArray, NDArray, NDArray, NDArray, NDArray, NDArray]:
     """:func:`iterate` on the rows ``rows`` of a batch ``f_star`` of shape ``(B, N)``, in one compiled loop.
 
     ``m`` (``(B, N - 1)``), ``phi`` (``(B,)``): each row's start and J there (``start = 0``), or ignored with
     ``start`` 1 (the explicit step) or 2 (zero).  A row whose residual is still above ``tol`` where its
     decrement reached ``tol`` is continued from its point, up to ``checks`` times (the stall test of the NumPy
-    iteration is its own).  Returns ``(m, f, phi, iterations, code, kkt)`` per row; a row is the caller's
-    where ``code == HANDLED`` and ``kkt <= tol``.  ``semiseparable``: as in :func:`iterate`.
+    iteration is its own).  ``consts``: :func:`constants`.  Returns ``(m, f, phi, iterations, code, kkt)`` per
+    row; a row is the caller's where ``code == HANDLED`` and ``kkt <= tol``.
     """
-    e = f_star.shape[1] - 1
-    c = np.zeros(e) if fisher_coef is None else fisher_coef
-    a = np.zeros(e) if momentum_normal is None else momentum_normal
-    K, kv = (h[None, :], points) if abs_kernel else (K, _NO_POINTS)
+    problem, structure = consts
     return _iterate_rows(
         _read_only(f_star), np.array(m, dtype=float), np.array(phi, dtype=float), int(start),
-        np.ascontiguousarray(rows, dtype=np.bool_), _read_only(h), _read_only(points), _read_only(wass_coef),
-        _read_only(c), _FISHER_CODES[fisher], _read_only(K), _read_only(kv), float(energy_coef),
-        _read_only(energy_diag), _read_only(a), momentum_normal is not None, float(tol), int(max_iter), float(pd_tol),
-        int(jam), float(jam_step), int(checks), *_structure_args(semiseparable),
+        np.ascontiguousarray(rows, dtype=np.bool_), *problem, float(tol), int(max_iter), float(pd_tol), int(jam),
+        float(jam_step), int(checks), *structure,
     )  # fmt: skip
 
 
@@ -854,52 +868,30 @@ def iterate(
     f_star: NDArray,
     m: NDArray | None,
     phi: float,
-    h: NDArray,
-    wass_coef: NDArray,
-    fisher_coef: NDArray | None,
-    fisher: str | None,
-    K: NDArray,
-    energy_coef: float,
-    energy_diag: NDArray,
-    momentum_normal: NDArray | None,
+    consts: tuple[tuple, tuple],
     explicit: bool,
     tol: float,
     max_iter: int,
     pd_tol: float,
     jam: int,
     jam_step: float,
-    points: NDArray,
-    abs_kernel: bool = False,
-    semiseparable: object | None = None,
 ) -> tuple[NDArray, NDArray, float, int, int, float]:
     """Newton iterations on one slice from ``m`` (where J is ``phi``), or, with ``m=None``, from the explicit
-    step (``explicit``) or from 0.
+    step (``explicit``) or from 0; ``consts``: :func:`constants`.
 
     Returns ``(m, f, phi, iterations, code, kkt)``: ``code == HANDLED`` where the decrement reached
     ``tol`` at a point whose reduced Hessian is positive definite, anything else where the NumPy
     iteration must take over; ``kkt`` is the point's KKT residual (:func:`kkt_residual`, from the
     gradient's split evaluated there; NaN where not handled), which the caller compares with ``tol``.
-    ``energy_diag`` is the energy's diagonal flux block times ``2 dt sigma``; ``momentum_normal`` the
-    constraint normal ``dv`` (or None); ``jam`` short steps (``alpha < jam_step``) in a row end the attempt.
-    ``points``: the grid points.  ``abs_kernel``: W = |v| (``K_il = |v_i - v_l| h_i h_l``), whose products
-    ``K f`` are then two running sums, O(N) (``K`` is not read); otherwise the dense ``K``.
-    ``semiseparable``: gamma = 3, the :class:`~jko_cvx.collision._structured.Semiseparable3` of the grid, whose
-    structured solve (band LU with partial pivoting, Woodbury's 2 x 2 capacitance) then gives the directions and
-    decides positive definiteness (``energy_diag`` is the energy block's diagonal times ``2 dt sigma``);
-    None: a diagonal energy block, one banded Cholesky.
+    ``jam`` short steps (``alpha < jam_step``) in a row end the attempt.
     """
+    problem, structure = consts
     e = f_star.size - 1
-    K, kv = (h[None, :], points) if abs_kernel else (K, _NO_POINTS)
-    c = np.zeros(e) if fisher_coef is None else fisher_coef
-    a = np.zeros(e) if momentum_normal is None else momentum_normal
     start = 0 if m is not None else (1 if explicit else 2)
     m = np.zeros(e) if m is None else np.array(m, dtype=float)  # a copy: the iteration writes it
     m, f, phi, its, code, kkt = _iterate(
-        _read_only(f_star), m, float(phi), start, _read_only(h), _read_only(points), _read_only(wass_coef),
-        _read_only(c),
-        _FISHER_CODES[fisher], _read_only(K), _read_only(kv), float(energy_coef), _read_only(energy_diag),
-        _read_only(a), momentum_normal is not None, float(tol), int(max_iter), float(pd_tol), int(jam), float(jam_step),
-        *_structure_args(semiseparable),
+        _read_only(f_star), m, float(phi), start, *problem, float(tol), int(max_iter), float(pd_tol), int(jam),
+        float(jam_step), *structure,
     )  # fmt: skip
     return m, f, float(phi), int(its), int(code), float(kkt)
 

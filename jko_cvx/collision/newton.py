@@ -90,7 +90,7 @@ from jko_cvx.collision.terms import (
     wasserstein_value,
 )
 from jko_cvx.kernels import FluxBlock, PowerKernel
-from jko_cvx.threads import blas_limited
+from jko_cvx.threads import blas_limited, map_chunks
 
 __all__ = ["NewtonOptions", "NewtonState", "solve_newton"]
 
@@ -970,6 +970,17 @@ def _compiled_energy(P: CollisionProblem) -> tuple[NDArray, Semiseparable3 | Non
     return None
 
 
+def _compiled_constants(compiled, P: CollisionProblem, energy_diag: NDArray, semiseparable) -> tuple:
+    """The step's constants for the compiled iteration (``_compiled.constants``); for W = |v| (gamma = 1) the
+    products ``K f`` are running sums, O(N) (the dense K's to rounding)."""
+    g = P.grid
+    return compiled.constants(
+        g.h, g.points, P.wass_coef, P.fisher_coef if P.fisher else None, P.fisher, P.energy.dense(), P.energy_coef,
+        energy_diag, g.dv if P.conserve_momentum else None, type(P.kernel) is PowerKernel and P.kernel.gamma == 1.0,
+        semiseparable,
+    )
+
+
 def _compiled_single(P: CollisionProblem, opts: NewtonOptions, t0: float) -> CollisionResult | None:
     """The first attempt of :func:`_cascade` on the unbatched problem ``P``, as compiled code, where it applies.
 
@@ -990,20 +1001,14 @@ def _compiled_single(P: CollisionProblem, opts: NewtonOptions, t0: float) -> Col
         st, used = _start(P.rows(slice(None)), opts.m0[None], opts)
         m, phi, warm = st.m[0], st.phi[0], bool(used[0])
     compiled = _compiled_module()
+    consts = _compiled_constants(compiled, P, energy_diag, semiseparable)
     iterations, explicit = 0, opts.start == "explicit"
-    g = P.grid
-    energy = (P.energy.dense(), P.energy_coef, energy_diag)
-    normal = g.dv if P.conserve_momentum else None
-    # W = |v| (gamma = 1): the products K f by running sums, O(N) (the dense K's to rounding)
-    abs_kernel = type(P.kernel) is PowerKernel and P.kernel.gamma == 1.0
     # As in _iterate: the residual is checked where the decrement reached tol; where it is still above
     # tol the iteration goes on from there, up to _STALL_CHECKS checks (a stall is the NumPy path's case).
     for _ in range(_STALL_CHECKS):
         m, f, phi, its, code, kkt = compiled.iterate(
-            P.f_star, m, phi, g.h, P.wass_coef, P.fisher_coef if P.fisher else None, P.fisher, *energy,
-            normal, explicit, opts.tol, opts.max_iter - iterations, _PD_TOL, _JAM, _JAM_STEP, g.points, abs_kernel,
-            semiseparable,
-        )  # fmt: skip
+            P.f_star, m, phi, consts, explicit, opts.tol, opts.max_iter - iterations, _PD_TOL, _JAM, _JAM_STEP
+        )
         iterations += its
         if code != compiled.HANDLED:
             return None
@@ -1025,7 +1030,8 @@ def _compiled_single(P: CollisionProblem, opts: NewtonOptions, t0: float) -> Col
 
 
 def _compiled_batch(P: CollisionProblem, opts: NewtonOptions, t0: float) -> CollisionResult | None:
-    """:func:`_compiled_single` for each slice of the batch ``P``, in one compiled loop; the rest by the cascade.
+    """:func:`_compiled_single` for each slice of the batch ``P``, in one compiled loop per slice thread
+    (:func:`~jko_cvx.threads.map_chunks`); the rest by the cascade.
 
     The slices whose compiled attempt returns a point that the shared certificate accepts as ``CONVERGED``
     take it; every other slice (data with a zero, a slice the compiled attempt hands back, a point the
@@ -1049,14 +1055,18 @@ def _compiled_batch(P: CollisionProblem, opts: NewtonOptions, t0: float) -> Coll
         m, phi, start = st.m, st.phi, 0
     else:
         m, phi, start = np.zeros((B, n - 1)), np.full(B, np.nan), 1 if opts.start == "explicit" else 2
-    g = P.grid
-    with np.errstate(all="ignore"):
-        m, f, phi, its, code, kkt = compiled.iterate_rows(
-            P.f_star, m, phi, start, eligible, g.h, P.wass_coef, P.fisher_coef if P.fisher else None, P.fisher,
-            P.energy.dense(), P.energy_coef, energy_diag, g.dv if P.conserve_momentum else None,
-            opts.tol, opts.max_iter, _PD_TOL, _JAM, _JAM_STEP, g.points,
-            type(P.kernel) is PowerKernel and P.kernel.gamma == 1.0, _STALL_CHECKS, semiseparable,
+    consts = _compiled_constants(compiled, P, energy_diag, semiseparable)
+    m, f, phi = np.array(m, dtype=float), np.zeros((B, n)), np.array(phi, dtype=float)
+    its, code, kkt = np.zeros(B, dtype=np.int64), np.zeros(B, dtype=np.int64), np.full(B, np.nan)
+
+    def work(a: int, b: int) -> None:  # the rows a:b, in the slice threads (the compiled loop releases the GIL)
+        m[a:b], f[a:b], phi[a:b], its[a:b], code[a:b], kkt[a:b] = compiled.iterate_rows(
+            P.f_star[a:b], m[a:b], phi[a:b], start, eligible[a:b], consts, opts.tol, opts.max_iter, _PD_TOL, _JAM,
+            _JAM_STEP, _STALL_CHECKS,
         )  # fmt: skip
+
+    map_chunks(work, B)  # each row's result is its own whatever the chunks: the same bits for any thread count
+    with np.errstate(all="ignore"):
         done = eligible & (code == compiled.HANDLED) & (kkt <= opts.tol)
         if not done.any():
             return None

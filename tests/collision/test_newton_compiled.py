@@ -320,3 +320,17 @@ def test_the_compiled_band_lu_pivots_as_dense_elimination_does():
     W = np.zeros((5, 3 * kl + 1))
     W[:, kl] = [1.0, 2.0, 0.0, 1.0, 1.0]  # a zero column: no pivot
     assert not _band_lu_solve(W, kl, np.ones((5, 1)))
+
+
+def test_a_compiled_batch_in_slice_threads_is_the_same_bit_for_bit(monkeypatch):
+    from jko_cvx.threads import THREADS_ENV
+
+    P = next(iter(_batches(3.0)))
+    monkeypatch.setenv(THREADS_ENV, "1")
+    one = solve_newton(P, compiled=True)
+    monkeypatch.setenv(THREADS_ENV, "3")
+    three = solve_newton(P, compiled=True)
+    assert one.info["compiled"].any()
+    for name in ("f", "m", "iterations", "kkt_residual", "objective"):
+        assert np.array_equal(getattr(one, name), getattr(three, name))
+    assert list(one.status) == list(three.status)
