@@ -7,8 +7,9 @@ boundary and Armijo backtracking on :math:`J`, the same momentum-constrained dir
 direction of the NumPy iteration's linear algebra:
 
 * an energy block diagonal in the fluxes (:math:`\\gamma = 1`, :class:`~jko_cvx.kernels.FluxBlock`
-  ``"diagonal"``): the banded Cholesky factorisation of ``diag (1 + pd_tol)``, which decides positive
-  definiteness; for W = |v| the products ``K f`` are two running sums (O(N), :func:`_matvec`);
+  ``"diagonal"``): the banded factorisation of the reduced Hessian with ``diag (1 + pd_tol)`` (``L D L'``,
+  whose pivots decide positive definiteness as the Cholesky factorisation's do); for W = |v| the products
+  ``K f`` are two running sums (O(N), :func:`_matvec`);
 * :math:`\\gamma = 3`: the exact O(N) solve of
   :class:`~jko_cvx.collision._structured.Semiseparable3` (:func:`_semiseparable3`: the Cholesky of the
   pentadiagonal part G as the first test, the interleaved quasi-definite core by Gaussian elimination with

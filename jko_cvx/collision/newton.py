@@ -40,10 +40,10 @@ iterating), and the phases as functions -- :func:`_start`, :func:`_residual_test
 :func:`_direction` (with the modified-Newton shifts), :func:`_step` (interior damping,
 :func:`_line_search`, jam bookkeeping), :func:`_finalise` -- driven by :func:`_iterate`;
 the retry cascade (:func:`_cascade`) is written once, per slice.  With ``compiled=True`` the first
-attempt of each slice with a diagonal energy block (gamma = 1) runs as compiled code
-(:mod:`jko_cvx.collision._compiled`; :func:`_compiled_single`, :func:`_compiled_batch`), judged by the
-same residual (compiled) and certificate, and hands back to the cascade whatever it does not finish
-cleanly.
+attempt of each slice with a diagonal energy block (gamma = 1) or the gamma = 3 structured solve runs as
+compiled code (:mod:`jko_cvx.collision._compiled`; :func:`_compiled_single`, :func:`_compiled_batch`),
+judged by the same residual (compiled) and certificate, and hands back to the cascade whatever it does
+not finish cleanly.
 
 Statuses: ``CONVERGED`` (KKT residual within ``kkt_tol`` and the reduced Hessian positive
 definite), ``NOT_CERTIFIED`` (stopped, at ``tol`` or at the residual's rounding floor, above
@@ -985,7 +985,8 @@ def _compiled_single(P: CollisionProblem, opts: NewtonOptions, t0: float) -> Col
     """The first attempt of :func:`_cascade` on the unbatched problem ``P``, as compiled code, where it applies.
 
     :mod:`jko_cvx.collision._compiled` runs the undamped iteration from the same start (that of
-    :func:`_start`) for an energy block diagonal in the fluxes (gamma = 1).  Its point is judged here as
+    :func:`_start`) for an energy block diagonal in the fluxes (gamma = 1) or with the gamma = 3 structured
+    solve (:func:`_compiled_energy`).  Its point is judged here as
     the NumPy iteration's would be -- the KKT residual (the shared one's expressions, compiled) within
     ``tol``, the reduced Hessian positive definite there -- and certified by the shared certificate.
     Anything else, a point the certificate does not accept as ``CONVERGED`` included, returns None: the
@@ -1186,9 +1187,10 @@ def solve_newton(
         two can be different local minimisers; see :func:`_cascade`).  False returns the first
         certified point (cheaper, and the higher minimiser where there are two).
     compiled : bool, default False
-        Run the first attempt of each slice whose energy block is diagonal in the fluxes (gamma = 1)
-        as compiled code (:mod:`jko_cvx.collision._compiled`; needs numba, the ``fast`` extra; a batch
-        in one compiled loop over its slices): the same iteration from the same start, its point judged
+        Run the first attempt of each slice whose energy block is diagonal in the fluxes (gamma = 1) or
+        takes the exact structured solve (gamma = 3) as compiled code (:mod:`jko_cvx.collision._compiled`;
+        needs numba, the ``fast`` extra; a batch in one compiled loop over its slices, in the slice
+        threads): the same iteration and direction from the same start, its point judged
         by the same KKT residual (its expressions compiled) and the same certificate, equal to the NumPy
         iteration's to rounding, at a fraction of its time per solve.  A slice it does not finish
         cleanly (a Hessian that needs a shift, a run of short steps, the iteration limit, data with a
