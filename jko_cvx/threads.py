@@ -71,7 +71,7 @@ THREAD_ENV_KEYS = (BLAS_THREADS_ENV, THREADS_ENV, "OPENBLAS_NUM_THREADS", "OMP_N
 
 _state = threading.local()  # depth of blas_limits, and whether this thread is a slice worker
 _lock = threading.Lock()
-_controller = None
+_blas_libraries: list | None = None  # threadpoolctl's BLAS library controllers
 _pool: ThreadPoolExecutor | None = None
 _pool_size = 0
 
@@ -138,14 +138,14 @@ def blas_limits() -> Iterator[None]:
 
 def _blas_controllers() -> list:
     """threadpoolctl's controllers of the BLAS libraries loaded at the first call (built once)."""
-    global _controller
-    if _controller is None:
+    global _blas_libraries
+    if _blas_libraries is None:
         from threadpoolctl import ThreadpoolController
 
         with _lock:
-            if _controller is None:
-                _controller = ThreadpoolController().select(user_api="blas").lib_controllers
-    return _controller
+            if _blas_libraries is None:
+                _blas_libraries = ThreadpoolController().select(user_api="blas").lib_controllers
+    return _blas_libraries
 
 
 def thread_environment() -> str:

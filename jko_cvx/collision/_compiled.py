@@ -239,7 +239,7 @@ def _band_lu_solve(W, kl, R):  # pragma: no cover - compiled
 
 
 @_jit
-def _semiseparable3(d, off1, off2, pd_tol, scale, lap_diag, lap_off, u0, u1, q00, rhs, k, x, l0, l1, l2, W, R):
+def _semiseparable3(d, off1, off2, pd_tol, scale, lap_diag, lap_off, u0, u1, q00, rhs, k, x, l0, l1, l2, dd, W, R):
     """``x = H_s^-1 rhs`` (the first ``k`` columns) for gamma = 3 (``_structured.Semiseparable3``, one slice), and
     whether ``H_s`` is positive definite; False also where the NumPy path would not decide it here (the dense
     path's cases: G not positive definite, a failed band solve).
@@ -249,10 +249,8 @@ def _semiseparable3(d, off1, off2, pd_tol, scale, lap_diag, lap_off, u0, u1, q00
     columns of ``V = [u0, u1]``; Woodbury's 2 x 2 capacitance ``S = -Q^-1 / (2 scale) + V' H_c^-1 V`` decides
     positive definiteness (``det S < 0``) and gives ``H_s^-1 rhs``."""
     e = d.size
-    for i in range(e):
-        if not (d[i] > 0 and math.isfinite(d[i])):
-            return False
-    if not _cholesky(d, off1, off2, pd_tol, l0, l1, l2, np.empty(e)):  # G's factor only decides, as in NumPy
+    # G's factorisation only decides (it also refuses a diagonal that is not positive and finite), as in NumPy
+    if not _cholesky(d, off1, off2, pd_tol, l0, l1, l2, dd):
         return False
     kl = 4
     zc = 1.0 / (4.0 * scale)
@@ -520,7 +518,7 @@ def _iterate(
                 rhs[k, 1] = a[k]
             pd = _semiseparable3(
                 diag, off1, off2, pd_tol, 2 * ecoef, ss_lap_diag, ss_lap_off, ss_u0, ss_u1, ss_q00, rhs, ncol, xs,
-                l0, l1, l2, W, R,
+                l0, l1, l2, dd, W, R,
             )
         else:
             pd = _cholesky(diag, off1, off2, pd_tol, l0, l1, l2, dd)
@@ -749,8 +747,9 @@ def kkt_residual(
     weighted least-squares multiplier, the momentum multiplier, the scaled stationarity, feasibility and
     positivity), in loops: equal to rounding (sums and the tridiagonal solves run in another order; the
     tests compare the two on random points of every Fisher form).  ``parts``: the gradient's split
-    ``(Wasserstein in f, Fisher in f, energy in f, Wasserstein in m)`` at the point, as :func:`iterate`
-    returns it.  Returns ``(stationarity, feasibility, positivity, multiplier)``.
+    ``(Wasserstein in f, Fisher in f, energy in f, Wasserstein in m)`` at the point (as
+    :meth:`~jko_cvx.collision.problem.CollisionProblem.gradient_parts` gives it, or the compiled
+    iteration's).  Returns ``(stationarity, feasibility, positivity, multiplier)``.
     """
     s, fe, po, phi = _kkt(
         _read_only(f), _read_only(m), _read_only(f_star), _read_only(h), _read_only(v), _read_only(dv),
@@ -765,11 +764,10 @@ def _iterate_rows(
     jam_step, checks, ss, ss_lap_diag, ss_lap_off, ss_u0, ss_u1, ss_q00,
 ):  # pragma: no cover - compiled
     """:func:`_iterate` on each row ``b`` with ``rows[b]``, from ``m[b]`` (J there ``phi[b]``; ``start`` as in
-    :func:`_iterate`), continued from its point up to ``checks`` times while the KKT residual is above ``tol``."""
+    :func:`_iterate`), continued from its point up to ``checks`` times while the KKT residual is above ``tol``.
+    ``m`` and ``phi`` are the caller's copies: the rows' final points and J are written into them."""
     B, n = fstar.shape
     f = np.zeros((B, n))
-    m_out = m.copy()
-    phi_out = phi.copy()
     its = np.zeros(B, dtype=np.int64)
     code = np.full(B, _NOT_HANDLED, dtype=np.int64)
     kkt = np.full(B, np.nan)
@@ -791,10 +789,10 @@ def _iterate_rows(
             f[b] = fb
             if cd != HANDLED or kk <= tol:
                 break
-        m_out[b] = mb
-        phi_out[b] = ph
+        m[b] = mb
+        phi[b] = ph
         its[b] = total
-    return m_out, f, phi_out, its, code, kkt
+    return m, f, phi, its, code, kkt
 
 
 def constants(
@@ -817,7 +815,7 @@ def constants(
     are then two running sums, O(N) (``K`` is not read); otherwise the dense ``K``.  ``semiseparable``: gamma =
     3, the :class:`~jko_cvx.collision._structured.Semiseparable3` of the grid, whose structured solve (band LU
     with partial pivoting, Woodbury's 2 x 2 capacitance) then gives the directions and decides positive
-    definiteness; None: a diagonal energy block, one banded Cholesky.
+    definiteness; None: a diagonal energy block, one banded factorisation.
     """
     e = h.size - 1
     c = np.zeros(e) if fisher_coef is None else fisher_coef
@@ -859,7 +857,7 @@ def iterate_rows(
     """
     problem, structure = consts
     return _iterate_rows(
-        _read_only(f_star), np.array(m, dtype=float), np.array(phi, dtype=float), int(start),
+        _read_only(f_star), np.array(m, dtype=float), np.array(phi, dtype=float), int(start),  # copies: written
         np.ascontiguousarray(rows, dtype=np.bool_), *problem, float(tol), int(max_iter), float(pd_tol), int(jam),
         float(jam_step), int(checks), *structure,
     )  # fmt: skip

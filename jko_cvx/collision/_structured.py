@@ -108,6 +108,7 @@ __all__ = [
     "dense_direction",
     "dense_kernel_direction",
     "linalg_mode",
+    "semiseparable3",
 ]
 
 LINALG_ENV = "JKO_CVX_NEWTON_LINALG"
@@ -545,6 +546,17 @@ def _solver(energy: EnergyOperator, momentum_plane: bool) -> Semiseparable3 | Lo
             solver = Certified(energy.flux_block())
         solvers[plane] = solver
     return solver
+
+
+def semiseparable3(energy: EnergyOperator, scale: float) -> Semiseparable3 | None:
+    """The exact gamma = 3 solve :func:`dense_kernel_direction` takes for ``energy`` at ``scale`` (the one it
+    caches with the operator), or None where it takes another path (another kernel, fewer than 3 fluxes, a
+    low-rank block, ``scale <= 0``, the ``dense`` linear algebra)."""
+    if getattr(energy, "gamma", None) != 3.0 or energy.grid.n - 1 < 3 or scale <= 0 or linalg_mode() != "auto":
+        return None
+    if energy.flux_structure().kind == "lowrank":
+        return None
+    return _solver(energy, False)  # the momentum plane changes only a low-rank block's solver
 
 
 def dense_kernel_direction(

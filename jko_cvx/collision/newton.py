@@ -58,7 +58,6 @@ from __future__ import annotations
 import functools
 import importlib.util
 import time
-import weakref
 from dataclasses import dataclass, fields, replace
 from typing import Any
 
@@ -76,7 +75,7 @@ from jko_cvx.collision._linalg import (
     pentadiagonal_cholesky_batch,
     pentadiagonal_solve_batch,
 )
-from jko_cvx.collision._structured import Semiseparable3, dense_kernel_direction, linalg_mode
+from jko_cvx.collision._structured import Semiseparable3, dense_kernel_direction, semiseparable3
 from jko_cvx.collision.certify import certify_validated
 from jko_cvx.collision.options import Options, Spec, option
 from jko_cvx.collision.problem import CollisionProblem, TermParts, add_pentadiagonal
@@ -945,9 +944,6 @@ def _cascade(P: CollisionProblem, m0: NDArray | None, opts: NewtonOptions) -> Co
     return res
 
 
-_SEMISEPARABLE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # energy operator -> its gamma = 3 solve
-
-
 @functools.cache
 def _compiled_module():
     """:mod:`jko_cvx.collision._compiled`, imported at the first solve that uses it (numba loads then)."""
@@ -956,18 +952,14 @@ def _compiled_module():
 
 def _compiled_energy(P: CollisionProblem) -> tuple[NDArray, Semiseparable3 | None] | None:
     """What the compiled iteration needs of the energy block: its diagonal times ``2 dt sigma`` and, for gamma = 3,
-    the structured solve the NumPy iteration takes (``Semiseparable3``, where ``_structured`` takes it: the
-    ``auto`` linear algebra, at least 3 fluxes, a positive strength); None where the block is neither."""
+    the structured solve the NumPy iteration takes (:func:`~jko_cvx.collision._structured.semiseparable3`, the
+    same cached instance); None where the block is neither."""
     fb = P.energy.flux_structure()
     scale = 2 * P.energy_coef
     if fb.kind == "diagonal":
         return scale * fb.diag, None
-    if getattr(P.energy, "gamma", None) == 3.0 and P.n - 1 >= 3 and scale > 0 and linalg_mode() == "auto":
-        solve = _SEMISEPARABLE.get(P.energy)
-        if solve is None:
-            solve = _SEMISEPARABLE[P.energy] = Semiseparable3(P.grid)
-        return scale * solve.e_diag, solve
-    return None
+    solve = semiseparable3(P.energy, scale)
+    return None if solve is None else (scale * solve.e_diag, solve)
 
 
 def _compiled_constants(compiled, P: CollisionProblem, energy_diag: NDArray, semiseparable) -> tuple:
@@ -1057,7 +1049,7 @@ def _compiled_batch(P: CollisionProblem, opts: NewtonOptions, t0: float) -> Coll
     else:
         m, phi, start = np.zeros((B, n - 1)), np.full(B, np.nan), 1 if opts.start == "explicit" else 2
     consts = _compiled_constants(compiled, P, energy_diag, semiseparable)
-    m, f, phi = np.array(m, dtype=float), np.zeros((B, n)), np.array(phi, dtype=float)
+    f = np.zeros((B, n))  # m, phi: fresh arrays of this call, written row by row below
     its, code, kkt = np.zeros(B, dtype=np.int64), np.zeros(B, dtype=np.int64), np.full(B, np.nan)
 
     def work(a: int, b: int) -> None:  # the rows a:b, in the slice threads (the compiled loop releases the GIL)

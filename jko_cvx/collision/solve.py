@@ -83,7 +83,7 @@ def solve_collision(problem: CollisionProblem, method: str = "conic", **options:
         raise ValueError(f"method must be one of {sorted(METHODS)}, got {method!r}")
     func = METHODS[method]
     allowed = _options_of(func)
-    unknown = sorted(set(options) - set(allowed)) if options and not options.keys() <= set(allowed) else None
+    unknown = sorted(set(options).difference(allowed)) if options else None
     if unknown:
         raise TypeError(f"unknown option(s) {unknown} for method={method!r}; allowed: {allowed}")
     with blas_limits():  # BLAS threads per jko_cvx.threads (default 1; slices run in threads)
