@@ -22,6 +22,7 @@ or the variant were recorded are first-order runs as shipped.  Written: ``g3_dt_
 
 from __future__ import annotations
 
+import json
 import time
 from pathlib import Path
 from typing import Any
@@ -32,7 +33,7 @@ import pandas as pd
 from jko_cvx.engine.errors import RunDirError
 from jko_cvx.engine.loop import simulate
 from jko_cvx.engine.run import load_run
-from jko_cvx.environment import environment, record_csv, write_markdown
+from jko_cvx.environment import code_fingerprint, environment, record_csv, write_markdown
 from jko_cvx.scene.model import shipped_scene
 from jko_cvx.studies.solvers.figures import finish_figure, pyplot
 from jko_cvx.studies.sweep import run_sweep
@@ -132,9 +133,15 @@ def probe_run(
         out = Path(out)
         scene = shipped_scene(f"inhom_gamma3_lambda{lam:g}", {**over, "output.checkpoint_every": 1})
         if (out / "verdict.json").exists():
-            run = load_run(out)
+            run = load_run(out)  # its files checked against their recorded digests
             if run.scene.to_dict() != scene.to_dict():
                 raise RunDirError(f"the run in {out} is not of the case asked for ({lam:g}:{n}:{dt:g}:{time_order})")
+            made_by = json.loads((out / "metadata.json").read_text()).get("code_sha256")
+            if made_by != code_fingerprint():  # the row is labelled with this code's commit: it must be its run
+                raise RunDirError(
+                    f"the run in {out} was made by other jko_cvx code (code SHA-256 {str(made_by)[:12]}...); read it "
+                    "back under that code, or move it away to run the case again"
+                )
         else:
             run = simulate(scene, out=out, resume=(out / "checkpoint.npz").exists(), progress=True)
         seconds = run.seconds["wall"]

@@ -102,3 +102,15 @@ def test_a_case_in_a_run_directory_continues_from_its_checkpoint_to_the_row_of_a
     assert read_back["seconds"] == continued["seconds"] > 0
     with pytest.raises(RunDirError, match="not of the case"):
         probe_run(10.0, 15, 0.05, 1, "", t_end=0.5, out=out)
+
+
+def test_an_ended_case_of_other_code_is_refused_not_read_back_under_this_commit(tmp_path, monkeypatch):
+    """The driver labels each row with this code's commit: an ended run another code made must not get that label."""
+    import jko_cvx.studies.reproduce.dt_probe as dt_probe
+    from jko_cvx.engine import RunDirError
+
+    out = tmp_path / "case"
+    dt_probe.probe_run(10.0, 15, 0.1, 1, "", t_end=0.2, out=out)  # ended: verdict.json written
+    monkeypatch.setattr(dt_probe, "code_fingerprint", lambda: "0" * 64)  # as if the package were edited since
+    with pytest.raises(RunDirError, match="other jko_cvx code"):
+        dt_probe.probe_run(10.0, 15, 0.1, 1, "", t_end=0.2, out=out)
