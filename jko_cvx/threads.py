@@ -41,9 +41,8 @@ import functools
 import itertools
 import os
 import threading
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from contextlib import contextmanager
 from typing import ParamSpec, TypeVar
 
 import numpy as np
@@ -107,9 +106,42 @@ def slice_workers() -> int:
     return _env_int(THREADS_ENV, 1, 1)
 
 
-@contextmanager
-def blas_limits() -> Iterator[None]:
-    """Limit BLAS to :func:`blas_threads` threads inside the block (re-entrant; 0: no limit).
+class _BlasLimit:
+    """The context manager :func:`blas_limits` returns (a class: a solve pays no generator's setup)."""
+
+    __slots__ = ("changed", "entered")
+
+    def __enter__(self) -> None:
+        self.changed: list = []
+        self.entered = False
+        if getattr(_state, "depth", 0) or getattr(_state, "worker", False):
+            return  # the outer block (or the pool's caller) has set the limit
+        limit = blas_threads()
+        if limit == 0:
+            return
+        changed = [(lib, n) for lib in _blas_controllers() if (n := lib.get_num_threads()) is not None and n != limit]
+        _state.depth = 1
+        self.entered = True
+        try:
+            for lib, _ in changed:
+                lib.set_num_threads(limit)
+                self.changed.append((lib, _))
+        except BaseException:
+            self.__exit__(None, None, None)
+            raise
+
+    def __exit__(self, *exc: object) -> None:
+        if not self.entered:
+            return
+        try:
+            for lib, n in self.changed:
+                lib.set_num_threads(n)
+        finally:
+            _state.depth = 0
+
+
+def blas_limits() -> _BlasLimit:
+    """Limit BLAS to :func:`blas_threads` threads inside the ``with`` block (re-entrant; 0: no limit).
 
     The BLAS libraries are those loaded at the first use (NumPy's and SciPy's OpenBLAS), found
     once by threadpoolctl.  Only a library whose thread count differs from the limit is set, and
@@ -117,23 +149,7 @@ def blas_limits() -> Iterator[None]:
     two native calls per library otherwise -- a single small solve pays nothing like threadpoolctl's
     full ``limit`` (about 100 us, which reads every library's information twice).
     """
-    if getattr(_state, "depth", 0) or getattr(_state, "worker", False):
-        yield  # the outer block (or the pool's caller) has set the limit
-        return
-    limit = blas_threads()
-    if limit == 0:
-        yield
-        return
-    changed = [(lib, n) for lib in _blas_controllers() if (n := lib.get_num_threads()) is not None and n != limit]
-    _state.depth = 1
-    try:
-        for lib, _ in changed:
-            lib.set_num_threads(limit)
-        yield
-    finally:
-        for lib, n in changed:
-            lib.set_num_threads(n)
-        _state.depth = 0
+    return _BlasLimit()
 
 
 def _blas_controllers() -> list:

@@ -27,7 +27,9 @@ shares (:meth:`~jko_cvx.collision.problem.CollisionProblem.kkt_residual`) in loo
 
 The arithmetic follows the NumPy expressions term by term, so the iterates agree with the NumPy
 iteration's to rounding (not bit for bit: sums, the factorisations and the products with K run in
-another order).
+another order, and quotients by the same number -- an edge's ``s = f_k + f_{k+1}``, a cell width, a
+pivot -- are products with its reciprocal, one division where the expressions have several).  The
+scratch arrays are allocated once per call (:func:`_scratch`) and reused for every row of a batch.
 """
 
 from __future__ import annotations
@@ -91,21 +93,22 @@ def _evaluate(
     for k in range(e):
         x, y = f[k], f[k + 1]
         s = x + y
-        u = m[k] / s
+        si = 1.0 / s  # one division per edge: the quotients by s below are products with si
+        u = m[k] * si
         w2 = 2 * w[k]
         g_m = w2 * u
         g_s = -w[k] * u * u
-        h_ss = g_m * u / s
-        hsm[k] = -2 * w[k] * u / s
-        hmm[k] = w2 / s
+        h_ss = g_m * u * si
+        hsm[k] = -2 * w[k] * u * si
+        hmm[k] = w2 * si
         gm[k] = g_m
         gfw[k] += g_s
         gfw[k + 1] += g_s
         hx = hy = hxy = h_ss
         if fisher == 1:
-            r = (y - x) / s
+            r = (y - x) * si
             r2 = 2 * r * r
-            k16 = 16 * c[k] / (s * s * s)
+            k16 = 16 * c[k] * (si * si * si)
             gff[k] += c[k] * (-4 * r - r2)
             gff[k + 1] += c[k] * (4 * r - r2)
             hx = h_ss + k16 * y * y
@@ -183,7 +186,7 @@ def _solve(l0, l1, l2, rhs, out):  # pragma: no cover - compiled
         if k >= 2:
             v -= l2[k - 2] * out[k - 2]
         out[k] = v
-    for k in range(e):
+    for k in range(e):  # a pass of its own: the forward recurrence reads the unscaled values
         out[k] *= l0[k]
     for k in range(e - 1, -1, -1):
         v = out[k]
@@ -239,7 +242,9 @@ def _band_lu_solve(W, kl, R):  # pragma: no cover - compiled
 
 
 @_jit
-def _semiseparable3(d, off1, off2, pd_tol, scale, lap_diag, lap_off, u0, u1, q00, rhs, k, x, l0, l1, l2, dd, W, R):
+def _semiseparable3(
+    d, off1, off2, pd_tol, scale, lap_diag, lap_off, u0, u1, q00, rhs, k, x, l0, l1, l2, dd, W, R, sc
+):  # pragma: no cover - compiled
     """``x = H_s^-1 rhs`` (the first ``k`` columns) for gamma = 3 (``_structured.Semiseparable3``, one slice), and
     whether ``H_s`` is positive definite; False also where the NumPy path would not decide it here (the dense
     path's cases: G not positive definite, a failed band solve).
@@ -254,8 +259,6 @@ def _semiseparable3(d, off1, off2, pd_tol, scale, lap_diag, lap_off, u0, u1, q00
         return False
     kl = 4
     zc = 1.0 / (4.0 * scale)
-    n2 = 2 * e
-    sc = np.empty(n2)
     for i in range(e):
         sc[2 * i] = abs(d[i] + pd_tol * d[i]) ** -0.5
         sc[2 * i + 1] = abs(-lap_diag[i] * zc) ** -0.5
@@ -358,10 +361,11 @@ def _objective(f, m, w, c, fisher, K, kv, ecoef, kf):  # pragma: no cover - comp
     for k in range(n - 1):
         x, y = f[k], f[k + 1]
         s = x + y
-        val += w[k] * (m[k] * m[k] / s)
+        si = 1.0 / s
+        val += w[k] * (m[k] * m[k] * si)
         if fisher == 1:
             dd = y - x
-            val += c[k] * (2 * dd * dd / s)
+            val += c[k] * (2 * dd * dd * si)
         elif fisher == 2:
             L = math.log(y) - math.log(x)
             val += c[k] * (0.5 * L * L * s)
@@ -373,29 +377,33 @@ def _objective(f, m, w, c, fisher, K, kv, ecoef, kf):  # pragma: no cover - comp
 
 
 @_jit
-def _explicit_start(fstar, h, hinv, w, c, fisher, K, kv, ecoef, a, conserve, m, f, kf):  # pragma: no cover - compiled
+def _explicit_start(
+    fstar, h, hinv, w, c, fisher, K, kv, ecoef, a, conserve, m, f, kf, ws
+):  # pragma: no cover - compiled
     """The damped explicit step from ``(f*, 0)`` where it lowers J, else 0 (``newton._explicit_start``).
 
     The first step of the paper's SQP (:func:`jko_cvx.collision.sqp.explicit_step`: the tridiagonal
     system of the diagonal Hessian at ``m = 0``, where the Wasserstein gradient and its (s, s) and
     (s, m) curvatures vanish), damped to keep ``f >= f*/2`` and projected onto the momentum plane.
-    Writes ``m``, ``f`` and ``kf = K f``; returns J there.
+    Writes ``m``, ``f`` and ``kf = K f``; returns J there.  ``ws``: ``_START_ROWS`` rows of n scratch values.
     """
     n = fstar.size
     e = n - 1
-    kf0 = np.empty(n)
-    phi0 = _objective(fstar, np.zeros(e), w, c, fisher, K, kv, ecoef, kf0)
-    gf = np.empty(n)
-    hf = np.zeros(n)
+    kf0, m0, gf, hf = ws[0], ws[1, :e], ws[2], ws[3]
+    dg, rhs, cp, pm = ws[4, :e], ws[5, :e], ws[6, :e], ws[7, :e]
+    m0[:] = 0.0
+    hf[:] = 0.0
+    phi0 = _objective(fstar, m0, w, c, fisher, K, kv, ecoef, kf0)
     for i in range(n):
         gf[i] = 2 * ecoef * kf0[i]
     for k in range(e):
         x, y = fstar[k], fstar[k + 1]
         s = x + y
         if fisher == 1:
-            r = (y - x) / s
+            si = 1.0 / s
+            r = (y - x) * si
             r2 = 2 * r * r
-            k16 = 16 * c[k] / (s * s * s)
+            k16 = 16 * c[k] * (si * si * si)
             gf[k] += c[k] * (-4 * r - r2)
             gf[k + 1] += c[k] * (4 * r - r2)
             hf[k] += k16 * y * y
@@ -409,23 +417,21 @@ def _explicit_start(fstar, h, hinv, w, c, fisher, K, kv, ecoef, a, conserve, m, 
             hf[k] += q / (x * x)
             hf[k + 1] += q / (y * y)
     # (A + diag(hm)) pm = D'(gf / h), A = D' diag(hf / h^2) D: Thomas' algorithm (positive definite)
-    dg = np.empty(e)
-    rhs = np.empty(e)
+    # with 1/h and one reciprocal of the pivot per row: divisions are most of this loop's cost
+    for j in range(n):
+        hf[j] *= hinv[j] * hinv[j]  # hf / h^2 from here on
     for k in range(e):
-        dg[k] = hf[k] / (h[k] * h[k]) + hf[k + 1] / (h[k + 1] * h[k + 1]) + 2 * w[k] / (fstar[k] + fstar[k + 1])
-        rhs[k] = gf[k] / h[k] - gf[k + 1] / h[k + 1]
-    cp = np.empty(e)
-    pm = np.empty(e)
+        dg[k] = hf[k] + hf[k + 1] + 2 * w[k] / (fstar[k] + fstar[k + 1])
+        rhs[k] = gf[k] * hinv[k] - gf[k + 1] * hinv[k + 1]
     piv = dg[0]
     for k in range(e):
-        off = -hf[k] / (h[k] * h[k])  # the entry (k, k-1): -a_k
+        off = -hf[k]  # the entry (k, k-1): -a_k
         if k > 0:
             piv = dg[k] - off * cp[k - 1]
-            pm[k] = (rhs[k] - off * pm[k - 1]) / piv
-        else:
-            pm[k] = rhs[k] / piv
+        pinv = 1.0 / piv
+        pm[k] = (rhs[k] - off * pm[k - 1]) * pinv if k > 0 else rhs[k] * pinv
         if k < e - 1:
-            cp[k] = -hf[k + 1] / (h[k + 1] * h[k + 1]) / piv
+            cp[k] = -hf[k + 1] * pinv
     for k in range(e - 2, -1, -1):
         pm[k] -= cp[k] * pm[k + 1]
     ratio = np.inf
@@ -463,53 +469,58 @@ def _explicit_start(fstar, h, hinv, w, c, fisher, K, kv, ecoef, a, conserve, m, 
     return phi0
 
 
+_START_ROWS = 8
+"""Scratch rows of n values that :func:`_explicit_start` takes."""
+_KKT_ROWS = 15
+"""Scratch rows of n values that :func:`_kkt` takes."""
+_ITERATE_ROWS = 26
+"""Scratch rows of n values that :func:`_iterate` takes for itself (its callees' follow)."""
+_SCRATCH_ROWS = _ITERATE_ROWS + _START_ROWS + _KKT_ROWS
+
+
+@_jit
+def _scratch(n, ss):  # pragma: no cover - compiled
+    """The scratch arrays of :func:`_iterate` on slices of n points: ``(ws, cols, W, R, sc)``, allocated once per
+    call of :func:`iterate` or :func:`iterate_rows` and reused for each row (every value is written before it is
+    read)."""
+    e = n - 1
+    k = 2 * e if ss else 0
+    return np.empty((_SCRATCH_ROWS, n)), np.empty((2, e, 2)), np.empty((k, 13)), np.empty((k, 4)), np.empty(k)
+
+
 @_jit
 def _iterate(
-    fstar, m, phi, start, h, v, w, c, fisher, K, kv, ecoef, ediag, a, conserve, tol, max_iter, pd_tol, jam, jam_step,
-    ss, ss_lap_diag, ss_lap_off, ss_u0, ss_u1, ss_q00,
+    fstar, m, f, phi, start, h, v, w, c, fisher, K, kv, ecoef, ediag, a, conserve, tol, max_iter, pd_tol, jam,
+    jam_step, ss, ss_lap_diag, ss_lap_off, ss_u0, ss_u1, ss_q00, ws, cols, W, R, sc,
 ):  # pragma: no cover - compiled
-    """The undamped Newton attempt (``newton._iterate`` for one slice), see :func:`iterate`."""
+    """The undamped Newton attempt (``newton._iterate`` for one slice), see :func:`iterate`; writes the point into
+    ``m`` and ``f`` (the caller's) and returns ``(phi, iterations, code, kkt)``.  ``ws, cols, W, R, sc``:
+    :func:`_scratch`."""
     n = fstar.size
     e = n - 1
-    f = np.empty(n)
-    kf = np.empty(n)
-    hinv = 1.0 / h
+    kf, hinv, g, diag = ws[0], ws[1], ws[2, :e], ws[3, :e]
+    off1, off2, gfw, gff, gfe, gm = ws[4, : max(e - 1, 0)], ws[5, : max(e - 2, 0)], ws[6], ws[7], ws[8], ws[9, :e]
+    l0, l1, l2, p, q = ws[10, :e], ws[11, : max(e - 1, 0)], ws[12, : max(e - 2, 0)], ws[13, :e], ws[14, :e]
+    minus_g, trial, ft, kft, dd = ws[15, :e], ws[16, :e], ws[17], ws[18], ws[19, :e]
+    work = ws[20:26]  # (6, n)
+    start_ws = ws[_ITERATE_ROWS : _ITERATE_ROWS + _START_ROWS]
+    kkt_ws = ws[_ITERATE_ROWS + _START_ROWS :]
+    rhs, xs = cols[0], cols[1]
+    for i in range(n):
+        hinv[i] = 1.0 / h[i]
     if start == 1:
-        phi = _explicit_start(fstar, h, hinv, w, c, fisher, K, kv, ecoef, a, conserve, m, f, kf)
+        phi = _explicit_start(fstar, h, hinv, w, c, fisher, K, kv, ecoef, a, conserve, m, f, kf, start_ws)
     elif start == 2:
         _density(fstar, m, hinv, f)
         phi = _objective(f, m, w, c, fisher, K, kv, ecoef, kf)
     else:  # the caller's point, with J there
         _density(fstar, m, hinv, f)
         _matvec(K, kv, f, kf)
-    g = np.empty(e)
-    diag = np.empty(e)
-    off1 = np.zeros(max(e - 1, 0))
-    off2 = np.zeros(max(e - 2, 0))
-    gfw = np.empty(n)
-    gff = np.empty(n)
-    gfe = np.empty(n)
-    gm = np.empty(e)
-    l0 = np.empty(e)
-    l1 = np.zeros(max(e - 1, 0))
-    l2 = np.zeros(max(e - 2, 0))
-    p = np.empty(e)
-    q = np.empty(e)
-    minus_g = np.empty(e)
-    trial = np.empty(e)
-    ft = np.empty(n)
-    kft = np.empty(n)
     near = False
     iterations = 0
     flat = 0
     code = _NOT_HANDLED
-    work = np.empty((6, n))
-    dd = np.empty(e)
     ncol = 2 if conserve else 1
-    rhs = np.empty((e, 2))
-    xs = np.empty((e, 2))
-    W = np.empty((2 * e if ss else 0, 13))
-    R = np.empty((2 * e if ss else 0, 4))
     for it in range(max_iter + 1):
         _evaluate(f, m, hinv, w, c, fisher, kf, ecoef, ediag, g, diag, off1, off2, gfw, gff, gfe, gm, work)
         if ss:  # gamma = 3: the structured solve decides positive definiteness and gives both columns
@@ -518,7 +529,7 @@ def _iterate(
                 rhs[k, 1] = a[k]
             pd = _semiseparable3(
                 diag, off1, off2, pd_tol, 2 * ecoef, ss_lap_diag, ss_lap_off, ss_u0, ss_u1, ss_q00, rhs, ncol, xs,
-                l0, l1, l2, dd, W, R,
+                l0, l1, l2, dd, W, R, sc,
             )
         else:
             pd = _cholesky(diag, off1, off2, pd_tol, l0, l1, l2, dd)
@@ -598,18 +609,17 @@ def _iterate(
             break
     kkt = np.nan
     if code == HANDLED:  # the point's KKT residual, from the gradient's split evaluated there
-        stat, feas, pos, _ = _kkt(f, m, fstar, h, v, a, gfw, gff, gfe, gm, conserve)
+        stat, feas, pos, _ = _kkt(f, m, fstar, h, v, a, gfw, gff, gfe, gm, conserve, kkt_ws)
         kkt = max(stat, max(feas, pos))
-    return m, f, phi, iterations, code, kkt
+    return phi, iterations, code, kkt
 
 
 @_jit
-def _tridiagonal_spd(diag, off, rhs, out):  # pragma: no cover - compiled
+def _tridiagonal_spd(diag, off, rhs, out, d, lo, c):  # pragma: no cover - compiled
     """``T x = rhs``, T symmetric tridiagonal (``diag``, ``off``): LDL' as LAPACK's ``dptsv``, Thomas' algorithm
-    without pivoting where a pivot is not positive (as ``_linalg.solve_sym_tridiagonal``)."""
+    without pivoting where a pivot is not positive (as ``_linalg.solve_sym_tridiagonal``); ``d``, ``lo``, ``c``:
+    scratch of n values."""
     n = diag.size
-    d = np.empty(n)
-    lo = np.empty(max(n - 1, 0))
     spd = True
     d[0] = diag[0]
     for i in range(n - 1):
@@ -628,8 +638,7 @@ def _tridiagonal_spd(diag, off, rhs, out):  # pragma: no cover - compiled
         for i in range(n - 2, -1, -1):
             out[i] = out[i] / d[i] - lo[i] * out[i + 1]
         return
-    c = np.empty(n)  # Thomas
-    piv = diag[0]
+    piv = diag[0]  # Thomas
     out[0] = rhs[0] / piv
     for i in range(1, n):
         c[i - 1] = off[i - 1] / piv
@@ -640,55 +649,46 @@ def _tridiagonal_spd(diag, off, rhs, out):  # pragma: no cover - compiled
 
 
 @_jit
-def _kkt(f, m, fstar, h, v, dv, gfw, gff, gfe, gm, conserve):  # pragma: no cover - compiled
+def _kkt(f, m, fstar, h, v, dv, gfw, gff, gfe, gm, conserve, ws):  # pragma: no cover - compiled
     """:meth:`CollisionProblem.kkt_residual <jko_cvx.collision.problem.CollisionProblem.kkt_residual>` of one
-    slice, term by term: ``(stationarity, feasibility, positivity)`` and the multiplier (see :func:`kkt_residual`)."""
+    slice, term by term: ``(stationarity, feasibility, positivity)`` and the multiplier (see :func:`kkt_residual`);
+    ``ws``: ``_KKT_ROWS`` rows of n scratch values (the multiplier is one of them)."""
     n = f.size
     e = n - 1
+    w, a, om, gmw, o2, off, diag, rhs = ws[0], ws[1], ws[2, :e], ws[3, :e], ws[4, :e], ws[5, :e], ws[6], ws[7]
+    phi, rf, rm, z, td_d, td_lo, td_c = ws[8], ws[9], ws[10, :e], ws[11], ws[12], ws[13, : max(n - 1, 0)], ws[14]
     fmax = 0.0
     for j in range(n):
         fmax = max(fmax, max(f[j], 0.0))
     if not fmax > 0:
         fmax = 1.0
-    w = np.empty(n)
-    a = np.empty(n)
     for j in range(n):
         w[j] = max(f[j], 0.0) / fmax
         a[j] = (gfw[j] + gff[j] + gfe[j]) / h[j] if w[j] > 0 else 0.0
-    om = np.empty(e)
-    gmw = np.empty(e)
-    o2 = np.empty(e)
-    off = np.empty(e)
     for k in range(e):
         om[k] = (max(f[k], 0.0) + max(f[k + 1], 0.0)) / (2 * fmax)
         gmw[k] = gm[k] if om[k] > 0 else 0.0
         o2[k] = om[k] * om[k]
         off[k] = -o2[k]
-    diag = np.empty(n)
     for j in range(n):
         diag[j] = w[j] * w[j] + (o2[j] if j < e else 0.0) + (o2[j - 1] if j > 0 else 0.0)
     eps = 0.0
     for j in range(n):
         eps = max(eps, diag[j])
     eps = 1e-30 * eps
-    rhs = np.empty(n)
     for j in range(n):
         diag[j] += eps
         div = (o2[j] * gmw[j] if j < e else 0.0) - (o2[j - 1] * gmw[j - 1] if j > 0 else 0.0)
         rhs[j] = -(w[j] * w[j]) * a[j] - div - eps * a[j]
-    phi = np.empty(n)
-    _tridiagonal_spd(diag, off, rhs, phi)
-    rf = np.empty(n)
-    rm = np.empty(e)
+    _tridiagonal_spd(diag, off, rhs, phi, td_d, td_lo, td_c)
     for j in range(n):
         rf[j] = a[j] + phi[j]
     for k in range(e):
         rm[k] = gmw[k] + (phi[k] - phi[k + 1])
     if conserve:
-        z = np.empty(n)
         for j in range(n):
             rhs[j] = (o2[j] * dv[j] if j < e else 0.0) - (o2[j - 1] * dv[j - 1] if j > 0 else 0.0)
-        _tridiagonal_spd(diag, off, rhs, z)
+        _tridiagonal_spd(diag, off, rhs, z, td_d, td_lo, td_c)
         den = 0.0
         num = 0.0
         for j in range(n):
@@ -753,45 +753,61 @@ def kkt_residual(
     """
     s, fe, po, phi = _kkt(
         _read_only(f), _read_only(m), _read_only(f_star), _read_only(h), _read_only(v), _read_only(dv),
-        *(_read_only(x) for x in parts), bool(conserve),
+        *(_read_only(x) for x in parts), bool(conserve), np.empty((_KKT_ROWS, np.size(f))),
     )  # fmt: skip
-    return float(s), float(fe), float(po), phi
+    return float(s), float(fe), float(po), phi.copy()
 
 
 @_jit
 def _iterate_rows(
-    fstar, m, phi, start, rows, h, v, w, c, fisher, K, kv, ecoef, ediag, a, conserve, tol, max_iter, pd_tol, jam,
-    jam_step, checks, ss, ss_lap_diag, ss_lap_off, ss_u0, ss_u1, ss_q00,
+    fstar, m, f, phi, its, code, kkt, start, rows, h, v, w, c, fisher, K, kv, ecoef, ediag, a, conserve, tol,
+    max_iter, pd_tol, jam, jam_step, checks, ss, ss_lap_diag, ss_lap_off, ss_u0, ss_u1, ss_q00,
 ):  # pragma: no cover - compiled
     """:func:`_iterate` on each row ``b`` with ``rows[b]``, from ``m[b]`` (J there ``phi[b]``; ``start`` as in
     :func:`_iterate`), continued from its point up to ``checks`` times while the KKT residual is above ``tol``.
-    ``m`` and ``phi`` are the caller's copies: the rows' final points and J are written into them."""
+    Writes each row's point, J, iterations, code and residual into ``m``, ``f``, ``phi``, ``its``, ``code`` and
+    ``kkt`` (the caller's); rows not in ``rows`` get f = 0, no iterations, not handled, NaN."""
     B, n = fstar.shape
-    f = np.zeros((B, n))
-    its = np.zeros(B, dtype=np.int64)
-    code = np.full(B, _NOT_HANDLED, dtype=np.int64)
-    kkt = np.full(B, np.nan)
+    ws, cols, W, R, sc = _scratch(n, ss)  # once for the rows
     for b in range(B):
+        f[b, :] = 0.0
+        its[b] = 0
+        code[b] = _NOT_HANDLED
+        kkt[b] = np.nan
         if not rows[b]:
             continue
-        mb = m[b].copy()
+        mb, fb = m[b], f[b]  # written in place
         ph = phi[b]
         st = start
         total = 0
         for _ in range(checks):
-            mb, fb, ph, it, cd, kk = _iterate(
-                fstar[b], mb, ph, st, h, v, w, c, fisher, K, kv, ecoef, ediag, a, conserve, tol, max_iter - total,
-                pd_tol, jam, jam_step, ss, ss_lap_diag, ss_lap_off, ss_u0, ss_u1, ss_q00,
+            ph, it, cd, kk = _iterate(
+                fstar[b], mb, fb, ph, st, h, v, w, c, fisher, K, kv, ecoef, ediag, a, conserve, tol,
+                max_iter - total, pd_tol, jam, jam_step, ss, ss_lap_diag, ss_lap_off, ss_u0, ss_u1, ss_q00, ws, cols,
+                W, R, sc,
             )
             total += it
             st = 0  # continued from the point reached
             code[b], kkt[b] = cd, kk
-            f[b] = fb
             if cd != HANDLED or kk <= tol:
                 break
-        m[b] = mb
         phi[b] = ph
         its[b] = total
+
+
+@_jit
+def _iterate_one(
+    fstar, m, phi, start, h, v, w, c, fisher, K, kv, ecoef, ediag, a, conserve, tol, max_iter, pd_tol, jam, jam_step,
+    ss, ss_lap_diag, ss_lap_off, ss_u0, ss_u1, ss_q00,
+):  # pragma: no cover - compiled
+    """:func:`_iterate` on one slice with its own scratch and point: ``(m, f, phi, iterations, code, kkt)``."""
+    n = fstar.size
+    f = np.empty(n)
+    ws, cols, W, R, sc = _scratch(n, ss)
+    phi, its, code, kkt = _iterate(
+        fstar, m, f, phi, start, h, v, w, c, fisher, K, kv, ecoef, ediag, a, conserve, tol, max_iter, pd_tol, jam,
+        jam_step, ss, ss_lap_diag, ss_lap_off, ss_u0, ss_u1, ss_q00, ws, cols, W, R, sc,
+    )
     return m, f, phi, its, code, kkt
 
 
@@ -836,7 +852,11 @@ def constants(
 def iterate_rows(
     f_star: NDArray,
     m: NDArray,
+    f: NDArray,
     phi: NDArray,
+    its: NDArray,
+    code: NDArray,
+    kkt: NDArray,
     start: int,
     rows: NDArray,
     consts: tuple[tuple, tuple],
@@ -846,20 +866,22 @@ def iterate_rows(
     jam: int,
     jam_step: float,
     checks: int,
-) -> tuple[NDArray, NDArray, NDArray, NDArray, NDArray, NDArray]:
-    """:func:`iterate` on the rows ``rows`` of a batch ``f_star`` of shape ``(B, N)``, in one compiled loop.
+) -> None:
+    """:func:`iterate` on the rows ``rows`` of a batch ``f_star`` of shape ``(B, N)``, in one compiled loop,
+    writing into the caller's arrays.
 
     ``m`` (``(B, N - 1)``), ``phi`` (``(B,)``): each row's start and J there (``start = 0``), or ignored with
-    ``start`` 1 (the explicit step) or 2 (zero).  A row whose residual is still above ``tol`` where its
-    decrement reached ``tol`` is continued from its point, up to ``checks`` times (the stall test of the NumPy
-    iteration is its own).  ``consts``: :func:`constants`.  Returns ``(m, f, phi, iterations, code, kkt)`` per
-    row; a row is the caller's where ``code == HANDLED`` and ``kkt <= tol``.
+    ``start`` 1 (the explicit step) or 2 (zero); overwritten with each row's final point and J.  ``f``
+    (``(B, N)``), ``its``, ``code`` (int64) and ``kkt`` (``(B,)``) receive the densities, iterations, codes and
+    residuals.  All six are C-contiguous and writeable (rows of the caller's arrays: a slice thread's rows).  A
+    row whose residual is still above ``tol`` where its decrement reached ``tol`` is continued from its point, up
+    to ``checks`` times (the stall test of the NumPy iteration is its own).  ``consts``: :func:`constants`.  A row
+    is the caller's where ``code == HANDLED`` and ``kkt <= tol``.
     """
     problem, structure = consts
-    return _iterate_rows(
-        _read_only(f_star), np.array(m, dtype=float), np.array(phi, dtype=float), int(start),  # copies: written
-        np.ascontiguousarray(rows, dtype=np.bool_), *problem, float(tol), int(max_iter), float(pd_tol), int(jam),
-        float(jam_step), int(checks), *structure,
+    _iterate_rows(
+        _read_only(f_star), m, f, phi, its, code, kkt, int(start), np.ascontiguousarray(rows, dtype=np.bool_),
+        *problem, float(tol), int(max_iter), float(pd_tol), int(jam), float(jam_step), int(checks), *structure,
     )  # fmt: skip
 
 
@@ -888,7 +910,7 @@ def iterate(
     e = f_star.size - 1
     start = 0 if m is not None else (1 if explicit else 2)
     m = np.zeros(e) if m is None else np.array(m, dtype=float)  # a copy: the iteration writes it
-    m, f, phi, its, code, kkt = _iterate(
+    m, f, phi, its, code, kkt = _iterate_one(
         _read_only(f_star), m, float(phi), start, *problem, float(tol), int(max_iter), float(pd_tol), int(jam),
         float(jam_step), *structure,
     )  # fmt: skip

@@ -156,33 +156,42 @@ def certify_validated(
     final step, once per call.  ``f`` and ``m`` are only read.  ``objective``: the value of
     ``problem.objective(f, m)`` when the solver has it already (bit for bit).
     """
-    with np.errstate(all="ignore"):
-        if residual is None:
-            kkt = problem.kkt_residual(f, m) if kkt is None else kkt
-            residual = kkt.total
-        if objective is None:
-            objective = problem.objective(f, m)
+    if residual is None or objective is None:
+        with np.errstate(all="ignore"):
+            if residual is None:
+                kkt = problem.kkt_residual(f, m) if kkt is None else kkt
+                residual = kkt.total
+            if objective is None:
+                objective = problem.objective(f, m)
     if f.ndim == 1:
-        status = _judge(problem, f, m, float(residual), objective, kkt_tol, check_convexity, claimed, second_order)
-        return Certificate(status, float(residual), float(objective), kkt)
-    total = _per_row(residual, f.shape[0])
-    claims = _per_row(np.asarray(claimed, dtype=object), f.shape[0])
-    orders = _per_row(np.asarray(second_order, dtype=object), f.shape[0])
-    status = np.empty(f.shape[0], dtype=object)
-    # the finiteness test for the whole batch at once (per row, the same booleans as _judge's)
-    finite = (np.isfinite(f).all(axis=-1) & np.isfinite(m).all(axis=-1) & np.isfinite(objective)).tolist()
-    passed = (np.asarray(total, dtype=float) <= kkt_tol).tolist()  # NaN: False
-    for i in range(f.shape[0]):
-        claim, order = claims[i], orders[i]
-        if finite[i] and passed[i] and (claim is None or claim is Status.CONVERGED) and (
-            not check_convexity or (order is not None and bool(order))
-        ):
-            status[i] = Status.CONVERGED  # what _judge decides for such a row, without the call
-            continue
-        status[i] = _judge(
-            problem, f[i], m[i], total[i], objective[i], kkt_tol, check_convexity, claim, order, i, finite[i]
+        finite = bool(np.isfinite(f).all() and np.isfinite(m).all() and np.isfinite(objective))
+        status = _judge(
+            problem, f, m, float(residual), objective, kkt_tol, check_convexity, claimed, second_order, None, finite
         )
-    return Certificate(status, np.asarray(total, dtype=float).copy(), np.asarray(objective, dtype=float), kkt)
+        return Certificate(status, float(residual), float(objective), kkt)
+    rows = f.shape[0]
+    total = np.array(_per_row(residual, rows), dtype=float)  # a copy: the certificate's own
+    objective = np.asarray(objective, dtype=float)
+    claims = None if claimed is None else _per_row(np.asarray(claimed, dtype=object), rows)
+    booleans = isinstance(second_order, np.ndarray) and second_order.dtype == bool  # the solver's outcomes
+    orders = _per_row(second_order if booleans else np.asarray(second_order, dtype=object), rows)
+    # the rows _judge would call CONVERGED, decided for the whole batch at once (the same tests, in the
+    # same order of precedence); _judge decides every other row
+    with np.errstate(invalid="ignore"):
+        finite = np.isfinite(f).all(axis=-1) & np.isfinite(m).all(axis=-1) & np.isfinite(objective)
+        clean = finite & (total <= kkt_tol)  # NaN: False
+    if claims is not None:
+        clean &= np.fromiter((c is None or c is Status.CONVERGED for c in claims), dtype=bool, count=rows)
+    if check_convexity:
+        clean &= orders if booleans else np.fromiter((o is not None and bool(o) for o in orders), bool, rows)
+    status = np.empty(rows, dtype=object)
+    status[clean] = Status.CONVERGED
+    for i in np.flatnonzero(~clean).tolist():
+        claim = None if claims is None else claims[i]
+        status[i] = _judge(
+            problem, f[i], m[i], total[i], objective[i], kkt_tol, check_convexity, claim, orders[i], i, bool(finite[i])
+        )
+    return Certificate(status, total, objective, kkt)
 
 
 def certify_rescaled(

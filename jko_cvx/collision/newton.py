@@ -962,15 +962,40 @@ def _compiled_energy(P: CollisionProblem) -> tuple[NDArray, Semiseparable3 | Non
     return None if solve is None else (scale * solve.e_diag, solve)
 
 
-def _compiled_constants(compiled, P: CollisionProblem, energy_diag: NDArray, semiseparable) -> tuple:
-    """The step's constants for the compiled iteration (``_compiled.constants``); for W = |v| (gamma = 1) the
-    products ``K f`` are running sums, O(N) (the dense K's to rounding)."""
-    g = P.grid
-    return compiled.constants(
-        g.h, g.points, P.wass_coef, P.fisher_coef if P.fisher else None, P.fisher, P.energy.dense(), P.energy_coef,
-        energy_diag, g.dv if P.conserve_momentum else None, type(P.kernel) is PowerKernel and P.kernel.gamma == 1.0,
-        semiseparable,
-    )
+_CONSTANTS_PER_OPERATOR = 8
+"""Steps' constants kept per energy operator (:func:`_compiled_constants`): the distinct (dt, strength, Fisher
+weight, momentum constraint) of a run on one grid; an adaptive run's changing dt replaces them."""
+
+
+def _compiled_constants(P: CollisionProblem) -> tuple | None:
+    """The step's constants for the compiled iteration (``_compiled.constants``), None where the compiled
+    iteration does not apply (:func:`_compiled_energy`); for W = |v| (gamma = 1) the products ``K f`` are
+    running sums, O(N) (the dense K's to rounding).
+
+    They are functions of the grid's points (of which the energy operator is the cached, shared function:
+    :meth:`~jko_cvx.kernels.PowerKernel.energy_operator`) and of the step's scalars, and are kept with the
+    operator under those scalars: the steps of a run on one grid build them once.
+    """
+    energy = P.energy
+    key = (type(P.kernel), P.kernel.gamma, P.fisher, P.c_fisher, P.energy_coef, P.conserve_momentum)
+    cache = energy.__dict__.setdefault("_compiled_constants", {})
+    hit = cache.get(key)
+    if hit is not None:
+        return hit[0]
+    block = _compiled_energy(P)
+    consts = None
+    if block is not None:
+        energy_diag, semiseparable = block
+        g = P.grid
+        consts = _compiled_module().constants(
+            g.h, g.points, P.wass_coef, P.fisher_coef if P.fisher else None, P.fisher, energy.dense(),
+            P.energy_coef, energy_diag, g.dv if P.conserve_momentum else None,
+            type(P.kernel) is PowerKernel and P.kernel.gamma == 1.0, semiseparable,
+        )  # fmt: skip
+    if len(cache) >= _CONSTANTS_PER_OPERATOR:
+        cache.clear()
+    cache[key] = (consts,)
+    return consts
 
 
 def _compiled_single(P: CollisionProblem, opts: NewtonOptions, t0: float) -> CollisionResult | None:
@@ -985,16 +1010,16 @@ def _compiled_single(P: CollisionProblem, opts: NewtonOptions, t0: float) -> Col
     caller then runs :func:`_cascade` from the start, so a hard step gets every device of the NumPy
     iteration (and its result bit for bit).
     """
-    energy = _compiled_energy(P)
-    if energy is None or not P.f_star.min() > 0:
+    if not P.f_star.min() > 0:
         return None
-    energy_diag, semiseparable = energy
+    consts = _compiled_constants(P)
+    if consts is None:
+        return None
     m, phi, warm = None, np.nan, False
     if opts.m0 is not None:  # a warm start: where it is used, and J there, as the NumPy iteration decides
         st, used = _start(P.rows(slice(None)), opts.m0[None], opts)
         m, phi, warm = st.m[0], st.phi[0], bool(used[0])
     compiled = _compiled_module()
-    consts = _compiled_constants(compiled, P, energy_diag, semiseparable)
     iterations, explicit = 0, opts.start == "explicit"
     # As in _iterate: the residual is checked where the decrement reached tol; where it is still above
     # tol the iteration goes on from there, up to _STALL_CHECKS checks (a stall is the NumPy path's case).
@@ -1031,10 +1056,9 @@ def _compiled_batch(P: CollisionProblem, opts: NewtonOptions, t0: float) -> Coll
     certificate does not accept) is solved by :func:`_cascade` from the start, in one batch of those slices.
     None where no slice takes the compiled point (the caller then runs the cascade on the whole batch).
     """
-    energy = _compiled_energy(P)
-    if energy is None:
+    consts = _compiled_constants(P)
+    if consts is None:
         return None
-    energy_diag, semiseparable = energy
     B, n = P.f_star.shape
     eligible = P.f_star.min(axis=1) > 0
     if not eligible.any():
@@ -1045,17 +1069,17 @@ def _compiled_batch(P: CollisionProblem, opts: NewtonOptions, t0: float) -> Coll
     warm = np.zeros(B, dtype=bool)
     if m0 is not None:  # a warm start: where it is used, and J there, as the NumPy iteration decides
         st, warm = _start(P, m0, opts)
-        m, phi, start = st.m, st.phi, 0
+        m, phi, start = np.array(st.m, dtype=float), np.array(st.phi, dtype=float), 0
     else:
         m, phi, start = np.zeros((B, n - 1)), np.full(B, np.nan), 1 if opts.start == "explicit" else 2
-    consts = _compiled_constants(compiled, P, energy_diag, semiseparable)
-    f = np.zeros((B, n))  # m, phi: fresh arrays of this call, written row by row below
-    its, code, kkt = np.zeros(B, dtype=np.int64), np.zeros(B, dtype=np.int64), np.full(B, np.nan)
+    # m, phi: this call's own arrays; every row of these is written by the compiled loop
+    f, kkt = np.empty((B, n)), np.empty(B)
+    its, code = np.empty(B, dtype=np.int64), np.empty(B, dtype=np.int64)
 
     def work(a: int, b: int) -> None:  # the rows a:b, in the slice threads (the compiled loop releases the GIL)
-        m[a:b], f[a:b], phi[a:b], its[a:b], code[a:b], kkt[a:b] = compiled.iterate_rows(
-            P.f_star[a:b], m[a:b], phi[a:b], start, eligible[a:b], consts, opts.tol, opts.max_iter, _PD_TOL, _JAM,
-            _JAM_STEP, _STALL_CHECKS,
+        compiled.iterate_rows(
+            P.f_star[a:b], m[a:b], f[a:b], phi[a:b], its[a:b], code[a:b], kkt[a:b], start, eligible[a:b], consts,
+            opts.tol, opts.max_iter, _PD_TOL, _JAM, _JAM_STEP, _STALL_CHECKS,
         )  # fmt: skip
 
     map_chunks(work, B)  # each row's result is its own whatever the chunks: the same bits for any thread count
@@ -1068,10 +1092,10 @@ def _compiled_batch(P: CollisionProblem, opts: NewtonOptions, t0: float) -> Coll
         fd, md = (f, m) if every else (f[done], m[done])
         k = Pd.batch_size
         cert = certify_validated(
-            Pd, fd, md, opts.kkt_tol, opts.check_convexity, _converged(k), residual=kkt if every else kkt[done],
+            Pd, fd, md, opts.kkt_tol, opts.check_convexity, None, residual=kkt if every else kkt[done],
             second_order=np.ones(k, dtype=bool), objective=phi if every else phi[done],
         )  # fmt: skip
-        accepted = np.array([s is Status.CONVERGED for s in cert.status], dtype=bool)
+        accepted = cert.status == Status.CONVERGED  # statuses are enum members: equality is identity
         if every:
             mass_error = Pd.mass_error(fd)
         else:

@@ -101,6 +101,53 @@ def test_certify_judges_points_independently_of_any_solver():
     assert list(cert.status) == [Status.CONVERGED, Status.CONVERGED]
 
 
+def test_a_batch_is_certified_as_its_rows_one_by_one_in_every_branch():
+    """The batched certificate decides each row as the certificate of that row alone: claimed failures kept,
+    non-finite points, residuals above kkt_tol, the second-order test given (True, False) or left to the
+    certificate (None), with and without check_convexity."""
+    from jko_cvx.collision import certify
+    from jko_cvx.collision.problem import CollisionProblem as CP
+
+    base = _problem(gamma=1.0)
+    sol = solve_collision(base, "newton")
+    rows, claims, orders = [], [], []
+    for claim in (None, Status.CONVERGED, Status.MAX_ITERATIONS):
+        for order in (True, False, None):
+            for kind in ("solution", "start", "nan"):
+                f, m = (sol.f.copy(), sol.m.copy()) if kind != "start" else base.initial_point()
+                if kind == "nan":
+                    f[5] = np.nan
+                rows.append((f, m))
+                claims.append(claim)
+                orders.append(order)
+    f = np.stack([r[0] for r in rows])
+    m = np.stack([r[1] for r in rows])
+    batch = CP(GRID, PowerKernel(1.0), np.broadcast_to(F, f.shape), 0.01, beta=10.0)
+    claimed = np.empty(len(rows), dtype=object)
+    claimed[:] = claims
+    second = np.empty(len(rows), dtype=object)
+    second[:] = orders
+    for convexity in (True, False):
+        for kkt_tol in (1e-8, 0.5):
+            cert = certify(batch, f, m, kkt_tol=kkt_tol, check_convexity=convexity, claimed=claimed,
+                           second_order=second)  # fmt: skip
+            for i in range(len(rows)):
+                one = certify(base, f[i], m[i], kkt_tol=kkt_tol, check_convexity=convexity, claimed=claims[i],
+                              second_order=orders[i])  # fmt: skip
+                assert cert.status[i] is one.status, (i, claims[i], orders[i], convexity, kkt_tol)
+            # a plain bool array of second-order outcomes decides as the same values as objects
+            plain = certify(batch, f, m, kkt_tol=kkt_tol, check_convexity=convexity, claimed=claimed,
+                            second_order=np.array([o is True for o in orders]))  # fmt: skip
+            as_objects = certify(batch, f, m, kkt_tol=kkt_tol, check_convexity=convexity, claimed=claimed,
+                                 second_order=np.array([o is True for o in orders], dtype=object))  # fmt: skip
+            assert list(plain.status) == list(as_objects.status)
+    statuses = {s for s in cert.status}
+    assert {Status.CONVERGED, Status.NOT_CERTIFIED, Status.NONCONVEX, Status.NUMERICAL_ERROR,
+            Status.MAX_ITERATIONS} <= statuses | set(
+        certify(batch, f, m, kkt_tol=1e-8, claimed=claimed, second_order=second).status
+    )  # fmt: skip
+
+
 @pytest.mark.parametrize("tail", [1e-300, 1e-200])
 def test_conic_never_reports_success_with_an_infinite_objective(tail):
     """Issue 14 item 7: data with tails at 1e-300 gave CONVERGED with objective = +inf."""
