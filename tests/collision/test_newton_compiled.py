@@ -334,3 +334,45 @@ def test_a_compiled_batch_in_slice_threads_is_the_same_bit_for_bit(monkeypatch):
     for name in ("f", "m", "iterations", "kkt_residual", "objective"):
         assert np.array_equal(getattr(one, name), getattr(three, name))
     assert list(one.status) == list(three.status)
+
+
+@pytest.mark.parametrize("gamma", [1.0, 3.0])
+def test_the_constants_kept_with_the_energy_operator_are_those_of_each_step(gamma):
+    """The compiled constants are kept per energy operator under the step's scalars: steps on one grid that
+    differ in dt, strength, beta, the Fisher form or the momentum constraint, each solved after the others
+    filled the store (and after it overflowed), are each the same bits as when solved from an empty store;
+    a new Grid object with the same points shares the operator and the stored constants."""
+    from jko_cvx.collision.newton import _CONSTANTS_PER_OPERATOR
+
+    grid = Grid.uniform(-2.0, 2.0, 61)
+    f = np.exp(-4 * grid.points**2) + 1e-3
+    steps = [
+        dict(dt=0.01, strength=1.0, beta=10.0, fisher="perspective", conserve_momentum=False),
+        dict(dt=0.02, strength=1.0, beta=10.0, fisher="perspective", conserve_momentum=False),
+        dict(dt=0.01, strength=2.0, beta=10.0, fisher="perspective", conserve_momentum=False),
+        dict(dt=0.01, strength=1.0, beta=30.0, fisher="perspective", conserve_momentum=False),
+        dict(dt=0.01, strength=1.0, beta=10.0, fisher="log", conserve_momentum=False),
+        dict(dt=0.01, strength=1.0, beta=np.inf, fisher=None, conserve_momentum=False),
+        dict(dt=0.01, strength=1.0, beta=10.0, fisher="perspective", conserve_momentum=True),
+    ]
+    steps += [dict(steps[0], dt=0.001 * (k + 1)) for k in range(_CONSTANTS_PER_OPERATOR)]  # overflow the store
+
+    def problem(g, kw):
+        return CollisionProblem(g, PowerKernel(gamma), f, **kw)
+
+    def empty_store(p):
+        p.energy.__dict__.pop("_compiled_constants", None)
+
+    fresh = []
+    for kw in steps:
+        p = problem(grid, kw)
+        empty_store(p)
+        fresh.append(solve_newton(p, compiled=True))
+    assert all(r.info["compiled"] for r in fresh)
+    empty_store(problem(grid, steps[0]))
+    for _ in range(2):  # in order, then in reverse, each time after every other step filled the store
+        for kw, ref in zip(steps, fresh, strict=True):
+            _bitwise(solve_newton(problem(Grid(grid.points.copy()), kw), compiled=True), ref)
+        steps, fresh = steps[::-1], fresh[::-1]
+    store = problem(grid, steps[0]).energy.__dict__["_compiled_constants"]
+    assert 0 < len(store) <= _CONSTANTS_PER_OPERATOR
