@@ -1072,7 +1072,7 @@ def _compiled_batch(P: CollisionProblem, opts: NewtonOptions, t0: float) -> Coll
         m, phi, start = np.array(st.m, dtype=float), np.array(st.phi, dtype=float), 0
     else:
         m, phi, start = np.zeros((B, n - 1)), np.full(B, np.nan), 1 if opts.start == "explicit" else 2
-    # m, phi: this call's own arrays; every row of these is written by the compiled loop
+    # m, phi: this call's own arrays, which the compiled loop overwrites in place; it writes every row of these
     f, kkt = np.empty((B, n)), np.empty(B)
     its, code = np.empty(B, dtype=np.int64), np.empty(B, dtype=np.int64)
 
