@@ -177,9 +177,8 @@ def certify_validated(
     orders = _per_row(second_order if booleans else np.asarray(second_order, dtype=object), rows)
     # the rows _judge would call CONVERGED, decided for the whole batch at once (the same tests, in the
     # same order of precedence); _judge decides every other row
-    with np.errstate(invalid="ignore"):
-        finite = np.isfinite(f).all(axis=-1) & np.isfinite(m).all(axis=-1) & np.isfinite(objective)
-        clean = finite & (total <= kkt_tol)  # NaN: False
+    finite = np.isfinite(f).all(axis=-1) & np.isfinite(m).all(axis=-1) & np.isfinite(objective)
+    clean = finite & (total <= kkt_tol)  # NaN: False (a comparison, no warning)
     if claims is not None:
         clean &= np.fromiter((c is None or c is Status.CONVERGED for c in claims), dtype=bool, count=rows)
     if check_convexity:

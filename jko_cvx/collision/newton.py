@@ -1085,9 +1085,9 @@ def _compiled_batch(P: CollisionProblem, opts: NewtonOptions, t0: float) -> Coll
     map_chunks(work, B)  # each row's result is its own whatever the chunks: the same bits for any thread count
     with np.errstate(all="ignore"):
         done = eligible & (code == compiled.HANDLED) & (kkt <= opts.tol)
-        if not done.any():
-            return None
         every = bool(done.all())  # the common case: no copies of the batch
+        if not every and not done.any():
+            return None
         Pd = P if every else P.rows(done)
         fd, md = (f, m) if every else (f[done], m[done])
         k = Pd.batch_size
@@ -1101,7 +1101,11 @@ def _compiled_batch(P: CollisionProblem, opts: NewtonOptions, t0: float) -> Coll
         else:
             mass_error = np.zeros(B)
             mass_error[done] = Pd.mass_error(fd)
-        done[done] = accepted
+    if every and accepted.all():  # every slice compiled and certified: the result as it stands
+        info = {name: np.zeros(B, dtype=bool) for name in ("jammed", "interior_damping", "barrier", "lower_minimum")}
+        info = {"warm_started": warm, **info, "compiled": done}
+        return CollisionResult(f, m, cert.status, "newton", its, phi, kkt, mass_error, time.perf_counter() - t0, info)
+    done[done] = accepted
     if not done.any():
         return None
     status = _converged(B)
