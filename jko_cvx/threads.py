@@ -123,9 +123,9 @@ class _BlasLimit:
         _state.depth = 1
         self.entered = True
         try:
-            for lib, _ in changed:
+            for lib, n in changed:
                 lib.set_num_threads(limit)
-                self.changed.append((lib, _))
+                self.changed.append((lib, n))  # set back on exit, each library that was set
         except BaseException:
             self.__exit__(None, None, None)
             raise

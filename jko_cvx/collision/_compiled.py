@@ -776,37 +776,48 @@ def _iterate_rows(
         kkt[b] = np.nan
         if not rows[b]:
             continue
-        mb, fb = m[b], f[b]  # written in place
-        ph = phi[b]
-        st = start
-        total = 0
-        for _ in range(checks):
-            ph, it, cd, kk = _iterate(
-                fstar[b], mb, fb, ph, st, h, v, w, c, fisher, K, kv, ecoef, ediag, a, conserve, tol,
-                max_iter - total, pd_tol, jam, jam_step, ss, ss_lap_diag, ss_lap_off, ss_u0, ss_u1, ss_q00, ws, cols,
-                W, R, sc,
-            )
-            total += it
-            st = 0  # continued from the point reached
-            code[b], kkt[b] = cd, kk
-            if cd != HANDLED or kk <= tol:
-                break
-        phi[b] = ph
-        its[b] = total
+        phi[b], its[b], code[b], kkt[b] = _iterate_checked(
+            fstar[b], m[b], f[b], phi[b], start, h, v, w, c, fisher, K, kv, ecoef, ediag, a, conserve, tol, max_iter,
+            pd_tol, jam, jam_step, checks, ss, ss_lap_diag, ss_lap_off, ss_u0, ss_u1, ss_q00, ws, cols, W, R, sc,
+        )  # m[b], f[b]: written in place
+
+
+@_jit
+def _iterate_checked(
+    fstar, m, f, phi, start, h, v, w, c, fisher, K, kv, ecoef, ediag, a, conserve, tol, max_iter, pd_tol, jam,
+    jam_step, checks, ss, ss_lap_diag, ss_lap_off, ss_u0, ss_u1, ss_q00, ws, cols, W, R, sc,
+):  # pragma: no cover - compiled
+    """:func:`_iterate` from ``start``, continued from the point reached up to ``checks`` times in all while the
+    KKT residual is above ``tol`` where the decrement reached it (the NumPy iteration's stall test is its own):
+    ``(phi, iterations, code, kkt)``, the point written into ``m`` and ``f``."""
+    total = 0
+    code = _NOT_HANDLED
+    kkt = np.nan
+    for _ in range(checks):
+        phi, it, code, kkt = _iterate(
+            fstar, m, f, phi, start, h, v, w, c, fisher, K, kv, ecoef, ediag, a, conserve, tol, max_iter - total,
+            pd_tol, jam, jam_step, ss, ss_lap_diag, ss_lap_off, ss_u0, ss_u1, ss_q00, ws, cols, W, R, sc,
+        )
+        total += it
+        start = 0  # continued from the point reached
+        if code != HANDLED or kkt <= tol:
+            break
+    return phi, total, code, kkt
 
 
 @_jit
 def _iterate_one(
     fstar, m, phi, start, h, v, w, c, fisher, K, kv, ecoef, ediag, a, conserve, tol, max_iter, pd_tol, jam, jam_step,
-    ss, ss_lap_diag, ss_lap_off, ss_u0, ss_u1, ss_q00,
+    checks, ss, ss_lap_diag, ss_lap_off, ss_u0, ss_u1, ss_q00,
 ):  # pragma: no cover - compiled
-    """:func:`_iterate` on one slice with its own scratch and point: ``(m, f, phi, iterations, code, kkt)``."""
+    """:func:`_iterate_checked` on one slice with its own scratch and point: ``(m, f, phi, iterations, code,
+    kkt)``."""
     n = fstar.size
     f = np.empty(n)
     ws, cols, W, R, sc = _scratch(n, ss)
-    phi, its, code, kkt = _iterate(
+    phi, its, code, kkt = _iterate_checked(
         fstar, m, f, phi, start, h, v, w, c, fisher, K, kv, ecoef, ediag, a, conserve, tol, max_iter, pd_tol, jam,
-        jam_step, ss, ss_lap_diag, ss_lap_off, ss_u0, ss_u1, ss_q00, ws, cols, W, R, sc,
+        jam_step, checks, ss, ss_lap_diag, ss_lap_off, ss_u0, ss_u1, ss_q00, ws, cols, W, R, sc,
     )
     return m, f, phi, its, code, kkt
 
@@ -896,9 +907,11 @@ def iterate(
     pd_tol: float,
     jam: int,
     jam_step: float,
+    checks: int = 1,
 ) -> tuple[NDArray, NDArray, float, int, int, float]:
     """Newton iterations on one slice from ``m`` (where J is ``phi``), or, with ``m=None``, from the explicit
-    step (``explicit``) or from 0; ``consts``: :func:`constants`.
+    step (``explicit``) or from 0; ``consts``: :func:`constants`.  Where the decrement reached ``tol`` at a point
+    whose KKT residual is above ``tol``, the iteration goes on from that point, up to ``checks`` times in all.
 
     Returns ``(m, f, phi, iterations, code, kkt)``: ``code == HANDLED`` where the decrement reached
     ``tol`` at a point whose reduced Hessian is positive definite, anything else where the NumPy
@@ -912,7 +925,7 @@ def iterate(
     m = np.zeros(e) if m is None else np.array(m, dtype=float)  # a copy: the iteration writes it
     m, f, phi, its, code, kkt = _iterate_one(
         _read_only(f_star), m, float(phi), start, *problem, float(tol), int(max_iter), float(pd_tol), int(jam),
-        float(jam_step), *structure,
+        float(jam_step), int(checks), *structure,
     )  # fmt: skip
     return m, f, float(phi), int(its), int(code), float(kkt)
 

@@ -1020,19 +1020,13 @@ def _compiled_single(P: CollisionProblem, opts: NewtonOptions, t0: float) -> Col
         st, used = _start(P.rows(slice(None)), opts.m0[None], opts)
         m, phi, warm = st.m[0], st.phi[0], bool(used[0])
     compiled = _compiled_module()
-    iterations, explicit = 0, opts.start == "explicit"
     # As in _iterate: the residual is checked where the decrement reached tol; where it is still above
     # tol the iteration goes on from there, up to _STALL_CHECKS checks (a stall is the NumPy path's case).
-    for _ in range(_STALL_CHECKS):
-        m, f, phi, its, code, kkt = compiled.iterate(
-            P.f_star, m, phi, consts, explicit, opts.tol, opts.max_iter - iterations, _PD_TOL, _JAM, _JAM_STEP
-        )
-        iterations += its
-        if code != compiled.HANDLED:
-            return None
-        if kkt <= opts.tol:
-            break
-    else:
+    m, f, phi, iterations, code, kkt = compiled.iterate(
+        P.f_star, m, phi, consts, opts.start == "explicit", opts.tol, opts.max_iter, _PD_TOL, _JAM, _JAM_STEP,
+        _STALL_CHECKS,
+    )  # fmt: skip
+    if code != compiled.HANDLED or not kkt <= opts.tol:
         return None
     # J as the compiled iteration evaluated it at the point (problem.objective's to rounding); the
     # second-order test is the factorisation's at the point (HANDLED: positive definite)
@@ -1101,27 +1095,20 @@ def _compiled_batch(P: CollisionProblem, opts: NewtonOptions, t0: float) -> Coll
         else:
             mass_error = np.zeros(B)
             mass_error[done] = Pd.mass_error(fd)
-    if every and accepted.all():  # every slice compiled and certified: the result as it stands
-        info = {name: np.zeros(B, dtype=bool) for name in ("jammed", "interior_damping", "barrier", "lower_minimum")}
-        info = {"warm_started": warm, **info, "compiled": done}
-        return CollisionResult(f, m, cert.status, "newton", its, phi, kkt, mass_error, time.perf_counter() - t0, info)
     done[done] = accepted
     if not done.any():
         return None
-    status = _converged(B)
-    iterations = np.where(done, its, 0)
-    info = {name: np.zeros(B, dtype=bool) for name in
-            ("warm_started", "jammed", "interior_damping", "barrier", "lower_minimum", "compiled")}  # fmt: skip
-    info["warm_started"][done] = warm[done]
-    info["compiled"][:] = done
-    res = CollisionResult(f, m, status, "newton", iterations, phi, kkt, mass_error, 0.0, info)
-    rest = ~done
-    if rest.any():  # the cascade on those slices, from the start
-        again = _cascade(P.rows(rest), _m0_rows(m0, rest), opts)
-        for name in ("f", "m", "status", "iterations", "objective", "kkt_residual", "mass_error"):
-            getattr(res, name)[rest] = getattr(again, name)
-        for name in ("warm_started", "jammed", "interior_damping", "barrier", "lower_minimum"):
-            info[name][rest] = again.info[name]
+    flags = ("jammed", "interior_damping", "barrier", "lower_minimum")
+    info = {"warm_started": warm & done, **{name: np.zeros(B, dtype=bool) for name in flags}, "compiled": done}
+    if done.all():  # every slice compiled and certified (so every was True): the result as it stands
+        return CollisionResult(f, m, cert.status, "newton", its, phi, kkt, mass_error, time.perf_counter() - t0, info)
+    res = CollisionResult(f, m, _converged(B), "newton", np.where(done, its, 0), phi, kkt, mass_error, 0.0, info)
+    rest = ~done  # the cascade on those slices, from the start
+    again = _cascade(P.rows(rest), _m0_rows(m0, rest), opts)
+    for name in ("f", "m", "status", "iterations", "objective", "kkt_residual", "mass_error"):
+        getattr(res, name)[rest] = getattr(again, name)
+    for name in ("warm_started", *flags):
+        info[name][rest] = again.info[name]
     res.seconds = time.perf_counter() - t0
     return res
 

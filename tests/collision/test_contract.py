@@ -106,7 +106,6 @@ def test_a_batch_is_certified_as_its_rows_one_by_one_in_every_branch():
     non-finite points, residuals above kkt_tol, the second-order test given (True, False) or left to the
     certificate (None), with and without check_convexity."""
     from jko_cvx.collision import certify
-    from jko_cvx.collision.problem import CollisionProblem as CP
 
     base = _problem(gamma=1.0)
     sol = solve_collision(base, "newton")
@@ -122,15 +121,17 @@ def test_a_batch_is_certified_as_its_rows_one_by_one_in_every_branch():
                 orders.append(order)
     f = np.stack([r[0] for r in rows])
     m = np.stack([r[1] for r in rows])
-    batch = CP(GRID, PowerKernel(1.0), np.broadcast_to(F, f.shape), 0.01, beta=10.0)
+    batch = CollisionProblem(GRID, PowerKernel(1.0), np.broadcast_to(F, f.shape), 0.01, beta=10.0)
     claimed = np.empty(len(rows), dtype=object)
     claimed[:] = claims
     second = np.empty(len(rows), dtype=object)
     second[:] = orders
+    seen = set()
     for convexity in (True, False):
         for kkt_tol in (1e-8, 0.5):
             cert = certify(batch, f, m, kkt_tol=kkt_tol, check_convexity=convexity, claimed=claimed,
                            second_order=second)  # fmt: skip
+            seen |= set(cert.status)
             for i in range(len(rows)):
                 one = certify(base, f[i], m[i], kkt_tol=kkt_tol, check_convexity=convexity, claimed=claims[i],
                               second_order=orders[i])  # fmt: skip
@@ -141,11 +142,8 @@ def test_a_batch_is_certified_as_its_rows_one_by_one_in_every_branch():
             as_objects = certify(batch, f, m, kkt_tol=kkt_tol, check_convexity=convexity, claimed=claimed,
                                  second_order=np.array([o is True for o in orders], dtype=object))  # fmt: skip
             assert list(plain.status) == list(as_objects.status)
-    statuses = {s for s in cert.status}
     assert {Status.CONVERGED, Status.NOT_CERTIFIED, Status.NONCONVEX, Status.NUMERICAL_ERROR,
-            Status.MAX_ITERATIONS} <= statuses | set(
-        certify(batch, f, m, kkt_tol=1e-8, claimed=claimed, second_order=second).status
-    )  # fmt: skip
+            Status.MAX_ITERATIONS} <= seen  # every branch was taken
 
 
 @pytest.mark.parametrize("tail", [1e-300, 1e-200])
