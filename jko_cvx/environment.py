@@ -1,4 +1,4 @@
-"""The environment a result was computed in: versions, git commit, BLAS library and threads.
+"""The environment a result was computed in: versions, git commit, processor, BLAS library and threads.
 
 Numbers computed with another BLAS kernel, thread count or library version are not bit for
 bit those of the shipped files (the order of floating-point sums changes); they agree within
@@ -36,6 +36,7 @@ __all__ = [
     "git_state",
     "installed_version",
     "package_files",
+    "processor",
     "record_csv",
     "write_markdown",
 ]
@@ -114,6 +115,31 @@ def _blas() -> list[dict[str, Any]]:
     return [{k: lib.get(k) for k in keys} for lib in threadpool_info() if lib.get("user_api") == "blas"]
 
 
+@functools.cache
+def processor() -> str:
+    """The processor's model name: the first ``model name`` of ``/proc/cpuinfo`` (Linux),
+    ``machdep.cpu.brand_string`` (macOS), else :func:`platform.processor` (``"unknown"`` if empty).
+
+    Timings of the same code differ between processors of one core count (1.5x between two x86
+    machines of this project), so every timing names the processor that made it.
+    """
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name") and ":" in line:
+                return line.split(":", 1)[1].strip() or "unknown"
+    except OSError:
+        pass
+    if platform.system() == "Darwin":
+        try:
+            brand = ["sysctl", "-n", "machdep.cpu.brand_string"]
+            done = subprocess.run(brand, capture_output=True, text=True, timeout=10)
+            if done.returncode == 0 and done.stdout.strip():
+                return done.stdout.strip()
+        except (OSError, subprocess.SubprocessError):
+            pass
+    return platform.processor().strip() or "unknown"
+
+
 def environment() -> dict[str, Any]:
     """The environment of this process: package versions, git commit, platform, BLAS.
 
@@ -122,7 +148,8 @@ def environment() -> dict[str, Any]:
     dict
         ``jko_cvx`` (version), ``git_commit`` and ``jko_cvx_modified`` (:func:`git_state`),
         ``python``, one key per entry of :data:`PACKAGES` (installed versions), ``machine``
-        (operating system, release, architecture), ``cpu_count`` and ``blas``: per BLAS library
+        (operating system, release, architecture), ``cpu`` (:func:`processor`), ``cpu_count`` and
+        ``blas``: per BLAS library
         loaded, its implementation (``internal_api``), ``version``, kernel ``architecture``,
         threading layer, ``num_threads`` and file.  JSON-serialisable.
     """
@@ -136,13 +163,17 @@ def environment() -> dict[str, Any]:
         "python": platform.python_version(),
         **{name: installed_version(name) for name in PACKAGES},
         "machine": f"{platform.system()} {platform.release()} {platform.machine()}",
+        "cpu": processor(),
         "cpu_count": os.cpu_count(),
         "blas": _blas(),
     }
 
 
 def environment_line(env: dict[str, Any] | None = None) -> str:
-    """One line of Markdown naming ``env`` (default: :func:`environment`), for the head of a report."""
+    """One line of Markdown naming ``env`` (default: :func:`environment`), for the head of a report.
+
+    A record without ``cpu`` (written before the processor was recorded) names none.
+    """
     env = environment() if env is None else env
     commit = "not a git checkout" if env["git_commit"] is None else str(env["git_commit"])[:12]
     if env["jko_cvx_modified"]:
@@ -150,10 +181,11 @@ def environment_line(env: dict[str, Any] | None = None) -> str:
     libs = [f"{b['internal_api']} {b['version']} {b['architecture']} kernel, {b['num_threads']} threads"
             for b in env["blas"]]  # fmt: skip
     blas = "; ".join(libs) or "no BLAS found"
+    cpu = f"{env['cpu']}, " if env.get("cpu") else ""
     versions = ", ".join(f"{name} {env[name]}" for name in PACKAGES if name in env)
     return (
         f"*Environment: jko_cvx {env['jko_cvx']} (git {commit}), Python {env['python']}, {versions}; "
-        f"BLAS {blas}; {env['machine']}, {env['cpu_count']} CPUs.*"
+        f"BLAS {blas}; {env['machine']}, {cpu}{env['cpu_count']} CPUs.*"
     )
 
 

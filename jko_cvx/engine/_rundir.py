@@ -59,7 +59,7 @@ ENTRY_NAMES = (".lock", "snapshots", *RUN_FILES, *FIGURES, *VERIFY_FILES)
 """A verification's files beside the run's (:mod:`jko_cvx.engine.verify`; ``reference/`` holds the reference's
 run): moved aside by an overwrite too."""
 _SNAPSHOT = re.compile(r"step_(\d+)\.npz")
-_NUMERIC_ENVIRONMENT = ("python", *PACKAGES, "machine", "cpu_count", "blas")
+_NUMERIC_ENVIRONMENT = ("python", *PACKAGES, "machine", "cpu", "cpu_count", "blas")
 """The keys of :func:`~jko_cvx.environment.environment` a run's numbers may depend on (a resumed leg records where
 they differ from the first leg's)."""
 _ASIDE = ".replaced"  # an overwritten run, kept until the new run has started

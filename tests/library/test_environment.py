@@ -4,6 +4,7 @@ import importlib.metadata
 import json
 import platform
 import subprocess
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -33,6 +34,20 @@ def test_the_environment_names_the_versions_python_and_the_blas_threads():
     json.dumps(env)  # a result file can hold it
     line = environment_line(env)
     assert f"numpy {np.__version__}" in line and env["blas"][0]["internal_api"] in line
+
+
+def test_timings_name_the_processor_they_ran_on(monkeypatch):
+    """CPU times differ by 1.5x between machines of the same core count: a timing names its processor."""
+    env = environment()
+    assert isinstance(env["cpu"], str) and env["cpu"].strip() and env["cpu"] == env["cpu"].strip()
+    cpuinfo = Path("/proc/cpuinfo")
+    if cpuinfo.is_file():  # Linux: the kernel's name of the first processor
+        names = [ln.split(":", 1)[1].strip() for ln in cpuinfo.read_text().splitlines() if ln.startswith("model name")]
+        if names:
+            assert env["cpu"] == names[0]
+    assert f"{env['cpu']}, {env['cpu_count']} CPUs" in environment_line(env)
+    older = {k: v for k, v in env.items() if k != "cpu"}  # a record written before the processor was named
+    assert f"{env['machine']}, {env['cpu_count']} CPUs" in environment_line(older)
 
 
 def _git(cwd, *args):
