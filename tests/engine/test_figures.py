@@ -98,3 +98,36 @@ def test_work_precision_figure_names_its_reference_and_every_marker(tmp_path):
     unlabelled = [ln for ln in ax.get_lines() if ln.get_label().startswith("_") and len(ln.get_xdata())]
     assert not unlabelled, [ln.get_label() for ln in unlabelled]
     plt.close(fig)
+
+
+@pytest.mark.parametrize("limits", [(1e-5, 1e3), (0.2, 0.9), (3.0, 40.0), (1e-30, 1e30), (0.5, 2.0)])
+def test_the_log_tick_labels_read_as_matplotlibs_without_mathtext(limits):
+    """The records' log-axis labels are matplotlib's scientific-notation labels in plain Unicode
+    (10⁻⁴, 2×10⁻¹): the same text a reader sees, with no mathtext to parse."""
+    import matplotlib.ticker as mt
+
+    from jko_cvx.engine import plot
+
+    fig, ax = plt.subplots()
+    ax.semilogy(limits, limits)
+    ax.set_ylim(*limits)
+    ours = plot._use_plain_log_labels(ax.yaxis)
+    fig.canvas.draw()
+    shown = [t.get_text() for t in ax.yaxis.get_ticklabels() + ax.yaxis.get_ticklabels(minor=True)]
+    assert any(shown) and not any("$" in s or "\\" in s for s in shown), shown
+    sup = str.maketrans("⁻⁰¹²³⁴⁵⁶⁷⁸⁹", "-0123456789")
+    for formatter, which in ((ours[0], ax.yaxis.get_majorticklocs()), (ours[1], ax.yaxis.get_minorticklocs())):
+        ref = mt.LogFormatterSciNotation(labelOnlyBase=formatter.labelOnlyBase)
+        ref.set_axis(ax.yaxis)
+        ref.set_locs(which)
+        formatter.set_locs(which)
+        for x in which:
+            want = ref(x)  # "$\mathdefault{10^{-4}}$", "$\mathdefault{2\times10^{-1}}$", "$\mathdefault{0.5}$" or ""
+            got = formatter(x)
+            if not want:
+                assert got == ""
+                continue
+            body = want.removeprefix("$\\mathdefault{").removesuffix("}$")
+            base, _, exp = body.partition("^{")
+            assert got.translate(sup).replace("×", "\\times") == base + exp.removesuffix("}"), (x, want, got)
+    plt.close(fig)
