@@ -64,10 +64,10 @@ def refinement_switches(run: Run, axis: str = "v") -> np.ndarray:
 
 
 def _new_axes(ax, ncols: int = 1, figsize=(6, 4)):
+    if ax is not None:  # the caller's axes: no pyplot (importing it chooses a backend)
+        return ax.figure if ncols == 1 else np.ravel(ax)[0].figure, ax
     import matplotlib.pyplot as plt
 
-    if ax is not None:
-        return ax.figure if ncols == 1 else np.ravel(ax)[0].figure, ax
     return plt.subplots(1, ncols, figsize=figsize)
 
 

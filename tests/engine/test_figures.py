@@ -131,3 +131,28 @@ def test_the_log_tick_labels_read_as_matplotlibs_without_mathtext(limits):
             base, _, exp = body.partition("^{")
             assert got.translate(sup).replace("×", "\\times") == base + exp.removesuffix("}"), (x, want, got)
     plt.close(fig)
+
+
+def test_the_run_figures_need_neither_pyplot_nor_mathtext(tmp_path):
+    """save_figures (the CLI's figures) draws without pyplot, which would choose a backend, and without the
+    mathtext parser (a fresh interpreter: this one has pyplot loaded)."""
+    import json
+    import subprocess
+    import sys
+
+    code = f"""
+import json, sys
+import matplotlib.mathtext as mathtext
+def refuse(*args, **kwargs):
+    raise AssertionError("a label was parsed as mathtext: " + repr(args[1:2]))
+mathtext.MathTextParser.parse = refuse
+from jko_cvx.engine.loop import simulate
+from jko_cvx.engine.plot import save_figures
+from jko_cvx.scene import scene_from_dict
+for name, scene in json.loads({json.dumps(json.dumps({"hom": HOM, "inhom": INHOM}))}).items():
+    save_figures(simulate(scene_from_dict(scene)), {str(tmp_path)!r})
+assert "matplotlib.pyplot" not in sys.modules, "pyplot was imported"
+"""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert {p.name for p in tmp_path.iterdir()} >= {"solution.png", "records.png"}
