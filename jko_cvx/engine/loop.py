@@ -45,14 +45,16 @@ from jko_cvx.engine.verdict import SolverFailureRule, StopReason, Verdict
 from jko_cvx.kernels import PowerKernel
 from jko_cvx.mesh.policy import RemeshPolicy
 from jko_cvx.scene.model import Scene, SceneError, scene_from_dict
+from jko_cvx.scene.options import RUN_KKT
 from jko_cvx.time_order import collision_step_order2, strang_step
 from jko_cvx.transport import transport_step
 
 __all__ = ["Run", "load_run", "simulate", "snapshot_record"]
 
-ACCEPT_KKT = 1e-8
-"""A step is accepted when every slice is certified at this KKT threshold (see :meth:`Stepper.accepted`)."""
-CONIC_RUN_KKT = 1e-6
+ACCEPT_KKT = RUN_KKT["newton"]
+"""A step is accepted when every slice is certified at this KKT threshold (see :meth:`Stepper.accepted`);
+that of Newton and nlp in a run (:data:`jko_cvx.scene.options.RUN_KKT`)."""
+CONIC_RUN_KKT = RUN_KKT["conic"]
 """The certification threshold of ``method = "conic"`` in a run (its own default ``kkt_tol``), not
 :data:`ACCEPT_KKT`: Clarabel pins f only to about the square root of its tolerance, and its KKT residual
 stops near 1e-8 to 1e-7 (on the first step of ``inhom_gamma3_lambda4`` at 61 x 61, perspective form,
@@ -178,20 +180,23 @@ class Stepper:
         self.policy = scene.step_policy()
         self.remesh = remesh_policy(scene)
         self.opts = dict(scene.collision.options)
-        if scene.collision.method == "newton":
+        method = scene.collision.method
+        limit = RUN_KKT[method]  # one certificate per method for the run (IPOPT's own 1e-6 suits one step)
+        if method == "newton":
             # Steps certified to 1e-8.  Momentum does not depend on it when the scene conserves
             # it (the constraint holds to rounding at every iterate); without the constraint
             # the drift comes from the step itself, not from the tolerance (measured on
             # inhom_gamma3_lambda4: tol 1e-11 costs 50 % more and only lowers it 3e-9 -> 6e-10).
             self.opts.setdefault("tol", ACCEPT_KKT)
             self.opts.setdefault("max_iter", NEWTON_MAX_ITER)
-        if scene.collision.method == "nlp":
-            # one certificate for the engine: a step is a success only at the engine's threshold
-            # (IPOPT's own default kkt_tol, 1e-6, suits a single-step check, not a run).  The paper's
-            # SQP keeps its own default: its failures are its exit flag (alg:non_uni_JKO).
-            self.opts.setdefault("kkt_tol", ACCEPT_KKT)
-        elif scene.collision.method == "conic":
-            self.opts.setdefault("kkt_tol", CONIC_RUN_KKT)
+            # Newton certifies at its tol unless told otherwise: a loose tol must not loosen the run's certificate
+            self.opts.setdefault("kkt_tol", min(self.opts["tol"], limit))
+        self.opts.setdefault("kkt_tol", limit)
+        if self.opts["kkt_tol"] > limit:  # a Scene built without parse_options
+            raise ValueError(
+                f"collision.options.kkt_tol = {self.opts['kkt_tol']:g}: method {method!r} is certified at "
+                f"kkt_tol <= {limit:g} in a run"
+            )
 
     @staticmethod
     def _at_accept_kkt(res) -> np.ndarray:

@@ -1,0 +1,58 @@
+"""A run certifies its steps at the engine's threshold for the method, whatever the solver's own options:
+a loose convergence tolerance makes steps fail the certificate, never passes them, and a scene cannot raise
+the certificate's threshold."""
+
+import numpy as np
+import pytest
+
+import jko_cvx.engine.loop as loop
+from jko_cvx.engine.loop import Stepper, simulate
+from jko_cvx.scene import SceneError, scene_from_dict
+from jko_cvx.scene.options import RUN_KKT
+
+# gamma = 1 on [-2, 2], maximum off v = 0: blows up at T = 1/(2 max f0) = 0.5
+SCENE = {
+    "name": "loose_tol",
+    "gamma": 1.0,
+    "t_end": 0.06,
+    "v": {"L": 2.0, "n": 61},
+    "initial": {"kind": "gaussians", "amplitudes": [1.0], "rates": [2.0], "centres": [0.5]},
+    "time": {"dt": 0.02},
+    "stop": {"on_solver_failure": False},
+}
+
+
+def _scene(method: str, **options):
+    return scene_from_dict({**SCENE, "collision": {"method": method, "options": options}})
+
+
+def test_a_loose_newton_tol_fails_the_certificate_rather_than_passing_it(monkeypatch):
+    """Newton's kkt_tol defaults to its tol for one solve; in a run a tol of 0.5 (one iteration) must not make
+    inaccurate steps count as certified: every step the engine accepts is certified at 1e-8."""
+    seen = []
+    real = loop.solve_collision
+
+    def recorded(problem, **kw):
+        res = real(problem, **kw)
+        seen.append(res)
+        return res
+
+    monkeypatch.setattr(loop, "solve_collision", recorded)
+    run = simulate(_scene("newton", tol=0.5))
+    assert seen
+    for res in seen:
+        if Stepper.accepted(res):
+            assert np.max(res.kkt_residual) <= RUN_KKT["newton"], (res.status, res.kkt_residual)
+    assert not run.verdict.certified  # one iteration does not reach 1e-8: the steps fail and the run says so
+    tight = simulate(_scene("newton", tol=1e-10))  # a tighter tol still certifies at that tol
+    assert tight.verdict.certified
+
+
+@pytest.mark.parametrize("method", ["newton", "sqp", "conic", "nlp"])
+def test_a_scene_may_tighten_the_runs_certificate_not_loosen_it(method):
+    limit = RUN_KKT[method]
+    assert Stepper(_scene(method, kkt_tol=limit)).opts["kkt_tol"] == limit
+    assert Stepper(_scene(method, kkt_tol=limit / 10)).opts["kkt_tol"] == limit / 10
+    with pytest.raises(SceneError, match=r"collision\.options\.kkt_tol.*" + f"{limit:g}"):
+        _scene(method, kkt_tol=limit * 10)
+    assert Stepper(_scene(method)).opts["kkt_tol"] <= limit  # the default is the run's threshold or tighter
