@@ -393,6 +393,16 @@ class RunDir:
         state, recorded = RunState.load(self.checkpoint, period)  # names a truncated file as such
         self._check_provenance(recorded)
         self.ledger.verify(self.checkpoint)
+        # the rest of the run's own files, before any step (load_run would refuse them after the work)
+        scene_file = self.path / "scene.json"
+        if not scene_file.is_file():
+            raise RunDirError(
+                f"{scene_file} is missing: {self.path} is not a run this package can vouch for; restore the file, "
+                "or start the run again with --overwrite"
+            )
+        for name in ("scene.json", "diagnostics.csv", "verdict.json"):  # the last two are rewritten, if present
+            if (self.path / name).exists():
+                self.ledger.verify(self.path / name)
         state.check(self.checkpoint)
         self.state = state
         self.snapshots = self.read_snapshots(state.step)

@@ -83,6 +83,27 @@ def test_an_edited_snapshot_or_diagnostics_file_is_refused_by_load_run(run_dir):
         load_run(run_dir)
 
 
+@pytest.mark.parametrize(
+    "name, how",
+    [("scene.json", "edited"), ("diagnostics.csv", "edited"), ("verdict.json", "edited"), ("scene.json", "removed")],
+)
+def test_resume_checks_every_run_file_before_a_step(run_dir, name, how, monkeypatch):
+    """A resume vouches for the whole directory, not only the checkpoint: an edited scene.json, diagnostics.csv or
+    verdict.json, or a removed scene.json, is refused before any step, not found later by load_run (a missing
+    diagnostics.csv or verdict.json is no tampering: the resumed run writes them)."""
+    path = run_dir / name
+    if how == "edited":
+        path.write_text(path.read_text().replace("0", "1", 1))
+    else:
+        path.unlink()
+    stepped = []
+    monkeypatch.setattr(rundir_module.RunDir, "save_state", lambda *a, **k: stepped.append(1))
+    why = "has changed since the run wrote it" if how == "edited" else "is missing"
+    with pytest.raises(RunDirError, match=rf"{path}.*{why}"):
+        simulate(scene_from_dict(SMALL), out=run_dir, resume=True, progress=False)
+    assert not stepped
+
+
 def test_a_snapshot_the_run_did_not_write_is_refused(run_dir):
     shutil.copy(run_dir / "snapshots" / "step_0000002.npz", run_dir / "snapshots" / "step_0000003.npz")
     with pytest.raises(RunDirError, match=r"step_0000003\.npz is not one of the files this run wrote"):
