@@ -173,6 +173,15 @@ def _entries(path: Path) -> list[Path]:
     return names
 
 
+def _holds_ledger(path: Path) -> bool:
+    """``path`` holds a ``metadata.json`` with a run's file digests (a run this package wrote)."""
+    try:
+        Ledger.read(path)
+    except RunDirError:
+        return False
+    return True
+
+
 def refuse_links(path: Path) -> None:
     """RunDirError naming the first entry of the run directory ``path`` that is a symbolic link."""
     for p in _entries(path):
@@ -370,19 +379,35 @@ class RunDir:
             shutil.rmtree(aside)
 
     def _restore_aside(self) -> None:
-        """Put back a run whose overwrite was killed before the new run started (``DIR/.replaced/`` left)."""
+        """Put back a run whose overwrite was killed before the new run started (``DIR/.replaced/`` left).
+
+        The overwrite renamed the old run's entries into ``.replaced`` one by one, then wrote the new run's first
+        files: a name in both places is the new run's in DIR (removed) and the old run's aside (put back); a name in
+        DIR alone is the old run's, not yet moved when the kill came (kept).  Nothing is removed unless a run's
+        ledger (``metadata.json`` with its digests) is aside or, where the kill came before it moved, in DIR.
+        """
         aside = self.path / _ASIDE
         if aside.is_symlink() or (aside.exists() and not aside.is_dir()):
             raise RunDirError(f"{aside} is not a directory this package made: remove it")
         if not aside.is_dir():
             return
-        for p in self._run_files():  # the new run's first files
-            shutil.rmtree(p) if p.is_dir() and not p.is_symlink() else p.unlink()
-        for p in sorted(aside.rglob("*")):
-            if p.is_file() and not p.is_symlink():
-                target = self.path / p.relative_to(aside)
-                target.parent.mkdir(exist_ok=True)
-                os.replace(p, target)
+        if not any(_holds_ledger(d) for d in (aside, self.path)):
+            raise RunDirError(
+                f"{aside} holds no run this package moved aside (no metadata.json with a run's digests there or in "
+                f"{self.path}), so nothing in {self.path} is deleted: remove it or move it away"
+            )
+        old = [p for p in _entries(aside) if p.name not in (".lock", "snapshots") and (p.exists() or p.is_symlink())]
+        links = [p for p in old if p.is_symlink()]
+        if links:
+            raise RunDirError(f"{links[0]} is a symbolic link: {aside} is not a directory this package made")
+        for p in old:
+            target = self.path / p.relative_to(aside)
+            if target.is_dir() and not target.is_symlink():  # the new run's entry of that name
+                shutil.rmtree(target)
+            elif target.exists() or target.is_symlink():
+                target.unlink()
+            target.parent.mkdir(exist_ok=True)
+            os.replace(p, target)
         shutil.rmtree(aside)
 
     def _resume(self) -> None:

@@ -201,6 +201,36 @@ def test_an_overwrite_whose_move_fails_puts_back_what_it_moved(run_dir, monkeypa
     assert after == before and not (run_dir / ".replaced").exists()
 
 
+def test_an_overwrite_killed_within_its_move_keeps_the_files_it_had_not_moved(run_dir):
+    """A kill after the overwrite moved some of the old run's files aside: the next open puts those back and keeps
+    the ones still in place (they are the old run's, not the new one's)."""
+    before = _files(run_dir)
+    aside = run_dir / ".replaced"
+    (aside / "snapshots").mkdir(parents=True)
+    os.replace(run_dir / "scene.json", aside / "scene.json")  # the first rename of the move, then the kill
+    with pytest.raises(RunDirError, match="already holds a run"):
+        simulate(scene_from_dict(SMALL), out=run_dir, progress=False)
+    after = _files(run_dir)
+    after.pop(".lock", None), before.pop(".lock", None)
+    assert after == before and not aside.exists()
+    load_run(run_dir)
+
+
+def test_a_replaced_folder_of_the_users_deletes_nothing(tmp_path):
+    """DIR/.replaced that holds no run this package moved aside: the open is refused and no file is touched."""
+    out = tmp_path / "ud"
+    (out / ".replaced").mkdir(parents=True)
+    (out / "reference").mkdir()
+    (out / "reference" / "data.txt").write_text("precious")
+    (out / "records.png").write_text("mine")
+    before = _files(out)
+    with pytest.raises(RunDirError, match=r"\.replaced holds no run"):
+        simulate(scene_from_dict(SMALL), out=out, progress=False)
+    after = _files(out)
+    after.pop(".lock", None)
+    assert after == before and (out / ".replaced").is_dir()
+
+
 def test_an_overwrite_killed_midway_is_put_back_on_the_next_open(run_dir):
     before = _files(run_dir)
     aside = run_dir / ".replaced"
