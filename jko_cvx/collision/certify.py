@@ -110,6 +110,11 @@ def certify(
         The second-order test's outcome when the caller has it already (Newton gets it
         from its last Cholesky factorisation); computed here where needed otherwise.
 
+    ``kkt``, ``residual`` and ``second_order`` are taken as given: pass them only as the
+    solver computed them at this very point, or not at all (the certificate then evaluates
+    them).  A negative entry of ``f`` counts through the residual's positivity part, relative
+    to max f: values at the level of rounding pass, larger ones fail the residual test.
+
     Returns
     -------
     Certificate
@@ -135,7 +140,32 @@ def certify(
     check_convexity = check_bool("check_convexity", check_convexity)
     f = real_array("f", f)
     m = real_array("m", m)
+    shape = problem.f_star.shape
+    if f.shape != shape:
+        raise ValueError(f"f must have shape {shape} (the problem's f_star), got {f.shape}")
+    if m.shape != (*shape[:-1], shape[-1] - 1):
+        raise ValueError(f"m must have shape {(*shape[:-1], shape[-1] - 1)} (one flux per cell edge), got {m.shape}")
+    rows = shape[:-1]
+    claimed = _given("claimed", claimed, rows, lambda c: isinstance(c, Status), "a Status")
+    second_order = _given("second_order", second_order, rows, lambda o: isinstance(o, bool | np.bool_), "a bool")
+    if residual is not None:
+        total = np.asarray(residual, dtype=float) if not isinstance(residual, bool) else np.array(-1.0)
+        if total.shape not in ((), rows) or np.any(total < 0):  # NaN passes: a residual that could not be evaluated
+            raise ValueError(f"residual must be a non-negative number (one per slice for a batch), got {residual!r}")
+    if kkt is not None and not isinstance(kkt, KKTResidual):
+        raise TypeError(f"kkt must be a KKTResidual (problem.kkt_residual(f, m)), got {type(kkt).__name__}")
     return certify_validated(problem, f, m, kkt_tol, check_convexity, claimed, kkt, residual, second_order)
+
+
+def _given(name: str, value, rows: tuple[int, ...], ok, what: str):
+    """A caller's per-point value (``claimed``, ``second_order``): None, one value, or one per slice of a batch
+    (None there: not given for that slice)."""
+    if value is None:
+        return None
+    arr = np.asarray(value, dtype=object)
+    if arr.shape not in ((), rows) or not all(v is None or ok(v) for v in arr.ravel().tolist()):
+        raise TypeError(f"{name} must be {what} or one per slice of a batch {rows}, got {value!r}")
+    return value
 
 
 def certify_validated(

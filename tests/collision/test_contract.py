@@ -101,6 +101,33 @@ def test_certify_judges_points_independently_of_any_solver():
     assert list(cert.status) == [Status.CONVERGED, Status.CONVERGED]
 
 
+def test_certify_refuses_arguments_that_do_not_belong_to_the_problem():
+    """The public certificate names a wrong shape or type instead of broadcasting it or taking it as a status."""
+    from jko_cvx.collision import certify
+
+    grid = Grid.uniform(-2.0, 2.0, 41)
+    prob = CollisionProblem(grid, PowerKernel(1.0), np.exp(-2 * grid.points**2), 0.01, beta=10.0)
+    res = solve_collision(prob, method="newton")
+    f, m = res.f, res.m
+    bad = [
+        (dict(f=f[:10]), "f must have shape (41,)"),
+        (dict(f=np.stack([f, f]), m=np.stack([m, m])), "f must have shape (41,)"),
+        (dict(m=m[:-1]), "m must have shape (40,)"),
+        (dict(claimed="x"), "claimed must be a Status"),
+        (dict(second_order="yes"), "second_order must be"),
+        (dict(residual=-1.0), "residual must be"),
+        (dict(residual=np.array([0.0, 0.0])), "residual must be"),
+    ]
+    for change, message in bad:
+        args = {"f": f, "m": m, **change}
+        with pytest.raises((ValueError, TypeError), match=re.escape(message)):
+            certify(prob, args.pop("f"), args.pop("m"), kkt_tol=1e-6, **args)
+    batch = CollisionProblem(grid, PowerKernel(1.0), np.stack([prob.f_star, prob.f_star]), 0.01, beta=10.0)
+    with pytest.raises(ValueError, match=re.escape("f must have shape (2, 41)")):
+        certify(batch, f, m, kkt_tol=1e-6)
+    assert certify(batch, np.stack([f, f]), np.stack([m, m]), kkt_tol=1e-6).status.tolist() == [Status.CONVERGED] * 2
+
+
 def test_a_batch_is_certified_as_its_rows_one_by_one_in_every_branch():
     """The batched certificate decides each row as the certificate of that row alone: claimed failures kept,
     non-finite points, residuals above kkt_tol, the second-order test given (True, False) or left to the
