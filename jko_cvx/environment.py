@@ -35,6 +35,7 @@ __all__ = [
     "environment_line",
     "git_state",
     "installed_version",
+    "library_versions",
     "package_files",
     "processor",
     "record_csv",
@@ -85,6 +86,18 @@ def installed_version(name: str) -> str:
         return importlib.metadata.version(name)
     except importlib.metadata.PackageNotFoundError:
         return "not installed"
+
+
+@functools.cache
+def library_versions() -> str:
+    """Python and the numerical libraries a computed number depends on (:data:`PACKAGES` and osqp), as one line.
+
+    What a cache keys its results by besides the package's own code: an upgrade of any of them is other code.
+    (The BLAS kernel is not in it: another kernel changes the rounding of the same code, as another machine
+    does, which :func:`environment` records.)
+    """
+    names = (*PACKAGES, "osqp")
+    return ", ".join([f"python {platform.python_version()}", *(f"{n} {installed_version(n)}" for n in names)])
 
 
 def git_state(path: Path = PACKAGE_DIR) -> tuple[str | None, bool | None]:

@@ -79,7 +79,7 @@ from typing import Any
 
 import pandas as pd
 
-from jko_cvx.environment import code_fingerprint, git_state
+from jko_cvx.environment import code_fingerprint, git_state, library_versions
 
 __all__ = [
     "TIMING_KEY",
@@ -155,7 +155,8 @@ def _check_cacheable(func: Callable[..., Any]) -> None:
 
 
 def code_identity(func: Callable[..., Any]) -> dict[str, str]:
-    """What the results of ``func`` depend on besides the point: name, module source, package version and code.
+    """What the results of ``func`` depend on besides the point: name, module source, package version and code,
+    and the versions of Python and the numerical libraries (:func:`~jko_cvx.environment.library_versions`).
 
     Raises TypeError or ValueError for a function whose results these do not determine (a lambda, a closure,
     a ``functools.partial`` or other callable object)."""
@@ -167,6 +168,7 @@ def code_identity(func: Callable[..., Any]) -> dict[str, str]:
         "module_sha256": _sha(_module_source(func)),
         "package_version": __version__,
         "package_sha256": code_fingerprint(),
+        "libraries": library_versions(),
     }
 
 

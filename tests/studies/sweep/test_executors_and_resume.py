@@ -262,3 +262,21 @@ def test_an_editor_file_beside_the_modules_is_no_change_of_code():
     root = Path(jko_cvx.__file__).resolve().parent
     assert all(p.suffix in (".py", ".toml") for p in package_files())
     assert {root / "grid.py", root / "scene" / "shipped" / "tab_bu_g1.toml"} <= set(package_files())
+
+
+def test_a_cached_result_is_keyed_by_the_numerical_libraries_too(monkeypatch):
+    """After an upgrade of NumPy, SciPy, CVXPY, Clarabel, OSQP or Python a cached result is computed again: the
+    key holds their versions, not only the package's code."""
+    import platform
+
+    import jko_cvx.studies.sweep as sweep
+    from jko_cvx.environment import PACKAGES, installed_version
+
+    ident = sweep.code_identity(blowup_time)
+    libraries = ident["libraries"]
+    for name in (*PACKAGES, "osqp"):
+        assert f"{name} {installed_version(name)}" in libraries
+    assert f"python {platform.python_version()}" in libraries
+    before = point_key(blowup_time, {"n": 41})
+    monkeypatch.setattr(sweep, "library_versions", lambda: libraries.replace("clarabel", "clarabel-upgraded"))
+    assert point_key(blowup_time, {"n": 41}) != before
