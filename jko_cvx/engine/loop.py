@@ -441,8 +441,8 @@ def simulate(
     if out is None and (resume or overwrite):
         raise ValueError("resume and overwrite need a run directory: pass out=")
     # a Scene built in code (dataclasses.replace) bypasses the loader: check it as the loader would (its size
-    # limits included), before anything is written
-    scene_from_dict(scene.to_dict())
+    # limits included), before anything is written, and run it in the loader's form (what scene.json rebuilds)
+    scene = scene_from_dict(scene.to_dict())
     if attempts is not None and not isinstance(attempts, list):
         raise TypeError(f"attempts must be a list (it receives the failed attempts), got {type(attempts).__name__}")
     if observers is not None and not callable(observers):

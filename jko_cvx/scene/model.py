@@ -129,7 +129,8 @@ class Scene:
         """A copy with the attributes at the dotted paths of ``changes`` set, validated as a whole.
 
         The nested counterpart of :func:`dataclasses.replace` (``{"v.n": 41, "time.dt": 0.02}``).
-        The result must be a scene :func:`scene_from_dict` accepts: a change that makes the scene
+        The result is the scene :func:`scene_from_dict` makes of the changed document (its
+        normal form: ``output.times`` sorted, ...); a change that makes the scene
         inconsistent (``{"collision.method": "sqp"}`` on a scene whose momentum constraint or
         options belong to Newton) raises :class:`SceneError` naming the key, before any work.
 
@@ -140,11 +141,10 @@ class Scene:
         out: Any = self
         for dotted, val in changes.items():
             out = _replace_path(out, str(dotted).split("."), val, str(dotted))
-        try:
-            scene_from_dict(out.to_dict())
+        try:  # the loader's form (output.times sorted, ...): what the run's scene.json rebuilds
+            return scene_from_dict(out.to_dict())
         except SceneError as exc:
             raise SceneError(f"replace({dict(changes)!r}) gives an invalid scene: {exc}") from None
-        return out
 
     def to_dict(self) -> dict[str, Any]:
         """The scene as its canonical TOML-shaped document: nested by table, every default filled in,

@@ -40,3 +40,20 @@ def test_a_valid_replace_equals_the_scene_loaded_with_the_same_overrides():
     s = default_scene()
     changes = {"v.n": 41, "time.dt": 0.02, "t_end": 0.1}
     assert s.replace(changes) == scene_from_dict(with_overrides(s.to_dict(), changes))
+
+
+def test_a_scene_changed_in_code_runs_in_the_loaders_form_and_reads_back(tmp_path):
+    """replace (and a scene built with dataclasses.replace) gives the scene the loader would: the run's scene.json
+    rebuilds it, so load_run reads the run back instead of calling it tampered."""
+    import dataclasses
+
+    from jko_cvx import load_run
+
+    base = shipped_scene("tab_bu_g1", {"v.n": 41, "t_end": 0.05})
+    changed = base.replace({"output.times": (0.03, 0.01)})
+    assert changed.output.times == (0.01, 0.03)
+    simulate(changed, out=tmp_path / "a", progress=False)
+    assert load_run(tmp_path / "a").scene == changed
+    by_hand = dataclasses.replace(base, output=dataclasses.replace(base.output, times=(0.03, 0.01)))
+    simulate(by_hand, out=tmp_path / "b", progress=False)
+    assert load_run(tmp_path / "b").scene.output.times == (0.01, 0.03)
