@@ -125,7 +125,8 @@ def _blas() -> list[dict[str, Any]]:
     from threadpoolctl import threadpool_info
 
     keys = ("internal_api", "version", "architecture", "threading_layer", "num_threads", "filepath")
-    return [{k: lib.get(k) for k in keys} for lib in threadpool_info() if lib.get("user_api") == "blas"]
+    libs = [{k: lib.get(k) for k in keys} for lib in threadpool_info() if lib.get("user_api") == "blas"]
+    return sorted(libs, key=lambda lib: str(lib["filepath"]))  # in load order otherwise: one machine, two records
 
 
 @functools.cache

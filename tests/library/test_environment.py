@@ -99,3 +99,21 @@ def test_a_reproduction_records_its_environment_in_each_file(tmp_path):
     record = json.loads((tmp_path / ENVIRONMENT_FILE).read_text())
     assert set(record) == {p.name for p in tmp_path.glob("*.csv")}
     assert record["mesh_maps.csv"]["environment"]["blas"]
+
+
+def test_the_blas_libraries_are_recorded_in_one_order_whatever_the_load_order(monkeypatch):
+    """Two processes that loaded the same BLAS libraries in another order record the same environment (a resumed
+    run compares them: a reordering is no difference)."""
+    import threadpoolctl
+
+    def libs(order):
+        base = [{"user_api": "blas", "internal_api": "openblas", "version": v, "architecture": "Haswell",
+                 "threading_layer": "pthreads", "num_threads": 1, "filepath": f"/lib/{name}.so"}
+                for name, v in (("a", "0.3.30"), ("b", "0.3.31"))]  # fmt: skip
+        return base if order else base[::-1]
+
+    seen = []
+    for order in (True, False):
+        monkeypatch.setattr(threadpoolctl, "threadpool_info", lambda order=order: libs(order))
+        seen.append(environment()["blas"])
+    assert seen[0] == seen[1] and [b["filepath"] for b in seen[0]] == ["/lib/a.so", "/lib/b.so"]
