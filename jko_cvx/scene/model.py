@@ -250,6 +250,16 @@ def _check_initial_density(scene: Scene, f0: np.ndarray) -> None:
             f"initial: max f0 = {f0.max():.3g} is below the smallest normal float ({tiny:.3g}): the density "
             "underflows; scale initial.amplitudes up (the equation is invariant under mass scaling with time)"
         )
+    # the mass and the moments the remeshing restores (up to the energy, v^2 f) must stay finite, with room
+    dv = float(np.max(np.diff(scene.vgrid().points)))
+    dx = 1.0 if scene.x is None else float(np.max(np.diff(scene.xgrid().points, append=scene.x.L)))
+    with np.errstate(over="ignore"):
+        mass = float(np.sum(f0, dtype=float)) * dv * dx
+    if not mass * max(scene.v.L, 1.0) ** 2 < 1e290:
+        raise SceneError(
+            f"initial: the mass of f0 on the grid ({mass:.3g}) or its energy overflows the floating-point range; "
+            "scale initial.amplitudes down (the equation is invariant under mass scaling with time)"
+        )
     # homogeneous only: with an x-grid the transport's floor makes every f* positive before a collision
     if scene.collision.fisher == "log" and scene.homogeneous and f0.min() <= 0:
         zeros = int(np.sum(f0 <= 0))
@@ -389,6 +399,14 @@ def _check_combinations(top, v, x, t, c, s, o) -> None:
         raise SceneError(
             f"gamma = {top.gamma:g} makes the kernel |v|^gamma/gamma overflow on the velocity grid "
             f"(|v| up to 2 v.L = {2 * v.L:g})"
+        )
+    # the energy term of a step, dt * strength * W(v), finite on the grid
+    log_w = max(top.gamma * math.log(2 * v.L), 0.0) - math.log(top.gamma)
+    if math.log(t.dt) + math.log(top.strength) + log_w > math.log(1e300):
+        raise SceneError(
+            f"strength = {top.strength:g} with time.dt = {t.dt:g}: the interaction term dt * strength * W(v) "
+            f"overflows on the velocity grid (W up to {math.exp(min(log_w, 700.0)):.3g}); strength or time.dt "
+            "must be smaller"
         )
     if math.isfinite(c.beta) and t.dt / c.beta > 1e150:
         raise SceneError(

@@ -24,6 +24,8 @@ BASE = {
         ({"initial.rates": [1e6]}, r"collision\.fisher = 'log' f0 must be > 0 at every grid point .* 0 at 40 of 41"),
         ({"initial.rates": [400.0]}, r"collision\.fisher = 'log' f0 must be > 0"),
         ({"initial.amplitudes": [1e-320]}, r"initial: max f0 = .* below the smallest normal float"),
+        ({"initial.amplitudes": [1e308], "initial.rates": [0.01]}, r"initial: the mass of f0 .* overflows"),
+        ({"initial.amplitudes": [1e300]}, r"initial: the mass of f0 .* overflows"),
     ],
 )
 def test_a_first_step_that_must_fail_is_refused_at_load(tmp_path, overrides, message):
@@ -81,3 +83,12 @@ def test_a_fixed_step_longer_than_the_run_is_refused():
     with pytest.raises(SceneError, match=r"time\.dt = 16 is larger than t_end = 0\.02 with time\.policy = 'fixed'"):
         scene_from_dict(with_overrides(BASE, {"time.dt": 16}))
     scene_from_dict(with_overrides(BASE, {"time.dt": 0.02}))  # one whole step is fine
+
+
+@pytest.mark.parametrize("strength, dt", [(1e308, 0.01), (1e300, 1e3), (3e299, 1.0)])
+def test_an_interaction_weight_that_overflows_is_refused_at_load(strength, dt):
+    """dt * strength * W(v) must be finite on the grid (the energy term of every step): refused naming both keys."""
+    doc = with_overrides(BASE, {"strength": strength, "time.dt": dt, "t_end": max(dt, 0.02)})
+    with pytest.raises(SceneError, match=r"strength = .* time\.dt = .* overflows"):
+        scene_from_dict(doc)
+    scene_from_dict(with_overrides(BASE, {"strength": 1e6}))  # large, not overflowing: accepted
