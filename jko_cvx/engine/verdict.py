@@ -55,6 +55,8 @@ _FIT_KEYS = ("T_b_fit", "T_b_fit_err", "blowup_rate", "blowup_kind", "blowup_rea
 _KEYS = ("blowup", "T_b", "B_x", "B_v", "e_f", "reason", "stop", "uncertified_steps", "first_uncertified_t", *_FIT_KEYS)
 #: max f growing by this factor in a run that no blow-up rule stopped is reported (``unflagged_growth``)
 UNFLAGGED_GROWTH = 20.0
+# the stops of the paper's mesh criteria (a threshold crossed), not of a failure
+_MESH_RULES = (StopReason.EPS_V, StopReason.EPS_X, StopReason.SPREAD_V)
 # the stops after which the records are cut short: a fit cannot exclude a later collapse
 _EARLY = ("SOLVER_FAILURE", "EPS_T", "NO_STEP")
 
@@ -136,6 +138,19 @@ class Verdict(Mapping):
             text += (
                 " (the paper's exit-flag rule e_f: a failed collision solve, not a measured concentration; "
                 "the blow-up kind says what the records show)"
+            )
+        if self.blowup and self.stop in _MESH_RULES and self.blowup_kind == "undetermined":
+            text += (
+                f" (WARNING: a blow-up rule fired at T_b = {self.T_b:.6g}, but the records establish no finite-time "
+                "law (blow-up kind undetermined): T_b is where the mesh threshold was crossed, not a measured "
+                "singularity)"
+            )
+        if (not self.blowup and self.stop is StopReason.T_END and self.blowup_kind == "finite_time"
+                and self.unflagged_growth is None and self.T_b_fit is not None):  # fmt: skip
+            text += (
+                " (WARNING: no blow-up rule fired, but max f fits a finite-time law with "
+                f"T_b_fit = {self.T_b_fit:.6g}: a concentration the mesh criterion did not see, or a blow-up "
+                "after t_end)"
             )
         if self.blowup and self.blowup_kind == "no_finite_time":
             # a threshold crossed at a finite t by a concentration that is not a singularity

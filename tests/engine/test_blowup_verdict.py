@@ -165,3 +165,21 @@ def test_steps_the_engine_accepts_are_not_counted_failed_nor_cut_from_the_fit():
     assert run.verdict.certified and run.blowup
     assert (run.diagnostics.failed == 0).all()
     assert "uncertified" not in run.verdict.blowup_reason and run.verdict.blowup_kind == "finite_time"
+
+
+def test_a_rule_and_a_fit_that_disagree_are_warned_in_both_directions():
+    """The headline (a rule fired or not) and the fit (a finite-time law or not) must not disagree silently:
+    a rule that fired on records that establish no law, and a finite-time law that no rule saw."""
+    t = np.linspace(0, 0.4, 40)
+    fired = Verdict().stopped(StopReason.EPS_V, 0.4, "min dv = 1e-4 < eps_v")
+    few = fired.with_fit(_rows(t[:3], 0.5 / (0.5 - t[:3])))  # too few records for a law
+    assert few.blowup_kind == "undetermined"
+    assert "WARNING" in few.describe() and "undetermined" in few.describe() and "T_b = 0.4" in few.describe()
+    singular = np.linspace(0, 0.47, 48)
+    law = Verdict().with_fit(_rows(singular, 0.5 / (0.5 - singular)))  # x 16.7: under the unflagged-growth factor
+    assert law.blowup_kind == "finite_time" and law.unflagged_growth is None and not law.blowup
+    text = law.describe()
+    assert "WARNING" in text and "finite-time law" in text and f"{law.T_b_fit:.6g}" in text
+    fired_too = Verdict().stopped(StopReason.EPS_V, 0.47, "min dv < eps_v")
+    shown = fired_too.with_fit(_rows(singular, 0.5 / (0.5 - singular)))
+    assert shown.blowup_kind == "finite_time" and "WARNING" not in shown.describe()  # the two agree
