@@ -454,7 +454,11 @@ def main(argv: list[str] | None = None) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``jko-cvx`` argument parser (its subcommands and options; the CLI reference is generated from it)."""
-    parser = argparse.ArgumentParser(prog="jko-cvx", description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(
+        prog="jko-cvx",
+        description="Blow-up in the granular kinetic equation: run scenes, verify them against a reference, "
+        "solve and compare collision steps, reproduce the paper's tables and figures.",
+    )
     parser.add_argument("--version", action="version", version=f"jko-cvx {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
     p_run = sub.add_parser("run", help="run a scene (default: the built-in homogeneous gamma = 1, g1 scene)")
@@ -462,7 +466,7 @@ def build_parser() -> argparse.ArgumentParser:
         "scene",
         nargs="?",
         type=Path,
-        help="scene TOML file, or the name of a shipped scene (jko_cvx.scene.shipped_scene_names()); default: "
+        help="scene TOML file, or the name of a shipped scene (jko-cvx scene list); default: "
         "the built-in homogeneous gamma = 1 scene; jko-cvx scene template prints one to start from",
     )
     p_run.add_argument("--out", type=_directory, default=None, help="run directory (default: runs/<scene name>)")
@@ -544,11 +548,13 @@ def _problem_arguments(p: argparse.ArgumentParser, where: str = "") -> None:
                    help=f"form of the Fisher term: %(choices)s{where} (default %(default)s)")  # fmt: skip
 
 
-# ---- jko-cvx scene: the scene template and the key reference (jko_cvx.scene.reference) ----
+# ---- jko-cvx scene: the shipped scenes, the scene template and the key reference (jko_cvx.scene.reference) ----
 def _scene_parser(sub) -> None:
-    p = sub.add_parser("scene", help="print a commented scene template, or the scene key reference")
-    what = p.add_subparsers(dest="scene_command", required=True, metavar="{template,keys}",
-                            help="template: a scene to start from; keys: the key reference")  # fmt: skip
+    p = sub.add_parser("scene", help="list the shipped scenes, print a commented scene template or the key reference")
+    what = p.add_subparsers(dest="scene_command", required=True, metavar="{list,template,keys}",
+                            help="list: the shipped scenes; template: a scene to start from; keys: the key "
+                                 "reference")  # fmt: skip
+    what.add_parser("list", help="the shipped scenes jko-cvx run takes by name, each with its description")
     t = what.add_parser("template", help="a commented TOML scene (every key, type, range, default) jko-cvx run accepts")
     t.add_argument("--kind", choices=("homogeneous", "inhomogeneous"), default="homogeneous",
                    help="a homogeneous scene (no x-grid) or an inhomogeneous one: %(choices)s "
@@ -557,8 +563,15 @@ def _scene_parser(sub) -> None:
 
 
 def _scene(args) -> int:
+    from jko_cvx.scene import shipped_scene, shipped_scene_names
     from jko_cvx.scene.reference import keys_text, scene_template
 
+    if args.scene_command == "list":
+        names = shipped_scene_names()
+        width = max(map(len, names))
+        for name in names:
+            print(f"{name:<{width}}  {shipped_scene(name).description}")
+        return 0
     sys.stdout.write(scene_template(args.kind) if args.scene_command == "template" else keys_text())
     return 0
 

@@ -324,3 +324,13 @@ def test_a_misspelt_shipped_scene_name_is_answered_with_the_close_ones(tmp_path,
     assert main(["run", "inhom_gamma3_lambda44", "--quiet"]) == 2
     err = capsys.readouterr().err
     assert "did you mean the shipped scene 'inhom_gamma3_lambda4'" in err and not (tmp_path / "runs").exists()
+
+
+def test_scene_list_names_every_shipped_scene_with_its_description(capsys):
+    from jko_cvx.scene import shipped_scene, shipped_scene_names
+
+    assert main(["scene", "list"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert len(lines) == len(shipped_scene_names())
+    for line, name in zip(lines, shipped_scene_names(), strict=True):
+        assert line.split()[0] == name and line.endswith(shipped_scene(name).description)

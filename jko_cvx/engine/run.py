@@ -33,6 +33,7 @@ from jko_cvx.engine.errors import RunDirError
 from jko_cvx.engine.verdict import StopReason, Verdict
 from jko_cvx.grid import Grid, PeriodicGrid
 from jko_cvx.scene.model import Scene, scene_from_dict
+from jko_cvx.scene.options import RUN_KKT
 
 __all__ = ["Run", "load_run"]
 
@@ -109,6 +110,18 @@ class Run:
             f"{v.describe()} (direction: {where}; {v.reason})"
             + (f", T_b = {v.T_b:.6g}" if v.blowup else "")
             + (f"; {fit}" if (fit := v.describe_fit()) else "")
+            + self._loose_certificate()
+        )
+
+    def _loose_certificate(self) -> str:
+        """The warning of a run whose scene certifies steps above the method's run threshold (``RUN_KKT``)."""
+        c = self.scene.collision
+        kkt, limit = c.options.get("kkt_tol"), RUN_KKT[c.method]
+        if kkt is None or kkt <= limit:
+            return ""
+        return (
+            f" (WARNING: steps certified at collision.options.kkt_tol = {kkt:g}, looser than a run's {limit:g} for "
+            f"method {c.method!r}: 'certified' here means a KKT residual up to {kkt:g})"
         )
 
     def records_line(self) -> str:
