@@ -237,11 +237,11 @@ def _draw_fit(run: Run, a) -> None:
                label=f"T_b_fit = {fit.T_b_fit:.4g} +- {fit.T_b_fit_err:.2g}")  # fmt: skip
 
 
-# Figure fractions for the sizes save_figures uses (10 x 4 and 6 x 4 inches); room for the
+# Figure fractions for the sizes save_figures uses (10 x 4, 6 x 4 and 9 x 4 inches); room for the
 # tick labels of a log axis, the axis labels and the records' two-line title.
 _MARGINS = {"left": 0.11, "right": 0.97, "bottom": 0.12, "top": 0.91}
 _MARGINS_PAIR = {"left": 0.07, "right": 0.985, "bottom": 0.12, "top": 0.91, "wspace": 0.22}
-_MARGINS_RECORDS = {"left": 0.16, "right": 0.97, "bottom": 0.12, "top": 0.87}
+_MARGINS_RECORDS = {"left": 0.105, "right": 0.595, "bottom": 0.12, "top": 0.87}  # the legend right of the axes
 
 
 def save_figures(run: Run, out: str | Path, dpi: int = 110) -> list[Path]:
@@ -265,9 +265,13 @@ def _run_figures(run: Run):
 
     two = run.xgrid is None  # the homogeneous solution figure has two panels
     sol = Figure(figsize=(10, 4) if two else (6, 4))
-    rec = Figure(figsize=(6, 4))
+    rec = Figure(figsize=(9, 4))
     plot_solution(run, ax=sol.subplots(1, 2) if two else sol.subplots())
-    plot_records(run, ax=rec.subplots())
+    a = rec.subplots()
+    plot_records(run, ax=a)
+    # beside the axes, not over the records (up to ten entries: inside, it hid a curve wherever it went)
+    a.legend(*a.get_legend_handles_labels(), fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0),
+             borderaxespad=0.0)  # fmt: skip
     sol.subplots_adjust(**(_MARGINS_PAIR if two else _MARGINS))
     rec.subplots_adjust(**_MARGINS_RECORDS)
     return sol, rec
