@@ -13,7 +13,13 @@ Two estimates, both cheap arithmetic on the scene:
   banded-plus-rank-two solve of :mod:`jko_cvx.collision._structured`), so the dense part is
   the energy matrix and one factor per thread, ``8 (4 N_v^2)``: measured 0.57 GiB at
   1025 x 1025, gamma = 3 (the scale benchmark), where the per-slice count
-  gave 32 GiB.
+  gave 32 GiB.  The CVXPY methods hold far more per slice they solve at once (``W`` slice
+  threads, ``JKO_CVX_THREADS``, at most ``B``): ``conic`` ``8 c N_v^2 W`` more, with ``c = 800``
+  where the energy's positive part has full rank (2 < gamma, not an even integer: Clarabel's
+  factorisation of the dense block and CVXPY's copies of it; peak RSS over the interpreter's
+  measured 515 N_v^2 doubles at gamma = 3 and 775 at gamma = 2.5, N_v = 300-1200) and
+  ``c = 120`` otherwise (78-110 measured at gamma = 1, 1.5, 2, 4); ``nlp`` ``c = 60`` (48
+  measured).
 
 The limits are :data:`DEFAULT_MAX_STEPS` steps and :data:`DEFAULT_MAX_GIB` GiB, raised
 (or lowered) with the environment variables ``JKO_CVX_MAX_STEPS`` and ``JKO_CVX_MAX_GIB``
@@ -62,10 +68,25 @@ def estimate_size(scene: Scene) -> SizeEstimate:
     snapshots = min(steps + 1, steps / scene.output.every + 2) + len(scene.output.times)
     return SizeEstimate(
         steps=float(steps),
-        dense_bytes=8 * 4 * (1.0 if scene.gamma in (1.0, 2.0, 3.0) else B) * N * N,
+        dense_bytes=8 * (4 * (1.0 if scene.gamma in (1.0, 2.0, 3.0) else B) + _cvxpy_blocks(scene, B)) * N * N,
         work_bytes=8 * 40 * B * N,
         snapshot_bytes=8 * snapshots * B * N,
     )
+
+
+def _cvxpy_blocks(scene: Scene, B: float) -> float:
+    """N_v^2 doubles the CVXPY methods hold for the slices they solve at once (module docstring)."""
+    from jko_cvx.threads import slice_workers
+
+    method, gamma = scene.collision.method, scene.gamma
+    if method == "conic":
+        full_rank = gamma > 2 and not (gamma == int(gamma) and int(gamma) % 2 == 0)
+        per_slice = 800.0 if full_rank else 120.0
+    elif method == "nlp":
+        per_slice = 60.0
+    else:
+        return 0.0
+    return per_slice * min(B, float(slice_workers()))
 
 
 def _size(nbytes: float) -> str:
