@@ -35,10 +35,12 @@ from jko_cvx._version import __version__
 from jko_cvx.collision import CollisionProblem, conic_solvers, f_error_estimate, solve_collision
 from jko_cvx.grid import Grid
 from jko_cvx.kernels import PowerKernel
+from jko_cvx.scene.limits import check_step_size
 
 # Bad input the user can fix: one line on stderr, exit code 2, no traceback.  SceneError is
-# a ValueError; OSError covers unreadable or unwritable paths; ImportError a missing extra.
-EXPECTED_ERRORS = (ValueError, TypeError, OSError, ImportError)
+# a ValueError; OSError covers unreadable or unwritable paths; ImportError a missing extra; MemoryError a
+# problem larger than the machine (the size checks estimate, they cannot promise).
+EXPECTED_ERRORS = (ValueError, TypeError, OSError, ImportError, MemoryError)
 
 
 _DOTTED_KEY = re.compile(r"[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)*")
@@ -184,10 +186,11 @@ def _solve_one(args) -> int:
     from jko_cvx.collision.conic import ConicOptions
     from jko_cvx.collision.nlp import INSTALL_HINT, nlp_available
 
-    prob = _builtin_problem(args)
     asked = args.method is not None
     installed = [m for m in _SOLVE_METHODS if m != "nlp" or nlp_available()]
     methods = list(dict.fromkeys(args.method)) if asked else installed
+    check_step_size(args.n, args.gamma, methods)  # before anything is allocated
+    prob = _builtin_problem(args)
     if "nlp" in methods and not nlp_available():
         raise ImportError(f"--method nlp needs IPOPT: {INSTALL_HINT}")
     if "conic" in methods and prob.fisher == "log":
@@ -223,6 +226,7 @@ def _compare(args) -> int:
         prob = problem_from_scene(_load(args.scene, args.settings), args.t)
         name = f"{args.scene.stem}_t{args.t:g}"
     else:
+        check_step_size(args.n, args.gamma, list(_SOLVE_METHODS))  # every method, before anything is allocated
         prob = _builtin_problem(args)
         name = f"builtin_gamma{args.gamma:g}_n{args.n}_dt{args.dt:g}_beta{args.beta:g}"
         name += "_log" if args.fisher == "log" else ""

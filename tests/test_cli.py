@@ -5,6 +5,7 @@ import re
 
 import numpy as np
 import pandas as pd
+import pytest
 
 from jko_cvx.cli import main
 from jko_cvx.engine.loop import simulate
@@ -334,3 +335,22 @@ def test_scene_list_names_every_shipped_scene_with_its_description(capsys):
     assert len(lines) == len(shipped_scene_names())
     for line, name in zip(lines, shipped_scene_names(), strict=True):
         assert line.split()[0] == name and line.endswith(shipped_scene(name).description)
+
+
+@pytest.mark.parametrize("command", ["solve", "compare"])
+def test_a_built_in_problem_too_large_is_refused_naming_n(command, capsys, monkeypatch):
+    monkeypatch.setenv("JKO_CVX_MAX_GIB", "1")
+    assert main([command, "--n", "30000"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("jko-cvx: error: --n = 30000 needs an estimated") and "JKO_CVX_MAX_GIB" in err
+
+
+def test_running_out_of_memory_is_one_line_not_a_traceback(capsys, monkeypatch):
+    import jko_cvx.cli as cli
+
+    def exhausted(*args, **kwargs):
+        raise MemoryError("Unable to allocate 6.7 GiB for an array with shape (30000, 30000)")
+
+    monkeypatch.setattr(cli, "solve_collision", exhausted)
+    assert main(["solve", "--n", "41", "--method", "newton"]) == 2
+    assert "jko-cvx: error: Unable to allocate 6.7 GiB" in capsys.readouterr().err

@@ -38,7 +38,7 @@ from jko_cvx.scene.schema import SceneError
 if TYPE_CHECKING:
     from jko_cvx.scene.model import Scene
 
-__all__ = ["SizeEstimate", "check_limits", "estimate_size"]
+__all__ = ["SizeEstimate", "check_limits", "check_step_size", "estimate_size", "method_blocks"]
 
 _GIB = 2.0**30
 
@@ -78,15 +78,28 @@ def _cvxpy_blocks(scene: Scene, B: float) -> float:
     """N_v^2 doubles the CVXPY methods hold for the slices they solve at once (module docstring)."""
     from jko_cvx.threads import slice_workers
 
-    method, gamma = scene.collision.method, scene.gamma
+    return method_blocks(scene.collision.method, scene.gamma) * min(B, float(slice_workers()))
+
+
+def method_blocks(method: str, gamma: float) -> float:
+    """N_v^2 doubles a collision method holds per slice beyond the energy matrix (0 for newton and sqp)."""
     if method == "conic":
         full_rank = gamma > 2 and not (gamma == int(gamma) and int(gamma) % 2 == 0)
-        per_slice = 800.0 if full_rank else 120.0
-    elif method == "nlp":
-        per_slice = 60.0
-    else:
-        return 0.0
-    return per_slice * min(B, float(slice_workers()))
+        return 800.0 if full_rank else 120.0
+    return 60.0 if method == "nlp" else 0.0
+
+
+def check_step_size(n: int, gamma: float, methods: list[str], limits: Limits | None = None) -> None:
+    """Refuse one collision step on ``n`` velocity points whose memory estimate (the energy matrix and the
+    largest of ``methods``' blocks) exceeds ``limits``: ValueError naming ``--n``."""
+    limits = Limits.from_env() if limits is None else limits
+    nbytes = 8 * (4 + max((method_blocks(m, gamma) for m in methods), default=0.0)) * float(n) ** 2
+    if nbytes > limits.max_gib * _GIB:
+        raise ValueError(
+            f"--n = {n} needs an estimated {_size(nbytes)} for one collision step ({', '.join(methods)}), above the "
+            f"limit of {limits.max_gib:g} GiB; raise it with the environment variable {GIB_ENV} if the machine "
+            "has the memory"
+        )
 
 
 def _size(nbytes: float) -> str:
