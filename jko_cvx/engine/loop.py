@@ -44,7 +44,7 @@ from jko_cvx.engine.trackers import Snapshots, StepInfo, Tracker, default_tracke
 from jko_cvx.engine.verdict import SolverFailureRule, StopReason, Verdict
 from jko_cvx.kernels import PowerKernel
 from jko_cvx.mesh.policy import RemeshPolicy
-from jko_cvx.scene.model import Scene, SceneError, scene_from_dict
+from jko_cvx.scene.model import Scene, SceneError
 from jko_cvx.scene.options import RUN_KKT
 from jko_cvx.time_order import collision_step_order2, strang_step
 from jko_cvx.transport import transport_step
@@ -437,7 +437,7 @@ def simulate(
         raise ValueError("resume and overwrite need a run directory: pass out=")
     # a Scene built in code (dataclasses.replace) bypasses the loader: check it as the loader would (its size
     # limits included), before anything is written, and run it in the loader's form (what scene.json rebuilds)
-    scene = scene_from_dict(scene.to_dict())
+    scene = scene.replace({})
     if attempts is not None and not isinstance(attempts, list):
         raise TypeError(f"attempts must be a list (it receives the failed attempts), got {type(attempts).__name__}")
     if observers is not None and not callable(observers):

@@ -130,7 +130,8 @@ class Scene:
 
         The nested counterpart of :func:`dataclasses.replace` (``{"v.n": 41, "time.dt": 0.02}``).
         The result is the scene :func:`scene_from_dict` makes of the changed document (its
-        normal form: ``output.times`` sorted, ...); a change that makes the scene
+        normal form: ``output.times`` sorted, ...; ``replace({})`` is that form of the scene
+        itself), of the scene's own class; a change that makes the scene
         inconsistent (``{"collision.method": "sqp"}`` on a scene whose momentum constraint or
         options belong to Newton) raises :class:`SceneError` naming the key, before any work.
 
@@ -142,9 +143,13 @@ class Scene:
         for dotted, val in changes.items():
             out = _replace_path(out, str(dotted).split("."), val, str(dotted))
         try:  # the loader's form (output.times sorted, ...): what the run's scene.json rebuilds
-            return scene_from_dict(out.to_dict())
+            loaded = scene_from_dict(out.to_dict())
         except SceneError as exc:
             raise SceneError(f"replace({dict(changes)!r}) gives an invalid scene: {exc}") from None
+        if type(self) is Scene:
+            return loaded
+        # a subclass (its own initial datum, say) keeps its class, with the loader's values
+        return type(self)(**{f.name: getattr(loaded, f.name) for f in dataclasses.fields(loaded)})
 
     def to_dict(self) -> dict[str, Any]:
         """The scene as its canonical TOML-shaped document: nested by table, every default filled in,

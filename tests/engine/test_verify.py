@@ -21,6 +21,10 @@ from ._kill import signal_cli_when
 # tab_bu_g1 on 41 points, 5 steps of 0.01, with the perspective form (the form conic poses)
 SMALL = {"v.n": 41, "t_end": 0.05, "collision.fisher": "perspective", "collision.beta": 30.0}
 
+# Newton stopped at a KKT residual of 0.1 and certified there: a method that claims success where it should not
+# (a loose tol alone no longer does: a run certifies Newton at min(tol, 1e-8))
+LOOSE = {"tol": 0.1, "kkt_tol": 0.1}
+
 
 def _scene(**changes):
     return shipped_scene("tab_bu_g1").replace({**SMALL, **changes})
@@ -59,9 +63,9 @@ def test_newton_verified_against_conic_and_the_run_is_untouched():
 
 
 def test_a_loose_method_is_flagged_at_the_first_step_it_parts():
-    # Newton stopped at a KKT residual of 0.1: its first two steps happen to land within 2e-6 of the
+    # Newton stopped and certified at a KKT residual of 0.1: its first two steps happen to land within 2e-6 of the
     # minimiser, the third (after remeshing) 9e-5 off; the reference at tol 1e-12 pins f to 1e-5
-    sc = _scene(**{"collision.options": {"tol": 0.1}})
+    sc = _scene(**{"collision.options": LOOSE})
     ver = verify(sc, "conic", reference_options={"tol": 1e-12})
     t = ver.table
     assert not ver.verified
@@ -359,7 +363,8 @@ def test_cli_verify_exit_status_says_the_verdict(tmp_path, capsys):
     good, loose = tmp_path / "good.toml", tmp_path / "loose.toml"
     good.write_text(base.replace('fisher = "log"', 'fisher = "perspective"'))
     loose.write_text(  # five steps, Newton stopped at KKT 0.1: parts from the reference at step 4 (df ~ 1e-2)
-        base.replace("t_end = 0.02", "t_end = 0.05").replace('"log"', '"perspective"\noptions = { tol = 0.1 }')
+        base.replace("t_end = 0.02", "t_end = 0.05")
+        .replace('"log"', '"perspective"\noptions = { tol = 0.1, kkt_tol = 0.1 }')
     )
     assert main(["verify", str(good), "--out", str(tmp_path / "g"), "--quiet"]) == 0
     assert "verified:" in capsys.readouterr().out
@@ -434,7 +439,7 @@ def test_trajectories_of_newton_and_conic_agree(tmp_path):
 def test_a_loose_method_parts_in_max_f_and_is_flagged():
     # Newton stopped at a KKT residual of 0.1 parts from the reference at step 3 (9e-5 in f); along the run
     # its max f falls 1.6e-2 behind the reference's at t = 0.04 (step 4)
-    sc = _scene(**{"collision.options": {"tol": 0.1}})
+    sc = _scene(**{"collision.options": LOOSE})
     ver = verify(sc, "conic", reference_options={"tol": 1e-12}, trajectory=True)
     tr = ver.trajectory
     assert not ver.verified and not tr.agree
@@ -450,7 +455,7 @@ def test_a_loose_method_parts_in_max_f_and_is_flagged():
 
 def test_load_verification_reads_the_trajectory_part_of_the_verdict(tmp_path):
     """A verification whose runs part in max f reads back as not verified, with the trajectory table."""
-    sc = _scene(**{"collision.options": {"tol": 0.1}})
+    sc = _scene(**{"collision.options": LOOSE})
     out = tmp_path / "v"
     ver = verify(sc, "conic", reference_options={"tol": 1e-12}, trajectory=True, out=out)
     loaded = load_verification(out)
