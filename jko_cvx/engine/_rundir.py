@@ -63,6 +63,10 @@ _NUMERIC_ENVIRONMENT = ("python", *PACKAGES, "machine", "cpu", "cpu_count", "bla
 """The keys of :func:`~jko_cvx.environment.environment` a run's numbers may depend on (a resumed leg records where
 they differ from the first leg's)."""
 _ASIDE = ".replaced"  # an overwritten run, kept until the new run has started
+_DISCARDED = ".replaced.done"  # the same, renamed once the new run has started, while it is deleted
+_ASIDE_MARK = ".moved_aside_by_jko_cvx"
+"""The file that makes ``.replaced`` (and ``.replaced.done``) a folder this package made: written first, deleted
+last; a folder of that name without it is the user's, and nothing in or beside it is deleted or restored."""
 
 
 def canonical_scene(scene: Scene) -> str:
@@ -171,15 +175,6 @@ def _entries(path: Path) -> list[Path]:
     if snaps.is_dir() and not snaps.is_symlink():
         names += [p for p in snaps.iterdir() if _SNAPSHOT.fullmatch(p.name)]
     return names
-
-
-def _holds_ledger(path: Path) -> bool:
-    """``path`` holds a ``metadata.json`` with a run's file digests (a run this package wrote)."""
-    try:
-        Ledger.read(path)
-    except RunDirError:
-        return False
-    return True
 
 
 def refuse_links(path: Path) -> None:
@@ -317,7 +312,7 @@ class RunDir:
             self._move_back(moved)
             raise
         if moved:
-            shutil.rmtree(self.path / _ASIDE)
+            self._discard_aside()
 
     def _check_replaceable(self, found: list[str]) -> None:
         """RunDirError unless every entry an overwrite would remove is the old run's own: the directory must hold a
@@ -354,9 +349,10 @@ class RunDir:
 
     def _move_aside(self) -> list[Path]:
         """Move the old run's files into ``DIR/.replaced/`` (renames in one file system); on failure move
-        back what moved and refuse, leaving the old run as it was."""
+        back what moved and refuse, leaving the old run as it was.  The folder's mark is written before any move."""
         aside = self.path / _ASIDE
         aside.mkdir()
+        (aside / _ASIDE_MARK).write_text(f"the run of {self.path} moved aside by an overwrite\n")
         (aside / "snapshots").mkdir()
         moved: list[Path] = []
         try:
@@ -376,26 +372,49 @@ class RunDir:
         for p in reversed(moved):
             os.replace(aside / p.relative_to(self.path), p)
         if aside.is_dir():
-            shutil.rmtree(aside)
+            self._discard_aside()
+
+    def _discard_aside(self) -> None:
+        """Delete ``.replaced``: renamed first (one step), then emptied with its mark last, so that a kill at any
+        point leaves either the whole folder or a marked (or empty) ``.replaced.done`` the next open finishes."""
+        done = self.path / _DISCARDED
+        os.replace(self.path / _ASIDE, done)
+        self._finish_discard(done)
+
+    @staticmethod
+    def _finish_discard(done: Path) -> None:
+        for p in sorted(done.iterdir()):
+            if p.name != _ASIDE_MARK:
+                shutil.rmtree(p) if p.is_dir() and not p.is_symlink() else p.unlink()
+        (done / _ASIDE_MARK).unlink(missing_ok=True)
+        done.rmdir()
 
     def _restore_aside(self) -> None:
-        """Put back a run whose overwrite was killed before the new run started (``DIR/.replaced/`` left).
+        """Finish what an overwrite killed midway left: put back the old run from ``DIR/.replaced/`` (killed before
+        the new run had started), or delete ``DIR/.replaced.done/`` (killed while deleting the old run).
 
-        The overwrite renamed the old run's entries into ``.replaced`` one by one, then wrote the new run's first
-        files: a name in both places is the new run's in DIR (removed) and the old run's aside (put back); a name in
-        DIR alone is the old run's, not yet moved when the kill came (kept).  Nothing is removed unless a run's
-        ledger (``metadata.json`` with its digests) is aside or, where the kill came before it moved, in DIR.
+        The overwrite marked ``.replaced`` (:data:`_ASIDE_MARK`), renamed the old run's entries into it one by one,
+        then wrote the new run's first files: a name in both places is the new run's in DIR (removed) and the old
+        run's aside (put back); a name in DIR alone is the old run's, not yet moved when the kill came (kept).  A
+        folder of either name without the mark is not this package's (an empty one excepted: the kill came before
+        the mark), and nothing is deleted or restored.
         """
+        done = self.path / _DISCARDED
+        for folder in (self.path / _ASIDE, done):
+            if folder.is_symlink() or (folder.exists() and not folder.is_dir()):
+                raise RunDirError(f"{folder} is not a directory this package made: remove it")
+            if folder.is_dir() and not (folder / _ASIDE_MARK).is_file():
+                if any(p.name != "snapshots" or any(p.iterdir()) for p in folder.iterdir()):
+                    raise RunDirError(
+                        f"{folder} is not a folder this package made (it has no {_ASIDE_MARK}), so nothing in "
+                        f"{self.path} is deleted or restored: move it away"
+                    )
+                shutil.rmtree(folder)  # empty: made, and killed before its mark was written
+        if done.is_dir():
+            self._finish_discard(done)
         aside = self.path / _ASIDE
-        if aside.is_symlink() or (aside.exists() and not aside.is_dir()):
-            raise RunDirError(f"{aside} is not a directory this package made: remove it")
         if not aside.is_dir():
             return
-        if not any(_holds_ledger(d) for d in (aside, self.path)):
-            raise RunDirError(
-                f"{aside} holds no run this package moved aside (no metadata.json with a run's digests there or in "
-                f"{self.path}), so nothing in {self.path} is deleted: remove it or move it away"
-            )
         old = [p for p in _entries(aside) if p.name not in (".lock", "snapshots") and (p.exists() or p.is_symlink())]
         links = [p for p in old if p.is_symlink()]
         if links:
@@ -408,7 +427,7 @@ class RunDir:
                 target.unlink()
             target.parent.mkdir(exist_ok=True)
             os.replace(p, target)
-        shutil.rmtree(aside)
+        self._discard_aside()
 
     def _resume(self) -> None:
         if not self.checkpoint.exists():

@@ -55,6 +55,13 @@ EDITS = {
 }
 
 
+def _marked(folder: Path) -> Path:
+    """``folder`` made as an overwrite makes ``.replaced``: with the mark written before any move."""
+    (folder / "snapshots").mkdir(parents=True)
+    (folder / rundir_module._ASIDE_MARK).write_text("moved aside")
+    return folder
+
+
 @pytest.mark.parametrize("edit", EDITS)
 @pytest.mark.parametrize("forged", [False, True], ids=["digest kept", "digest recomputed"])
 def test_an_edited_checkpoint_is_refused_on_resume_and_by_load_run(run_dir, edit, forged):
@@ -205,8 +212,7 @@ def test_an_overwrite_killed_within_its_move_keeps_the_files_it_had_not_moved(ru
     """A kill after the overwrite moved some of the old run's files aside: the next open puts those back and keeps
     the ones still in place (they are the old run's, not the new one's)."""
     before = _files(run_dir)
-    aside = run_dir / ".replaced"
-    (aside / "snapshots").mkdir(parents=True)
+    aside = _marked(run_dir / ".replaced")
     os.replace(run_dir / "scene.json", aside / "scene.json")  # the first rename of the move, then the kill
     with pytest.raises(RunDirError, match="already holds a run"):
         simulate(scene_from_dict(SMALL), out=run_dir, progress=False)
@@ -220,23 +226,60 @@ def test_a_replaced_folder_of_the_users_deletes_nothing(tmp_path):
     """DIR/.replaced that holds no run this package moved aside: the open is refused and no file is touched."""
     out = tmp_path / "ud"
     (out / ".replaced").mkdir(parents=True)
+    (out / ".replaced" / "scene.json").write_text("{}")  # not empty (an empty one is a kill before the mark)
     (out / "reference").mkdir()
     (out / "reference" / "data.txt").write_text("precious")
     (out / "records.png").write_text("mine")
     before = _files(out)
-    with pytest.raises(RunDirError, match=r"\.replaced holds no run"):
+    with pytest.raises(RunDirError, match=r"\.replaced is not a folder this package made"):
         simulate(scene_from_dict(SMALL), out=out, progress=False)
     after = _files(out)
     after.pop(".lock", None)
     assert after == before and (out / ".replaced").is_dir()
 
 
+@pytest.mark.parametrize("name", [".replaced", ".replaced.done"])
+def test_a_folder_of_the_users_beside_a_run_touches_neither(run_dir, name):
+    """A user's own .replaced (or .replaced.done) beside a finished run, holding files with run names: every open
+    is refused and neither the run nor the user's files change."""
+    mine = run_dir / name
+    mine.mkdir()
+    (mine / "diagnostics.csv").write_text("my own table")
+    (mine / "notes.txt").write_text("my notes")
+    before = _files(run_dir)
+    for call in (
+        lambda: simulate(scene_from_dict(SMALL), out=run_dir, resume=True, progress=False),
+        lambda: simulate(scene_from_dict(SMALL), out=run_dir, overwrite=True, progress=False),
+    ):
+        with pytest.raises(RunDirError, match="is not a folder this package made"):
+            call()
+    after = _files(run_dir)
+    after.pop(".lock", None), before.pop(".lock", None)
+    assert after == before
+
+
+def test_an_overwrite_killed_while_deleting_the_old_run_is_finished_on_the_next_open(run_dir):
+    """The old run is renamed to .replaced.done (one step) and emptied with its mark last: a kill midway leaves a
+    marked folder, which the next open deletes; the new run beside it is untouched."""
+    diagnostics = (run_dir / "diagnostics.csv").read_bytes()
+    done = _marked(run_dir / ".replaced.done")
+    (done / "checkpoint.npz").write_bytes(b"the old run's, half deleted")
+    simulate(scene_from_dict(SMALL), out=run_dir, resume=True, progress=False)  # a finished run: nothing to step
+    assert not done.exists() and (run_dir / "diagnostics.csv").read_bytes() == diagnostics
+    load_run(run_dir)
+
+
+def test_an_overwrite_leaves_no_folder_of_the_old_run(run_dir):
+    simulate(scene_from_dict({**SMALL, "t_end": 0.03}), out=run_dir, overwrite=True, progress=False)
+    assert not any(p.name.startswith(".replaced") for p in run_dir.iterdir())
+    load_run(run_dir)
+
+
 def test_an_overwrite_killed_midway_is_put_back_on_the_next_open(run_dir):
     before = _files(run_dir)
-    aside = run_dir / ".replaced"
-    (aside / "snapshots").mkdir(parents=True)
+    aside = _marked(run_dir / ".replaced")
     for p in sorted(run_dir.rglob("*")):  # the state a kill leaves: old run aside, the new one begun
-        if p.is_file() and ".replaced" not in p.parts and p.name != ".lock":
+        if p.is_file() and ".replaced" not in p.parts and p.name not in (".lock", rundir_module._ASIDE_MARK):
             os.replace(p, aside / p.relative_to(run_dir))
     (run_dir / "scene.json").write_text("{}")
     with pytest.raises(RunDirError, match="an overwrite of it was interrupted"):
