@@ -131,7 +131,8 @@ class Scene:
         The nested counterpart of :func:`dataclasses.replace` (``{"v.n": 41, "time.dt": 0.02}``).
         The result is the scene :func:`scene_from_dict` makes of the changed document (its
         normal form: ``output.times`` sorted, ...; ``replace({})`` is that form of the scene
-        itself), of the scene's own class; a change that makes the scene
+        itself), of the scene's own class, with any table of a class of the caller's own (a
+        subclass of ``Initial``, say) kept as it is; a change that makes the scene
         inconsistent (``{"collision.method": "sqp"}`` on a scene whose momentum constraint or
         options belong to Newton) raises :class:`SceneError` naming the key, before any work.
 
@@ -146,10 +147,13 @@ class Scene:
             loaded = scene_from_dict(out.to_dict())
         except SceneError as exc:
             raise SceneError(f"replace({dict(changes)!r}) gives an invalid scene: {exc}") from None
-        if type(self) is Scene:
-            return loaded
-        # a subclass (its own initial datum, say) keeps its class, with the loader's values
-        return type(self)(**{f.name: getattr(loaded, f.name) for f in dataclasses.fields(loaded)})
+        # the loader's values, but a table of a class of the caller's own (a subclass of Initial with its own
+        # density, say) is kept as it is, and so is a Scene subclass: replace never swaps the physics silently
+        fields = {}
+        for f in dataclasses.fields(loaded):
+            mine, theirs = getattr(out, f.name), getattr(loaded, f.name)
+            fields[f.name] = mine if dataclasses.is_dataclass(mine) and type(mine) is not type(theirs) else theirs
+        return type(self)(**fields)
 
     def to_dict(self) -> dict[str, Any]:
         """The scene as its canonical TOML-shaped document: nested by table, every default filled in,

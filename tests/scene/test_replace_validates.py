@@ -57,3 +57,25 @@ def test_a_scene_changed_in_code_runs_in_the_loaders_form_and_reads_back(tmp_pat
     by_hand = dataclasses.replace(base, output=dataclasses.replace(base.output, times=(0.03, 0.01)))
     simulate(by_hand, out=tmp_path / "b", progress=False)
     assert load_run(tmp_path / "b").scene.output.times == (0.01, 0.03)
+
+
+def test_a_table_of_the_callers_own_class_survives_replace_and_simulate():
+    """A subclass of the initial datum's class (its own density) is the caller's physics: replace and simulate
+    keep it (rebuilding the table from the loader would swap it for the stock class without a word)."""
+    import dataclasses
+
+    import numpy as np
+
+    base = shipped_scene("tab_bu_g1", {"v.n": 41, "t_end": 0.02})
+
+    @dataclasses.dataclass(frozen=True)
+    class Heavier(type(base.initial)):
+        def density(self, xgrid, vgrid):
+            return 2.0 * super().density(xgrid, vgrid)
+
+    mine = dataclasses.replace(base, initial=Heavier(**{f.name: getattr(base.initial, f.name)
+                                                        for f in dataclasses.fields(base.initial)}))  # fmt: skip
+    assert type(mine.replace({"t_end": 0.01}).initial) is Heavier
+    run = simulate(mine, progress=False)
+    stock = simulate(base, progress=False)
+    assert np.isclose(run.diagnostics.max_f.iloc[0], 2 * stock.diagnostics.max_f.iloc[0], rtol=1e-12)
