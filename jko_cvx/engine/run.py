@@ -20,6 +20,7 @@ state, verdict and timings.
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -32,6 +33,7 @@ from jko_cvx.engine._state import Ledger, RunState, read_npz
 from jko_cvx.engine.errors import RunDirError
 from jko_cvx.engine.verdict import StopReason, Verdict
 from jko_cvx.grid import Grid, PeriodicGrid
+from jko_cvx.limits import Limits
 from jko_cvx.scene.model import Scene, scene_from_dict
 from jko_cvx.scene.options import RUN_KKT
 
@@ -246,8 +248,9 @@ def _scene_from_record(record: dict[str, Any], fingerprint: str, where: Path) ->
             f"{where} records the scene as flat fields (v_n, dt, ...), the layout of an earlier jko_cvx; this "
             "version records and reads the TOML-shaped document (v.n, time.dt, ...): run the scene again"
         )
-    try:
-        scene = scene_from_dict(record)
+    try:  # a recorded scene is read back, not started: the size limits (which depend on this machine's settings,
+        # JKO_CVX_THREADS and JKO_CVX_MAX_GIB) guard a run's start, not reading what a run wrote
+        scene = scene_from_dict(record, Limits(math.inf, math.inf))
     except (ValueError, TypeError) as exc:
         raise RunDirError(f"{where} does not rebuild the scene the run's checkpoint was made from ({exc})") from None
     if scene_fingerprint(scene) != fingerprint:

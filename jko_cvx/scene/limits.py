@@ -125,9 +125,17 @@ def check_limits(scene: Scene, limits: Limits | None = None) -> SizeEstimate:
         )
     if est.bytes > limits.max_gib * _GIB:
         grid = f"v.n = {scene.v.n}" + ("" if scene.x is None else f", x.n = {scene.x.n}")
+        method = scene.collision.method
+        at_once = ""
+        if method_blocks(method, scene.gamma) > 0:
+            from jko_cvx.threads import THREADS_ENV, slice_workers
+
+            slices = min(1 if scene.x is None else scene.x.n, slice_workers())
+            at_once = f"; method {method!r} holds its blocks for each of the {slices} slice(s) it solves at once"
+            at_once += f" ({THREADS_ENV})" if scene.x is not None else ""
         raise SceneError(
             f"{grid} needs an estimated {_size(est.bytes)} (dense N_v x N_v blocks {_size(est.dense_bytes)}, "
-            f"snapshots {_size(est.snapshot_bytes)}), above the limit of {limits.max_gib:g} GiB; raise it with "
-            f"the environment variable {GIB_ENV} if the machine has the memory"
+            f"snapshots {_size(est.snapshot_bytes)}{at_once}), above the limit of {limits.max_gib:g} GiB; raise it "
+            f"with the environment variable {GIB_ENV} if the machine has the memory"
         )
     return est
