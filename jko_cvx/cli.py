@@ -189,14 +189,14 @@ def _solve_one(args) -> int:
     asked = args.method is not None
     installed = [m for m in _SOLVE_METHODS if m != "nlp" or nlp_available()]
     methods = list(dict.fromkeys(args.method)) if asked else installed
-    check_step_size(args.n, args.gamma, methods)  # before anything is allocated
-    prob = _builtin_problem(args)
     if "nlp" in methods and not nlp_available():
         raise ImportError(f"--method nlp needs IPOPT: {INSTALL_HINT}")
+    if "conic" in methods and args.fisher == "log" and not asked:
+        methods.remove("conic")  # (asked for: refused below, naming the methods that pose the log form)
+    check_step_size(args.n, args.gamma, methods)  # the methods that run, before anything is allocated
+    prob = _builtin_problem(args)
     if "conic" in methods and prob.fisher == "log":
-        if asked:
-            ConicOptions.checked(prob)  # refused before any solve, naming the methods that pose the log form
-        methods.remove("conic")
+        ConicOptions.checked(prob)
     print(prob)
     for method in methods:
         res = solve_collision(prob, method=method)
@@ -226,7 +226,10 @@ def _compare(args) -> int:
         prob = problem_from_scene(_load(args.scene, args.settings), args.t)
         name = f"{args.scene.stem}_t{args.t:g}"
     else:
-        check_step_size(args.n, args.gamma, list(_SOLVE_METHODS))  # every method, before anything is allocated
+        from jko_cvx.collision.nlp import nlp_available
+
+        runs = [m for m in _SOLVE_METHODS if (m != "conic" or args.fisher != "log") and (m != "nlp" or nlp_available())]
+        check_step_size(args.n, args.gamma, runs)  # the methods compare runs, before anything is allocated
         prob = _builtin_problem(args)
         name = f"builtin_gamma{args.gamma:g}_n{args.n}_dt{args.dt:g}_beta{args.beta:g}"
         name += "_log" if args.fisher == "log" else ""

@@ -354,3 +354,14 @@ def test_running_out_of_memory_is_one_line_not_a_traceback(capsys, monkeypatch):
     monkeypatch.setattr(cli, "solve_collision", exhausted)
     assert main(["solve", "--n", "41", "--method", "newton"]) == 2
     assert "jko-cvx: error: Unable to allocate 6.7 GiB" in capsys.readouterr().err
+
+
+def test_the_size_check_counts_only_the_methods_that_run(capsys, monkeypatch):
+    """conic's blocks (800 N^2 doubles at gamma = 3) do not refuse a Newton-only solve, nor the log form, which
+    conic does not pose."""
+    monkeypatch.setenv("JKO_CVX_MAX_GIB", "0.1")  # conic at gamma = 3 would need ~0.5 GiB at n = 281
+    args = ["--gamma", "3", "--n", "281", "--dt", "0.001"]
+    assert main(["solve", *args]) == 2 and "--n = 281 needs an estimated" in capsys.readouterr().err
+    assert main(["solve", *args, "--method", "newton"]) == 0
+    assert main(["solve", *args, "--fisher", "log", "--method", "newton", "sqp"]) == 0
+    capsys.readouterr()
