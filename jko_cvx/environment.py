@@ -90,13 +90,15 @@ def installed_version(name: str) -> str:
 
 @functools.cache
 def library_versions() -> str:
-    """Python and the numerical libraries a computed number depends on (:data:`PACKAGES` and osqp), as one line.
+    """Python and the numerical libraries a computed number depends on, as one line: :data:`PACKAGES` and the
+    solvers a method may call (osqp, scs, ecos, IPOPT through cyipopt) and numba (``compiled=True``), each
+    ``not installed`` where absent.
 
     What a cache keys its results by besides the package's own code: an upgrade of any of them is other code.
     (The BLAS kernel is not in it: another kernel changes the rounding of the same code, as another machine
     does, which :func:`environment` records.)
     """
-    names = (*PACKAGES, "osqp")
+    names = (*PACKAGES, "osqp", "scs", "ecos", "cyipopt-wheels", "cyipopt", "numba")
     return ", ".join([f"python {platform.python_version()}", *(f"{n} {installed_version(n)}" for n in names)])
 
 

@@ -265,8 +265,8 @@ def test_an_editor_file_beside_the_modules_is_no_change_of_code():
 
 
 def test_a_cached_result_is_keyed_by_the_numerical_libraries_too(monkeypatch):
-    """After an upgrade of NumPy, SciPy, CVXPY, Clarabel, OSQP or Python a cached result is computed again: the
-    key holds their versions, not only the package's code."""
+    """After an upgrade of NumPy, SciPy, CVXPY, Clarabel, a solver (OSQP, SCS, ECOS, IPOPT), numba or Python a
+    cached result is computed again: the key holds their versions, not only the package's code."""
     import platform
 
     import jko_cvx.studies.sweep as sweep
@@ -274,7 +274,7 @@ def test_a_cached_result_is_keyed_by_the_numerical_libraries_too(monkeypatch):
 
     ident = sweep.code_identity(blowup_time)
     libraries = ident["libraries"]
-    for name in (*PACKAGES, "osqp"):
+    for name in (*PACKAGES, "osqp", "scs", "ecos", "cyipopt-wheels", "numba"):
         assert f"{name} {installed_version(name)}" in libraries
     assert f"python {platform.python_version()}" in libraries
     before = point_key(blowup_time, {"n": 41})
