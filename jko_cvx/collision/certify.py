@@ -149,7 +149,10 @@ def certify(
     claimed = _given("claimed", claimed, rows, lambda c: isinstance(c, Status), "a Status")
     second_order = _given("second_order", second_order, rows, lambda o: isinstance(o, bool | np.bool_), "a bool")
     if residual is not None:
-        total = np.asarray(residual, dtype=float) if not isinstance(residual, bool) else np.array(-1.0)
+        try:
+            total = np.asarray(residual, dtype=float) if not isinstance(residual, bool) else np.array(-1.0)
+        except (TypeError, ValueError):
+            total = np.array(-1.0)
         if total.shape not in ((), rows) or np.any(total < 0):  # NaN passes: a residual that could not be evaluated
             raise ValueError(f"residual must be a non-negative number (one per slice for a batch), got {residual!r}")
     if kkt is not None and not isinstance(kkt, KKTResidual):

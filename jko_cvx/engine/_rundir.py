@@ -384,7 +384,7 @@ class RunDir:
     @staticmethod
     def _finish_discard(done: Path) -> None:
         for p in sorted(done.iterdir()):
-            if p.name != _ASIDE_MARK:
+            if p != done / _ASIDE_MARK:
                 shutil.rmtree(p) if p.is_dir() and not p.is_symlink() else p.unlink()
         (done / _ASIDE_MARK).unlink(missing_ok=True)
         done.rmdir()
@@ -404,7 +404,7 @@ class RunDir:
             if folder.is_symlink() or (folder.exists() and not folder.is_dir()):
                 raise RunDirError(f"{folder} is not a directory this package made: remove it")
             if folder.is_dir() and not (folder / _ASIDE_MARK).is_file():
-                if any(p.name != "snapshots" or any(p.iterdir()) for p in folder.iterdir()):
+                if any(p != folder / "snapshots" or any(p.iterdir()) for p in folder.iterdir()):
                     raise RunDirError(
                         f"{folder} is not a folder this package made (it has no {_ASIDE_MARK}), so nothing in "
                         f"{self.path} is deleted or restored: move it away"

@@ -189,7 +189,7 @@ class Stepper:
             # inhom_gamma3_lambda4: tol 1e-11 costs 50 % more and only lowers it 3e-9 -> 6e-10).
             self.opts.setdefault("tol", ACCEPT_KKT)
             self.opts.setdefault("max_iter", NEWTON_MAX_ITER)
-            # Newton certifies at its tol unless told otherwise: a loose tol must not loosen the run's certificate
+            # Newton alone certifies at its tol; in a run at min(tol, RUN_KKT): a loose tol must not loosen it
             self.opts.setdefault("kkt_tol", min(self.opts["tol"], limit))
         self.opts.setdefault("kkt_tol", limit)  # a scene's own kkt_tol is honoured; Run.summary names a looser one
 

@@ -112,19 +112,28 @@ class Run:
             f"{v.describe()} (direction: {where}; {v.reason})"
             + (f", T_b = {v.T_b:.6g}" if v.blowup else "")
             + (f"; {fit}" if (fit := v.describe_fit()) else "")
-            + self._loose_certificate()
+            + self._certificate_note()
         )
 
-    def _loose_certificate(self) -> str:
-        """The warning of a run whose scene certifies steps above the method's run threshold (``RUN_KKT``)."""
+    def _certificate_note(self) -> str:
+        """What the scene's solver options do to the certificate of its steps (``RUN_KKT``): a looser ``kkt_tol``
+        (warned), or a Newton ``tol`` above the threshold (steps stop before they can be certified)."""
         c = self.scene.collision
-        kkt, limit = c.options.get("kkt_tol"), RUN_KKT[c.method]
-        if kkt is None or kkt <= limit:
-            return ""
-        return (
-            f" (WARNING: steps certified at collision.options.kkt_tol = {kkt:g}, looser than a run's {limit:g} for "
-            f"method {c.method!r}: 'certified' here means a KKT residual up to {kkt:g})"
-        )
+        opts, limit = c.options, RUN_KKT[c.method]
+        kkt = opts.get("kkt_tol")
+        if kkt is not None and kkt > limit:
+            return (
+                f" (WARNING: steps certified at collision.options.kkt_tol = {kkt:g}, looser than a run's {limit:g} "
+                f"for method {c.method!r}: 'certified' here means a KKT residual up to {kkt:g})"
+            )
+        tol = opts.get("tol")
+        if c.method == "newton" and kkt is None and tol is not None and tol > limit:
+            return (
+                f" (collision.options.tol = {tol:g} is above the {limit:g} at which a run certifies Newton's steps: "
+                "they stop before they can be certified; lower tol, or set collision.options.kkt_tol to loosen the "
+                "certificate explicitly)"
+            )
+        return ""
 
     def records_line(self) -> str:
         """Conservation and extremes over the run: mass and momentum drift, max f, min dv (min dx)."""

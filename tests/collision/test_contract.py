@@ -117,6 +117,7 @@ def test_certify_refuses_arguments_that_do_not_belong_to_the_problem():
         (dict(second_order="yes"), "second_order must be"),
         (dict(residual=-1.0), "residual must be"),
         (dict(residual=np.array([0.0, 0.0])), "residual must be"),
+        (dict(residual="small"), "residual must be"),
     ]
     for change, message in bad:
         args = {"f": f, "m": m, **change}

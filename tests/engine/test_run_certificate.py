@@ -53,7 +53,7 @@ def test_a_scenes_own_certificate_is_honoured_and_a_looser_one_named(method):
     """A scene may set kkt_tol (the paper's SQP has no KKT test of its own); above the method's run threshold the
     run's summary says what 'certified' then means."""
     limit = RUN_KKT[method]
-    assert Stepper(_scene(method)).opts["kkt_tol"] <= limit  # the default is the run's threshold or tighter
+    assert Stepper(_scene(method)).opts["kkt_tol"] == limit  # the default is the run's threshold
     assert Stepper(_scene(method, kkt_tol=limit / 10)).opts["kkt_tol"] == limit / 10
     assert Stepper(_scene(method, kkt_tol=0.1)).opts["kkt_tol"] == 0.1
 
@@ -62,3 +62,10 @@ def test_the_summary_names_a_certificate_looser_than_the_runs():
     loose = simulate(_scene("sqp", kkt_tol=0.1))
     assert "WARNING: steps certified at collision.options.kkt_tol = 0.1" in loose.summary()
     assert "kkt_tol" not in simulate(_scene("sqp", kkt_tol=1e-7)).summary()
+
+
+def test_a_newton_tol_above_the_certificate_is_named_in_the_summary():
+    run = simulate(_scene("newton", tol=1e-3))
+    assert not run.verdict.certified
+    assert "collision.options.tol = 0.001 is above the 1e-08 at which a run certifies" in run.summary()
+    assert "collision.options.tol" not in simulate(_scene("newton", tol=1e-10)).summary()
