@@ -28,7 +28,7 @@ __all__ = ["METHOD_OPTIONS", "RUN_KKT", "SOLVER_OPTIONS", "parse_options", "rule
 RUN_KKT: dict[str, float] = {"newton": 1e-8, "nlp": 1e-8, "conic": 1e-6, "sqp": 1e-6}
 """Per method: the KKT threshold at which a run certifies its collision steps (the engine accepts a step
 when every slice is certified at it; :class:`jko_cvx.engine.loop.Stepper`).  Newton and IPOPT reach
-1e-8 at the cost of 1e-6; the conic method's inner solves pin f to about ``sqrt(tol)`` and its residual
+1e-8 at about the cost of 1e-6; the conic method's inner solves pin f to about ``sqrt(tol)`` and its residual
 stops near 1e-8 to 1e-7; the paper's SQP keeps its own default, its failures being its exit flag.  A
 scene's ``collision.options.kkt_tol`` sets another; a looser one (the paper's SQP has no KKT test of its
 own) is honoured and the run's summary says so, since "certified" then means less.  A loose ``tol`` does
