@@ -39,6 +39,7 @@ import json
 import os
 import re
 import shutil
+import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -64,6 +65,7 @@ _NUMERIC_ENVIRONMENT = ("python", *PACKAGES, "machine", "cpu", "cpu_count", "bla
 they differ from the first leg's)."""
 _ASIDE = ".replaced"  # an overwritten run, kept until the new run has started
 _DISCARDED = ".replaced.done"  # the same, renamed once the new run has started, while it is deleted
+_ASIDE_TMP = ".replaced.tmp"  # the name .replaced is made under, before its mark makes it the package's
 _ASIDE_MARK = ".moved_aside_by_jko_cvx"
 """The file that makes ``.replaced`` (and ``.replaced.done``) a folder this package made: written first, deleted
 last; a folder of that name without it is the user's, and nothing in or beside it is deleted or restored."""
@@ -175,6 +177,40 @@ def _entries(path: Path) -> list[Path]:
     if snaps.is_dir() and not snaps.is_symlink():
         names += [p for p in snaps.iterdir() if _SNAPSHOT.fullmatch(p.name)]
     return names
+
+
+def aside_state(path: Path) -> str | None:
+    """What an interrupted overwrite left in the run directory ``path``, in words (None: nothing)."""
+    aside, done = path / _ASIDE, path / _DISCARDED
+    for folder in (aside, done):
+        if folder.exists() or folder.is_symlink():
+            if not (folder.is_dir() and not folder.is_symlink() and (folder / _ASIDE_MARK).is_file()):
+                return (
+                    f"{folder} is not a folder this package made (it has no {_ASIDE_MARK}); no run opens here "
+                    "until it is moved away"
+                )
+    if aside.is_dir():
+        return (
+            f"an overwrite of it was interrupted ({aside} holds the old run); opening it again with jko-cvx run "
+            "(or simulate) puts the old run back"
+        )
+    if done.is_dir():
+        return (
+            f"an overwrite of it was interrupted while deleting the old run ({done}); opening it again with "
+            "jko-cvx run (or simulate) finishes that"
+        )
+    return None
+
+
+def _only_mark(folder: Path) -> bool:
+    """``folder`` holds nothing but the aside mark and an empty ``snapshots/`` (or less)."""
+    for p in folder.iterdir():
+        mark, snapshots = p == folder / _ASIDE_MARK and p.is_file(), p == folder / "snapshots" and p.is_dir()
+        if p.is_symlink() or not (mark or snapshots):
+            return False
+        if p.is_dir() and any(p.iterdir()):
+            return False
+    return True
 
 
 def refuse_links(path: Path) -> None:
@@ -351,9 +387,11 @@ class RunDir:
         """Move the old run's files into ``DIR/.replaced/`` (renames in one file system); on failure move
         back what moved and refuse, leaving the old run as it was.  The folder's mark is written before any move."""
         aside = self.path / _ASIDE
-        aside.mkdir()
-        (aside / _ASIDE_MARK).write_text(f"the run of {self.path} moved aside by an overwrite\n")
-        (aside / "snapshots").mkdir()
+        # made under a temporary name, marked, then renamed: a .replaced is never without its mark
+        made = Path(tempfile.mkdtemp(prefix=_ASIDE_TMP, dir=self.path))
+        (made / _ASIDE_MARK).write_text(f"the run of {self.path} moved aside by an overwrite\n")
+        (made / "snapshots").mkdir()
+        os.replace(made, aside)
         moved: list[Path] = []
         try:
             for p in self._run_files():
@@ -399,17 +437,20 @@ class RunDir:
         folder of either name without the mark is not this package's (an empty one excepted: the kill came before
         the mark), and nothing is deleted or restored.
         """
+        for made in self.path.glob(f"{_ASIDE_TMP}*"):  # killed before the rename: the mark at most, no run file
+            if made.is_dir() and not made.is_symlink() and _only_mark(made):
+                shutil.rmtree(made)
         done = self.path / _DISCARDED
         for folder in (self.path / _ASIDE, done):
             if folder.is_symlink() or (folder.exists() and not folder.is_dir()):
                 raise RunDirError(f"{folder} is not a directory this package made: remove it")
-            if folder.is_dir() and not (folder / _ASIDE_MARK).is_file():
-                if any(p != folder / "snapshots" or any(p.iterdir()) for p in folder.iterdir()):
-                    raise RunDirError(
-                        f"{folder} is not a folder this package made (it has no {_ASIDE_MARK}), so nothing in "
-                        f"{self.path} is deleted or restored: move it away"
-                    )
-                shutil.rmtree(folder)  # empty: made, and killed before its mark was written
+            # .replaced is renamed into place marked; .replaced.done loses its mark just before its rmdir
+            empty_done = folder == done and folder.is_dir() and not any(folder.iterdir())
+            if folder.is_dir() and not (folder / _ASIDE_MARK).is_file() and not empty_done:
+                raise RunDirError(
+                    f"{folder} is not a folder this package made (it has no {_ASIDE_MARK}), so nothing in "
+                    f"{self.path} is deleted or restored: move it away"
+                )
         if done.is_dir():
             self._finish_discard(done)
         aside = self.path / _ASIDE

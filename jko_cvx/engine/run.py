@@ -303,16 +303,14 @@ def load_run(path: str | Path, *, allow_partial: bool = False) -> Run:
     path = Path(path)
     if not path.is_dir():
         raise RunDirError(f"run directory {path} does not exist")
+    from jko_cvx.engine._rundir import aside_state, read_snapshots, refuse_links
+
+    interrupted = aside_state(path)  # before the files: an interrupted overwrite may have moved scene.json aside
+    if interrupted:
+        raise RunDirError(f"{path}: {interrupted}")
     if not (path / "scene.json").exists():
         raise RunDirError(f"{path} is not a run directory: it has no scene.json")
-    from jko_cvx.engine._rundir import read_snapshots, refuse_links
-
     refuse_links(path)
-    if (path / ".replaced").exists():
-        raise RunDirError(
-            f"{path}: an overwrite of it was interrupted ({path / '.replaced'} holds the old run); opening it again "
-            "with jko-cvx run (or simulate) puts the old run back"
-        )
     ledger = Ledger.read(path)
     try:
         record = json.loads((path / "scene.json").read_text())

@@ -147,13 +147,7 @@ class Scene:
             loaded = scene_from_dict(out.to_dict())
         except SceneError as exc:
             raise SceneError(f"replace({dict(changes)!r}) gives an invalid scene: {exc}") from None
-        # the loader's values, but a table of a class of the caller's own (a subclass of Initial with its own
-        # density, say) is kept as it is, and so is a Scene subclass: replace never swaps the physics silently
-        fields = {}
-        for f in dataclasses.fields(loaded):
-            mine, theirs = getattr(out, f.name), getattr(loaded, f.name)
-            fields[f.name] = mine if dataclasses.is_dataclass(mine) and type(mine) is not type(theirs) else theirs
-        return type(self)(**fields)
+        return _in_class_of(out, loaded)
 
     def to_dict(self) -> dict[str, Any]:
         """The scene as its canonical TOML-shaped document: nested by table, every default filled in,
@@ -172,6 +166,26 @@ class Scene:
             if d["refine"][axis] is None:
                 del d["refine"][axis]
         return _canonical(d)
+
+
+def _in_class_of(mine: Any, theirs: Any) -> Any:
+    """The loader's value ``theirs`` in the class of the caller's ``mine``, at every level of the tables.
+
+    Where ``mine`` is of a subclass of the loader's class that adds no fields (its own methods: an initial datum
+    with a density of its own, say), the result is of that class with the loader's values (``output.times``
+    sorted, ``centre = "auto"`` resolved, ...); a class the loader does not make, or one with fields of its own,
+    is kept as the caller's object.  Replace never swaps a caller's physics for the stock one silently.
+    """
+    if not (dataclasses.is_dataclass(mine) and dataclasses.is_dataclass(theirs)) or isinstance(mine, type):
+        return theirs
+    values = {f.name: _in_class_of(getattr(mine, f.name, None), getattr(theirs, f.name))
+              for f in dataclasses.fields(theirs)}  # fmt: skip
+    if type(mine) is type(theirs):
+        same = all(values[k] is getattr(theirs, k) for k in values)
+        return theirs if same else dataclasses.replace(theirs, **values)
+    if isinstance(mine, type(theirs)) and {f.name for f in dataclasses.fields(mine)} == set(values):
+        return type(mine)(**values)
+    return mine
 
 
 def _replace_path(obj: Any, path: list[str], val: Any, dotted: str) -> Any:

@@ -353,3 +353,27 @@ def test_a_finished_run_reads_back_whatever_the_size_limits_here(run_dir, monkey
     monkeypatch.setenv("JKO_CVX_MAX_GIB", "1e-9")
     monkeypatch.setenv("JKO_CVX_THREADS", "64")
     assert load_run(run_dir).steps > 0
+
+
+def test_an_empty_replaced_folder_of_the_users_is_refused_not_deleted(run_dir):
+    """The overwrite renames .replaced into place already marked, so an unmarked one, even empty, is the user's."""
+    (run_dir / ".replaced" / "snapshots").mkdir(parents=True)
+    with pytest.raises(RunDirError, match="is not a folder this package made"):
+        simulate(scene_from_dict(SMALL), out=run_dir, resume=True, progress=False)
+    with pytest.raises(RunDirError, match="is not a folder this package made"):
+        load_run(run_dir)
+    assert (run_dir / ".replaced" / "snapshots").is_dir()
+
+
+def test_what_a_kill_before_the_aside_folder_was_renamed_leaves_is_removed(run_dir):
+    made = run_dir / ".replaced.tmpab12cd34"
+    _marked(made)
+    simulate(scene_from_dict(SMALL), out=run_dir, resume=True, progress=False)
+    assert not made.exists()
+
+
+def test_load_run_names_an_interrupted_overwrite_that_moved_scene_json_aside(run_dir):
+    aside = _marked(run_dir / ".replaced")
+    os.replace(run_dir / "scene.json", aside / "scene.json")
+    with pytest.raises(RunDirError, match="an overwrite of it was interrupted"):
+        load_run(run_dir)

@@ -79,3 +79,26 @@ def test_a_table_of_the_callers_own_class_survives_replace_and_simulate():
     run = simulate(mine, progress=False)
     stock = simulate(base, progress=False)
     assert np.isclose(run.diagnostics.max_f.iloc[0], 2 * stock.diagnostics.max_f.iloc[0], rtol=1e-12)
+
+
+def test_tables_of_the_callers_class_get_the_loaders_values_at_every_level(tmp_path):
+    """A subclass (methods only) of a table, at the top or nested (refine.v), keeps its class and gets the loader's
+    values: its run's scene.json rebuilds the same fingerprint, so load_run reads it back."""
+    import dataclasses
+
+    from jko_cvx import load_run
+
+    base = shipped_scene("tab_bu_g1", {"v.n": 21, "t_end": 0.05})
+
+    def subclass(obj):
+        cls = dataclasses.dataclass(frozen=True)(type("Mine", (type(obj),), {}))
+        return cls(**{f.name: getattr(obj, f.name) for f in dataclasses.fields(obj)})
+
+    out = dataclasses.replace(subclass(base.output), times=(0.04, 0.02))
+    refine = dataclasses.replace(base.refine, v=subclass(base.refine.v))
+    mine = dataclasses.replace(base, output=out, refine=refine)
+    normal = mine.replace({})
+    assert type(normal.output) is type(out) and normal.output.times == (0.02, 0.04)
+    assert type(normal.refine.v) is type(refine.v)
+    simulate(mine, out=tmp_path / "r", progress=False)
+    assert load_run(tmp_path / "r").scene.output.times == (0.02, 0.04)
