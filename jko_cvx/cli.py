@@ -187,12 +187,10 @@ def _solve_one(args) -> int:
     from jko_cvx.collision.nlp import INSTALL_HINT, nlp_available
 
     asked = args.method is not None
-    installed = [m for m in _SOLVE_METHODS if m != "nlp" or nlp_available()]
-    methods = list(dict.fromkeys(args.method)) if asked else installed
+    # asked for, conic on the log form is refused below, naming the methods that pose it
+    methods = list(dict.fromkeys(args.method)) if asked else _methods_that_run(args.fisher)
     if "nlp" in methods and not nlp_available():
         raise ImportError(f"--method nlp needs IPOPT: {INSTALL_HINT}")
-    if "conic" in methods and args.fisher == "log" and not asked:
-        methods.remove("conic")  # (asked for: refused below, naming the methods that pose the log form)
     check_step_size(args.n, args.gamma, methods)  # the methods that run, before anything is allocated
     prob = _builtin_problem(args)
     if "conic" in methods and prob.fisher == "log":
@@ -206,6 +204,14 @@ def _solve_one(args) -> int:
     if not asked and "nlp" not in methods:
         print('  nlp: not installed (pip install "jko_cvx[nlp]")')
     return 0
+
+
+def _methods_that_run(fisher: str) -> list[str]:
+    """The methods ``solve`` and ``compare`` run unasked on the built-in problem: the installed ones, conic not on
+    the log form (it does not pose it)."""
+    from jko_cvx.collision.nlp import nlp_available
+
+    return [m for m in _SOLVE_METHODS if (m != "nlp" or nlp_available()) and (m != "conic" or fisher != "log")]
 
 
 def _error_line(prob: CollisionProblem, res) -> str:
@@ -226,10 +232,7 @@ def _compare(args) -> int:
         prob = problem_from_scene(_load(args.scene, args.settings), args.t)
         name = f"{args.scene.stem}_t{args.t:g}"
     else:
-        from jko_cvx.collision.nlp import nlp_available
-
-        runs = [m for m in _SOLVE_METHODS if (m != "conic" or args.fisher != "log") and (m != "nlp" or nlp_available())]
-        check_step_size(args.n, args.gamma, runs)  # the methods compare runs, before anything is allocated
+        check_step_size(args.n, args.gamma, _methods_that_run(args.fisher))  # before anything is allocated
         prob = _builtin_problem(args)
         name = f"builtin_gamma{args.gamma:g}_n{args.n}_dt{args.dt:g}_beta{args.beta:g}"
         name += "_log" if args.fisher == "log" else ""

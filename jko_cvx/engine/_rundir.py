@@ -179,16 +179,30 @@ def _entries(path: Path) -> list[Path]:
     return names
 
 
+def _foreign_aside(path: Path) -> Path | None:
+    """The first of ``DIR/.replaced`` and ``DIR/.replaced.done`` that is not a folder this package made (None: both
+    absent or the package's): a link, a file, or a folder without the mark.  ``.replaced`` is renamed into place
+    marked; ``.replaced.done`` loses its mark just before its ``rmdir``, so an empty one is the package's."""
+    for folder in (path / _ASIDE, path / _DISCARDED):
+        if not (folder.exists() or folder.is_symlink()):
+            continue
+        if folder.is_symlink() or not folder.is_dir():
+            return folder
+        emptied = folder == path / _DISCARDED and not any(folder.iterdir())
+        if not (folder / _ASIDE_MARK).is_file() and not emptied:
+            return folder
+    return None
+
+
 def aside_state(path: Path) -> str | None:
     """What an interrupted overwrite left in the run directory ``path``, in words (None: nothing)."""
+    foreign = _foreign_aside(path)
+    if foreign is not None:
+        return (
+            f"{foreign} is not a folder this package made (a link, a file, or a folder without its mark "
+            f"{_ASIDE_MARK}), so nothing in {path} is deleted or restored, and no run opens here until it is moved away"
+        )
     aside, done = path / _ASIDE, path / _DISCARDED
-    for folder in (aside, done):
-        if folder.exists() or folder.is_symlink():
-            if not (folder.is_dir() and not folder.is_symlink() and (folder / _ASIDE_MARK).is_file()):
-                return (
-                    f"{folder} is not a folder this package made (it has no {_ASIDE_MARK}); no run opens here "
-                    "until it is moved away"
-                )
     if aside.is_dir():
         return (
             f"an overwrite of it was interrupted ({aside} holds the old run); opening it again with jko-cvx run "
@@ -434,23 +448,15 @@ class RunDir:
         The overwrite marked ``.replaced`` (:data:`_ASIDE_MARK`), renamed the old run's entries into it one by one,
         then wrote the new run's first files: a name in both places is the new run's in DIR (removed) and the old
         run's aside (put back); a name in DIR alone is the old run's, not yet moved when the kill came (kept).  A
-        folder of either name without the mark is not this package's (an empty one excepted: the kill came before
-        the mark), and nothing is deleted or restored.
+        folder of either name that is not this package's (:func:`_foreign_aside`) is refused, and nothing is
+        deleted or restored.
         """
         for made in self.path.glob(f"{_ASIDE_TMP}*"):  # killed before the rename: the mark at most, no run file
             if made.is_dir() and not made.is_symlink() and _only_mark(made):
                 shutil.rmtree(made)
+        if _foreign_aside(self.path) is not None:
+            raise RunDirError(aside_state(self.path))
         done = self.path / _DISCARDED
-        for folder in (self.path / _ASIDE, done):
-            if folder.is_symlink() or (folder.exists() and not folder.is_dir()):
-                raise RunDirError(f"{folder} is not a directory this package made: remove it")
-            # .replaced is renamed into place marked; .replaced.done loses its mark just before its rmdir
-            empty_done = folder == done and folder.is_dir() and not any(folder.iterdir())
-            if folder.is_dir() and not (folder / _ASIDE_MARK).is_file() and not empty_done:
-                raise RunDirError(
-                    f"{folder} is not a folder this package made (it has no {_ASIDE_MARK}), so nothing in "
-                    f"{self.path} is deleted or restored: move it away"
-                )
         if done.is_dir():
             self._finish_discard(done)
         aside = self.path / _ASIDE

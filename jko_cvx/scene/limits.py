@@ -76,9 +76,14 @@ def estimate_size(scene: Scene) -> SizeEstimate:
 
 def _cvxpy_blocks(scene: Scene, B: float) -> float:
     """N_v^2 doubles the CVXPY methods hold for the slices they solve at once (module docstring)."""
+    return method_blocks(scene.collision.method, scene.gamma) * _slices_at_once(scene)
+
+
+def _slices_at_once(scene: Scene) -> int:
+    """The x-slices a run solves at once: the slice threads (``JKO_CVX_THREADS``), at most the x-grid's."""
     from jko_cvx.threads import slice_workers
 
-    return method_blocks(scene.collision.method, scene.gamma) * min(B, float(slice_workers()))
+    return min(1 if scene.x is None else scene.x.n, slice_workers())
 
 
 def method_blocks(method: str, gamma: float) -> float:
@@ -128,9 +133,9 @@ def check_limits(scene: Scene, limits: Limits | None = None) -> SizeEstimate:
         method = scene.collision.method
         at_once = ""
         if method_blocks(method, scene.gamma) > 0:
-            from jko_cvx.threads import THREADS_ENV, slice_workers
+            from jko_cvx.threads import THREADS_ENV
 
-            slices = min(1 if scene.x is None else scene.x.n, slice_workers())
+            slices = _slices_at_once(scene)
             at_once = f"; method {method!r} holds its blocks for each of the {slices} slice(s) it solves at once"
             at_once += f" ({THREADS_ENV})" if scene.x is not None else ""
         raise SceneError(

@@ -258,12 +258,13 @@ def scene_from_dict(d: Mapping[str, Any], limits: Limits | None = None) -> Scene
         output=dataclasses.replace(o, times=tuple(sorted(o.times))),
     )
     check_limits(scene, limits)  # before anything of the run's size is allocated
-    f0 = scene.initial_density(scene.xgrid(), scene.vgrid())
-    _check_initial_density(scene, f0)
+    xgrid, vgrid = scene.xgrid(), scene.vgrid()
+    f0 = scene.initial_density(xgrid, vgrid)
+    _check_initial_density(scene, f0, xgrid, vgrid)
     return _resolve_centre(scene, f0, centre_auto) if centre_auto else scene
 
 
-def _check_initial_density(scene: Scene, f0: np.ndarray) -> None:
+def _check_initial_density(scene: Scene, f0: np.ndarray, xgrid: PeriodicGrid | None, vgrid: Grid) -> None:
     """Refuse, before any file is written, an f0 that makes the first collision step fail from the data alone."""
     if not (np.all(np.isfinite(f0)) and f0.max() > 0):
         raise SceneError("initial: f0 is zero or not finite on the grid (check its parameters against v.L and x.L)")
@@ -274,8 +275,8 @@ def _check_initial_density(scene: Scene, f0: np.ndarray) -> None:
             "underflows; scale initial.amplitudes up (the equation is invariant under mass scaling with time)"
         )
     # the mass and the moments the remeshing restores (up to the energy, v^2 f) must stay finite, with room
-    dv = float(np.max(np.diff(scene.vgrid().points)))
-    dx = 1.0 if scene.x is None else float(np.max(np.diff(scene.xgrid().points, append=scene.x.L)))
+    dv = float(vgrid.dv.max())
+    dx = 1.0 if xgrid is None else float(xgrid.dx.max())
     with np.errstate(over="ignore"):
         mass = float(np.sum(f0, dtype=float)) * dv * dx
     if not mass * max(scene.v.L, 1.0) ** 2 < 1e290:
@@ -418,13 +419,13 @@ def _check_combinations(top, v, x, t, c, s, o) -> None:
     """Cross-table checks: values fine alone that are wrong together."""
     # W(v) = |v|^gamma / gamma on |v| <= 2 L_v (differences of grid points) must be finite:
     # at most max((2 L_v)^gamma, 1) / gamma
-    if max(top.gamma * math.log(2 * v.L), 0.0) - math.log(top.gamma) > math.log(1e300):
+    log_w = max(top.gamma * math.log(2 * v.L), 0.0) - math.log(top.gamma)
+    if log_w > math.log(1e300):
         raise SceneError(
             f"gamma = {top.gamma:g} makes the kernel |v|^gamma/gamma overflow on the velocity grid "
             f"(|v| up to 2 v.L = {2 * v.L:g})"
         )
     # the energy term of a step, dt * strength * W(v), finite on the grid
-    log_w = max(top.gamma * math.log(2 * v.L), 0.0) - math.log(top.gamma)
     if math.log(t.dt) + math.log(top.strength) + log_w > math.log(1e300):
         raise SceneError(
             f"strength = {top.strength:g} with time.dt = {t.dt:g}: the interaction term dt * strength * W(v) "
