@@ -144,10 +144,9 @@ def _run_scene(
     print(f"  {run.summary()}")
     print(f"  {_seconds_line(run)}; steps with a failed collision solve: {run.failed_steps}")
     print(f"  {run.records_line()}")
-    d = run.diagnostics
     if scene.gamma == 1.0 and scene.homogeneous:  # Burgers in the cumulative distribution: whether a rule fired or not
         print(
-            f"  exact blow-up time 1/(2 s max f0) = {1 / (2 * d.max_f.iloc[0] * scene.strength):.4f} "
+            f"  exact blow-up time 1/(2 s max f0) = {1 / (2 * run.column('max_f')[0] * scene.strength):.4f} "
             f"(s = strength = {scene.strength:g}, max f0 on the grid)"
         )
     print(f"  wrote {out}/ (diagnostics.csv, snapshots/, checkpoint.npz, verdict.json, solution.png, records.png)")

@@ -46,6 +46,7 @@ from typing import Any
 
 from jko_cvx._version import __version__
 from jko_cvx.engine._state import TEMP_FILE, Ledger, RunState, read_snapshot
+from jko_cvx.engine._table import csv_text
 from jko_cvx.engine.errors import RunDirError
 from jko_cvx.environment import PACKAGES, code_fingerprint, environment
 from jko_cvx.scene.model import Scene
@@ -546,10 +547,8 @@ class RunDir:
 
     def save_state(self, state: RunState) -> None:
         """Write the checkpoint, then diagnostics.csv from its rows."""
-        import pandas as pd
-
         state.save(self.checkpoint, self.provenance, self.ledger.save_npz)
-        self.ledger.save_text(self.path / "diagnostics.csv", pd.DataFrame(state.rows).to_csv(index=False))
+        self.ledger.save_text(self.path / "diagnostics.csv", csv_text(state.rows))
 
     def write_verdict(self, state: RunState) -> None:
         """verdict.json: the verdict, t, the step count and the timings (its presence marks an ended run)."""

@@ -41,9 +41,9 @@ def exact_max_f(run: Run) -> tuple[np.ndarray, np.ndarray, float] | None:
     sc = run.scene
     if not (sc.homogeneous and sc.gamma == 1.0):
         return None
-    m0 = float(run.diagnostics["max_f"].iloc[0])
+    m0 = float(run.column("max_f")[0])
     T = 1.0 / (2.0 * sc.strength * m0)
-    t = np.linspace(0.0, min(float(run.diagnostics["t"].iloc[-1]), T), 400)
+    t = np.linspace(0.0, min(float(run.column("t")[-1]), T), 400)
     with np.errstate(divide="ignore"):
         law = m0 / (1.0 - 2.0 * sc.strength * m0 * t)
     return t[np.isfinite(law)], law[np.isfinite(law)], T
@@ -58,9 +58,9 @@ def refinement_switches(run: Run, axis: str = "v") -> np.ndarray:
     spec = run.scene.refine.v if axis == "v" else run.scene.refine.x
     if spec is None:
         return np.array([], dtype=int)
-    col = run.diagnostics[f"min_d{axis}"].to_numpy()
+    col = run.column(f"min_d{axis}")
     changed = np.flatnonzero(col[1:] != col[:-1]) + 1
-    return run.diagnostics["step"].to_numpy()[changed]
+    return run.column("step")[changed]
 
 
 def _new_axes(ax, ncols: int = 1, figsize=(6, 4)):
@@ -123,22 +123,23 @@ def plot_records(run: Run, ax=None):
     without its mathtext, whose parser's first use costs about a fifth of drawing the run's figures.
     """
     fig, a = _new_axes(ax)
-    d, sc = run.diagnostics, run.scene
-    t = d["t"].to_numpy()
+    sc = run.scene
+    t = run.column("t")
     series = [("min dv", "min_dv", sc.stop.eps_v, "eps_v", "v"), ("max f", "max_f", 0.0, "", "")]
     if run.xgrid is not None:
         series.insert(1, ("min dx", "min_dx", sc.stop.eps_x, "eps_x", "x"))
     if sc.stop.spread_v > 0:
         series.append(("min spread_v", "min_spread_v", sc.stop.spread_v, "spread_v", ""))
     for label, col, eps, eps_label, axis in series:
-        (line,) = a.semilogy(t, d[col], label=label)
+        values = run.column(col)
+        (line,) = a.semilogy(t, values, label=label)
         if eps > 0:
             a.axhline(eps, ls=":", color=line.get_color(), label=f"{eps_label} = {eps:.3g}")
         if axis:
             steps = refinement_switches(run, axis)
-            rows = d["step"].isin(steps).to_numpy()
+            rows = np.isin(run.column("step"), steps)
             if rows.any():
-                a.plot(t[rows], d[col][rows], "|", ms=8, color=line.get_color(), label=f"{axis}-grid remeshed")
+                a.plot(t[rows], values[rows], "|", ms=8, color=line.get_color(), label=f"{axis}-grid remeshed")
     exact = exact_max_f(run)
     if exact is not None:
         te, law, T = exact
@@ -221,18 +222,24 @@ def _fit_line(v) -> str:
     return f"max f(t) fit: {kind}"
 
 
+def _records(run: Run) -> list[dict[str, float]]:
+    """The diagnostics rows ``fit_rows`` reads (t, max f, failed), from the run's columns."""
+    cols = zip(run.column("t"), run.column("max_f"), run.column("failed"), strict=True)
+    return [{"t": t, "max_f": m, "failed": f} for t, m, f in cols]
+
+
 def _draw_fit(run: Run, a) -> None:
     """The power law fitted to max f on its window, and T_b_fit with its error bar (finite_time runs)."""
     v = run.verdict
     if v.blowup_kind != "finite_time":
         return
-    fit = fit_rows(run.diagnostics.to_dict("records"), v)  # the fit the verdict holds, with its window
-    t = run.diagnostics["t"].to_numpy()
+    fit = fit_rows(_records(run), v)  # the fit the verdict holds, with its window
+    t = run.column("t")
     start, stop = fit.window
     tw = np.linspace(t[start], t[stop - 1] + 0.9 * (fit.T_b_fit - t[stop - 1]), 200)
     a.semilogy(tw, fit.curve(tw), color="tab:green", ls="-.", lw=1,
                label=f"fit C (T - t)^-a, a = {fit.blowup_rate:.3g}")  # fmt: skip
-    y = float(np.nanmax(run.diagnostics["max_f"]))
+    y = float(np.nanmax(run.column("max_f")))
     a.errorbar([fit.T_b_fit], [y], xerr=[fit.T_b_fit_err], fmt="o", ms=3, color="tab:green", capsize=3,
                label=f"T_b_fit = {fit.T_b_fit:.4g} +- {fit.T_b_fit_err:.2g}")  # fmt: skip
 

@@ -19,23 +19,28 @@ state, verdict and timings.
 
 from __future__ import annotations
 
+import functools
 import json
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pandas as pd
 
 from jko_cvx._version import __version__
 from jko_cvx.engine._state import Ledger, RunState, read_npz
+from jko_cvx.engine._table import column
 from jko_cvx.engine.errors import RunDirError
 from jko_cvx.engine.verdict import StopReason, Verdict
 from jko_cvx.grid import Grid, PeriodicGrid
 from jko_cvx.limits import Limits
 from jko_cvx.scene.model import Scene, scene_from_dict
 from jko_cvx.scene.options import RUN_KKT
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 __all__ = ["Run", "load_run"]
 
@@ -47,7 +52,9 @@ class Run:
     ``diagnostics`` holds one row per accepted step (row 0: the initial state), ``snapshots`` the
     densities at the scene's ``output`` times with their grids, ``f`` the final density on
     ``vgrid`` (and ``xgrid`` for an inhomogeneous scene), ``verdict`` the stopping reason and
-    whether the run blew up.
+    whether the run blew up.  The run keeps its diagnostics as the loop recorded them (``_rows``,
+    one dict per row) and builds the table on first use of ``diagnostics``; :meth:`column` reads
+    one column without it.
 
     Examples
     --------
@@ -64,7 +71,7 @@ class Run:
     """
 
     scene: Scene
-    diagnostics: pd.DataFrame
+    _rows: Sequence[Mapping[str, Any]] = field(repr=False)
     snapshots: list[dict[str, Any]]
     f: np.ndarray
     vgrid: Grid
@@ -73,6 +80,27 @@ class Run:
     verdict: Verdict
     seconds: dict[str, float] = field(default_factory=dict)
 
+    @functools.cached_property
+    def diagnostics(self) -> pd.DataFrame:
+        """One row per accepted step (row 0: the initial state), one column per record of
+        ``diagnostics.csv``: a :class:`pandas.DataFrame`, built on first use and kept."""
+        import pandas as pd
+
+        return pd.DataFrame(list(self._rows))
+
+    def column(self, name: str) -> np.ndarray:
+        """The diagnostics column ``name`` as an array, ``run.diagnostics[name].to_numpy()``.
+
+        Read from the table where it has been built (a change made to it shows), else from the
+        recorded rows without building it (no pandas import).  An unknown name raises ``KeyError``
+        naming the columns.
+        """
+        if "diagnostics" in self.__dict__:  # built (and possibly changed by the caller): the table is the run's
+            if name not in self.diagnostics:
+                raise KeyError(f"no diagnostics column {name!r}; the columns are {', '.join(self.diagnostics)}")
+            return self.diagnostics[name].to_numpy()
+        return column(self._rows, name)
+
     @property
     def blowup(self) -> bool:
         return self.verdict.blowup
@@ -80,14 +108,14 @@ class Run:
     @property
     def steps(self) -> int:
         """Accepted time steps (the step-0 row of the diagnostics is the initial state, not a step)."""
-        return int(self.diagnostics["step"].iloc[-1])
+        return int(self.column("step")[-1])
 
     @property
     def failed_steps(self) -> int:
         """Steps with a failed collision solve: accepted steps with a failed slice, and the step a
         solver failure stopped the run on (it has no diagnostics row; nor has a first step that failed, NO_STEP)."""
         stopped = self.verdict.stop in (StopReason.SOLVER_FAILURE, StopReason.NO_STEP)
-        return int((self.diagnostics["failed"] > 0).sum()) + int(stopped)
+        return int((self.column("failed") > 0).sum()) + int(stopped)
 
     def snapshots_at(self, times) -> list[dict[str, Any]]:
         """The first snapshot at or after each of ``times`` (distinct; times past the run's end are skipped).
@@ -137,13 +165,13 @@ class Run:
 
     def records_line(self) -> str:
         """Conservation and extremes over the run: mass and momentum drift, max f, min dv (min dx)."""
-        d = self.diagnostics
+        mass, momentum = self.column("mass"), self.column("momentum")
         return (
-            f"mass drift {abs(d.mass.iloc[-1] - d.mass.iloc[0]) / d.mass.iloc[0]:.1e} (relative), "
-            f"momentum drift {abs(d.momentum.iloc[-1] - d.momentum.iloc[0]):.1e}, "
-            f"max f over the run {d.max_f.max():.4g}, min dv {d.min_dv.min():.3g}"
-            + ("" if self.xgrid is None else f", min dx {d.min_dx.min():.3g}")
-            + _time_error_words(d)
+            f"mass drift {abs(mass[-1] - mass[0]) / mass[0]:.1e} (relative), "
+            f"momentum drift {abs(momentum[-1] - momentum[0]):.1e}, "
+            f"max f over the run {self.column('max_f').max():.4g}, min dv {self.column('min_dv').min():.3g}"
+            + ("" if self.xgrid is None else f", min dx {self.column('min_dx').min():.3g}")
+            + _time_error_words(self)
         )
 
     def to_xarray(self):
@@ -169,14 +197,17 @@ class Run:
         return ds
 
 
-def _time_error_words(d) -> str:
+def _time_error_words(run: Run) -> str:
     """The largest ``time_error`` of a second-order run and its time, as a clause of the records line ("" where
     none was recorded: first-order steps, or a run written before the column)."""
-    err = d["time_error"].to_numpy(dtype=float) if "time_error" in d else np.array([])
+    try:
+        err = np.array([np.nan if x is None else x for x in run.column("time_error")], dtype=float)
+    except KeyError:
+        return ""
     if not np.isfinite(err).any():
         return ""
     k = int(np.nanargmax(err))
-    return f", first-order local time error up to {err[k]:.2g} of max f (t = {d.t.iloc[k]:.4g})"
+    return f", first-order local time error up to {err[k]:.2g} of max f (t = {run.column('t')[k]:.4g})"
 
 
 def _attrs(run: Run) -> dict[str, Any]:
@@ -337,5 +368,4 @@ def load_run(path: str | Path, *, allow_partial: bool = False) -> Run:
             "resume it (jko-cvx run SCENE --out DIR --resume) or pass allow_partial=True"
         )
     snaps = read_snapshots(path, state.step, ledger)
-    diag = pd.DataFrame(state.rows)
-    return Run(scene, diag, snaps, state.f, state.vgrid, state.xgrid, state.t, state.verdict, state.seconds)
+    return Run(scene, state.rows, snaps, state.f, state.vgrid, state.xgrid, state.t, state.verdict, state.seconds)

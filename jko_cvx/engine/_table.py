@@ -1,0 +1,92 @@
+"""The diagnostics records of a run (one dict per accepted step) as a table, without pandas.
+
+A run keeps its diagnostics as the loop recorded them, a list of dicts; ``Run.diagnostics``
+builds the :class:`pandas.DataFrame` on first use.  The default ``jko-cvx run`` never needs the
+table: it writes ``diagnostics.csv`` and reads columns for its figures and summary through the
+two functions here, which give what pandas gives (tested against it, bit for bit) for the
+records the loop writes (numbers and missing values), and hand any other record to pandas.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+__all__ = ["column", "csv_text"]
+
+_PLAIN_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")  # a header cell pandas writes unquoted
+
+Rows = Sequence[Mapping[str, Any]]
+
+
+def _columns(rows: Rows) -> list[str]:
+    """The keys of ``rows`` in order of first appearance (``pandas.DataFrame(rows).columns``)."""
+    return list(dict.fromkeys(k for r in rows for k in r))
+
+
+def _kind(values: list[Any]) -> str | None:
+    """``"int"`` (every value an integer), ``"float"`` (numbers and missing values: None, NaN; not None
+    alone), or None (anything else: booleans, text, ...; pandas decides those)."""
+    if not values:
+        return None
+    ints = all(isinstance(x, int | np.integer) and not isinstance(x, bool | np.bool_) for x in values)
+    if ints:
+        return "int"
+    numbers = all(
+        x is None or (isinstance(x, int | float | np.integer | np.floating) and not isinstance(x, bool | np.bool_))
+        for x in values
+    )
+    return "float" if numbers and any(x is not None for x in values) else None  # all None: pandas' object column
+
+
+def _float_cell(x: Any) -> str:
+    """A float as pandas writes it: empty for a missing value, else the shortest repr that reads back exactly."""
+    if x is None:
+        return ""
+    x = float(x)
+    return "" if math.isnan(x) else repr(x)
+
+
+def csv_text(rows: Rows) -> str:
+    """``pandas.DataFrame(rows).to_csv(index=False)``, written without pandas where the records are numbers.
+
+    Integer columns as integers, number columns with a missing value (None, NaN, an absent key)
+    as floats with the missing cells empty; a column of anything else, or a header that would need
+    quoting, makes the whole table pandas' (imported then).
+    """
+    names = _columns(rows)
+    cols = [[r.get(c) for r in rows] for c in names]
+    kinds = [_kind(values) for values in cols]
+    if not rows or None in kinds or not all(_PLAIN_NAME.fullmatch(c) for c in names):
+        import pandas as pd
+
+        return pd.DataFrame(list(rows)).to_csv(index=False)
+    cells = [[str(int(x)) for x in values] if kind == "int" else [_float_cell(x) for x in values]
+             for values, kind in zip(cols, kinds, strict=True)]  # fmt: skip
+    lines = [",".join(names), *(",".join(row) for row in zip(*cells, strict=True))]
+    return os.linesep.join(lines) + os.linesep
+
+
+def column(rows: Rows, name: str) -> np.ndarray:
+    """``pandas.DataFrame(rows)[name].to_numpy()`` without pandas where the column holds numbers.
+
+    int64 for a column of integers, float64 (NaN for a missing value) for numbers; any other
+    column is pandas'.  A name no record holds is refused, naming the columns there are.
+    """
+    names = _columns(rows)
+    if name not in names:
+        raise KeyError(f"no diagnostics column {name!r}; the columns are {', '.join(names)}")
+    values = [r.get(name) for r in rows]
+    kind = _kind(values)
+    if kind == "int":
+        return np.array([int(x) for x in values], dtype=np.int64)
+    if kind == "float":
+        return np.array([np.nan if x is None else float(x) for x in values], dtype=np.float64)
+    import pandas as pd
+
+    return pd.DataFrame(list(rows))[name].to_numpy()
