@@ -18,6 +18,7 @@ mapping ``run.verdict["T_b"]`` of earlier versions (keys ``blowup``, ``T_b``, ``
 from __future__ import annotations
 
 import dataclasses
+import functools
 import itertools
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
@@ -338,12 +339,23 @@ def moved(rows: list[dict[str, Any]], window: tuple[int, int], set_points: float
 
 
 def fit_rows(rows: list[dict[str, Any]], verdict: Verdict) -> BlowupFit:
-    """:func:`~jko_cvx.blowup.fit_blowup` of the diagnostics rows of a run with ``verdict``."""
+    """:func:`~jko_cvx.blowup.fit_blowup` of the diagnostics rows of a run with ``verdict``.
+
+    The last few fits are kept by their inputs (the fit is a function of them alone): a run's
+    figures draw the fit its verdict made without fitting again.
+    """
     t = np.array([float(r["t"]) for r in rows])
     max_f = np.array([float(r["max_f"]) for r in rows])
     certified = np.array([int(r["failed"]) == 0 for r in rows], dtype=bool)
     early = verdict.reason if verdict.stop.name in _EARLY else None
-    return fit_blowup(t, max_f, certified=certified, stopped_early=early)
+    return _fit(t.tobytes(), max_f.tobytes(), certified.tobytes(), early)
+
+
+@functools.lru_cache(maxsize=4)
+def _fit(t: bytes, max_f: bytes, certified: bytes, early: str | None) -> BlowupFit:
+    """:func:`~jko_cvx.blowup.fit_blowup` of the records given as the bytes of their arrays (a cache key)."""
+    return fit_blowup(np.frombuffer(t), np.frombuffer(max_f), certified=np.frombuffer(certified, dtype=bool),
+                      stopped_early=early)  # fmt: skip
 
 
 class SolverFailureRule:

@@ -65,3 +65,21 @@ def test_the_sqp_names_the_cfl_number_when_it_fails_above_one():
     small = CollisionProblem(grid, PowerKernel(1.0), f, dt=0.1 / prob.cfl() / 2, beta=1000.0, fisher="perspective")
     failed = solve_collision(small, method="sqp", max_iter=2)
     assert not failed.success and "CFL" not in failed.message  # below one the hint would mislead
+
+
+def test_a_runs_figure_draws_the_fit_its_verdict_made_and_that_fit_is_fit_blowups():
+    """fit_rows keeps its last fits by their inputs: the figure's fit is the very object of the verdict's,
+    and it equals, field by field, an uncached fit_blowup of the same records (in this process)."""
+    from jko_cvx.blowup import fit_blowup
+    from jko_cvx.engine.verdict import fit_rows
+
+    t = np.linspace(0.0, 0.45, 46)
+    rows = [{"t": float(x), "max_f": float(1.0 / (1.0 - 2.0 * x)), "failed": 0} for x in t]
+    v = Verdict(stop=StopReason.EPS_V, B_v=True, T_b=0.45, reason="min dv < eps_v")
+    first, again = fit_rows(rows, v), fit_rows([dict(r) for r in rows], v)
+    assert again is first and first.blowup_kind == "finite_time"
+    fresh = fit_blowup(t, 1.0 / (1.0 - 2.0 * t), certified=np.ones(t.size, dtype=bool))
+    for name in ("T_b_fit", "T_b_fit_err", "blowup_rate", "log_C", "blowup_kind", "window", "reason"):
+        assert getattr(first, name) == getattr(fresh, name), name
+    other = fit_rows([{**r, "max_f": 2.0 * r["max_f"]} for r in rows], v)
+    assert other is not first and other.log_C != first.log_C
