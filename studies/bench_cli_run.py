@@ -61,7 +61,8 @@ def _compiled_run(out: Path) -> str:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--base", required=True, help="baseline commit")
-    ap.add_argument("--repeats", type=int, default=7)
+    ap.add_argument("--repeats", type=int, default=15)
+    ap.add_argument("--cold-repeats", type=int, default=3, help="rounds that also time a cold numba cache (~30 s each)")
     args = ap.parse_args(argv)
     times: dict[tuple[str, str], list[float]] = {}
     with tempfile.TemporaryDirectory() as tmp:
@@ -79,10 +80,10 @@ def main(argv: list[str] | None = None) -> int:
                 times.setdefault((side, "jko-cvx run"), []).append(_child_cpu(run, path))
                 times.setdefault((side, "imports"), []).append(_child_cpu(f"import {pkg}.cli, {pkg}.engine.plot", path))
             # this tree with Newton's compiled iteration: its cache warm (above), and cold (an empty cache directory)
-            for what, name, env in (
-                (WARM, f"warm{r}", None),
-                (COLD, f"cold{r}", {"NUMBA_CACHE_DIR": str(Path(tmp) / f"numba{r}")}),
-            ):
+            compiled = [(WARM, f"warm{r}", None)]
+            if r < args.cold_repeats:
+                compiled.append((COLD, f"cold{r}", {"NUMBA_CACHE_DIR": str(Path(tmp) / f"numba{r}")}))
+            for what, name, env in compiled:
                 times.setdefault(("tree", what), []).append(_child_cpu(_compiled_run(Path(tmp) / name), "", env))
             print(f"round {r + 1}/{args.repeats}", flush=True)
     rows = []
@@ -102,8 +103,9 @@ def main(argv: list[str] | None = None) -> int:
         "# CPU time of the default `jko-cvx run`\n\n"
         f"Baseline {args.base}, tree {tree_label()}; {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}.  "
         f"Threads: {thread_environment()}.  User + system CPU seconds of a fresh interpreter, median of "
-        f"{args.repeats} rounds with the versions interleaved: the whole command on the built-in default scene "
-        "(simulation, run directory, figures), and the interpreter with the command's imports alone, both "
+        f"{args.repeats} rounds ({args.cold_repeats} for the cold cache) with the versions interleaved: the whole "
+        "command on the built-in default scene (simulation, run directory, figures), and the interpreter with the "
+        "command's imports alone, both "
         "versions' modules compiled to bytecode first, as `pip install` does (PYTHONDONTWRITEBYTECODE="
         f"{os.environ.get('PYTHONDONTWRITEBYTECODE', 'unset')} here).  Each side "
         "runs its own version's default scene (`jko_cvx.default_scene`; it may differ between the versions).  "
