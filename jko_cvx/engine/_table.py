@@ -29,18 +29,21 @@ def _columns(rows: Rows) -> list[str]:
     return list(dict.fromkeys(k for r in rows for k in r))
 
 
+_INT64 = (-(2**63), 2**63)
+
+
+def _is_int(x: Any) -> bool:
+    """A Python int or NumPy int64 that int64 holds (pandas' int64 cell); not a bool, not another width."""
+    return type(x) in (int, np.int64) and _INT64[0] <= x < _INT64[1]
+
+
 def _kind(values: list[Any]) -> str | None:
-    """``"int"`` (every value an integer), ``"float"`` (numbers and missing values: None, NaN; not None
-    alone), or None (anything else: booleans, text, ...; pandas decides those)."""
-    if not values:
-        return None
-    ints = all(isinstance(x, int | np.integer) and not isinstance(x, bool | np.bool_) for x in values)
-    if ints:
+    """``"int"`` (every value an int64 integer), ``"float"`` (float64 numbers, int64 integers and missing values
+    None; not None alone), or None: anything else (booleans, text, other widths, integers beyond int64) is
+    pandas' to decide."""
+    if values and all(_is_int(x) for x in values):
         return "int"
-    numbers = all(
-        x is None or (isinstance(x, int | float | np.integer | np.floating) and not isinstance(x, bool | np.bool_))
-        for x in values
-    )
+    numbers = all(x is None or type(x) in (float, np.float64) or _is_int(x) for x in values)
     return "float" if numbers and any(x is not None for x in values) else None  # all None: pandas' object column
 
 
@@ -55,17 +58,22 @@ def _float_cell(x: Any) -> str:
 def csv_text(rows: Rows) -> str:
     """``pandas.DataFrame(rows).to_csv(index=False)``, written without pandas where the records are numbers.
 
-    Integer columns as integers, number columns with a missing value (None, NaN, an absent key)
-    as floats with the missing cells empty; a column of anything else, or a header that would need
-    quoting, makes the whole table pandas' (imported then).
+    Columns of int64 integers (Python ``int``, ``numpy.int64``) as integers; columns of float64
+    numbers (``float``, ``numpy.float64``, such integers) with missing values (None, NaN, an absent
+    key) as floats, the missing cells empty.  A column of anything else (booleans, text, other
+    widths, integers beyond int64, None alone), a single column, or a header that is not a plain
+    name makes the whole table pandas' (imported then).
     """
+    rows = list(rows)
     names = _columns(rows)
     cols = [[r.get(c) for r in rows] for c in names]
     kinds = [_kind(values) for values in cols]
-    if not rows or None in kinds or not all(_PLAIN_NAME.fullmatch(c) for c in names):
+    # one column: pandas quotes an empty cell (a blank line would read as no row)
+    plain = len(names) > 1 and all(isinstance(c, str) and _PLAIN_NAME.fullmatch(c) for c in names)
+    if not plain or None in kinds:
         import pandas as pd
 
-        return pd.DataFrame(list(rows)).to_csv(index=False)
+        return pd.DataFrame(rows).to_csv(index=False)
     cells = [[str(int(x)) for x in values] if kind == "int" else [_float_cell(x) for x in values]
              for values, kind in zip(cols, kinds, strict=True)]  # fmt: skip
     lines = [",".join(names), *(",".join(row) for row in zip(*cells, strict=True))]
@@ -75,12 +83,14 @@ def csv_text(rows: Rows) -> str:
 def column(rows: Rows, name: str) -> np.ndarray:
     """``pandas.DataFrame(rows)[name].to_numpy()`` without pandas where the column holds numbers.
 
-    int64 for a column of integers, float64 (NaN for a missing value) for numbers; any other
-    column is pandas'.  A name no record holds is refused, naming the columns there are.
+    int64 for a column of int64 integers, float64 (NaN for a missing value) for float64 numbers with
+    such integers, as :func:`csv_text` decides; any other column is pandas'.  A name no record holds
+    is refused, naming the columns there are.
     """
+    rows = list(rows)
     names = _columns(rows)
     if name not in names:
-        raise KeyError(f"no diagnostics column {name!r}; the columns are {', '.join(names)}")
+        raise KeyError(f"no diagnostics column {name!r}; the columns are {', '.join(map(str, names))}")
     values = [r.get(name) for r in rows]
     kind = _kind(values)
     if kind == "int":
@@ -89,4 +99,4 @@ def column(rows: Rows, name: str) -> np.ndarray:
         return np.array([np.nan if x is None else float(x) for x in values], dtype=np.float64)
     import pandas as pd
 
-    return pd.DataFrame(list(rows))[name].to_numpy()
+    return pd.DataFrame(rows)[name].to_numpy()

@@ -19,9 +19,9 @@ state, verdict and timings.
 
 from __future__ import annotations
 
-import functools
 import json
 import math
+import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -52,9 +52,9 @@ class Run:
     ``diagnostics`` holds one row per accepted step (row 0: the initial state), ``snapshots`` the
     densities at the scene's ``output`` times with their grids, ``f`` the final density on
     ``vgrid`` (and ``xgrid`` for an inhomogeneous scene), ``verdict`` the stopping reason and
-    whether the run blew up.  The run keeps its diagnostics as the loop recorded them (``_rows``,
-    one dict per row) and builds the table on first use of ``diagnostics``; :meth:`column` reads
-    one column without it.
+    whether the run blew up.  ``diagnostics`` may be given as the table or as the rows the loop
+    recorded (a list of dicts, one per row): the run then builds the table on first use, and
+    :meth:`column` reads a column without it (the CLI's run imports no pandas).
 
     Examples
     --------
@@ -71,7 +71,7 @@ class Run:
     """
 
     scene: Scene
-    _rows: Sequence[Mapping[str, Any]] = field(repr=False)
+    diagnostics: pd.DataFrame  # a property (below): the table, built from recorded rows on first use
     snapshots: list[dict[str, Any]]
     f: np.ndarray
     vgrid: Grid
@@ -80,25 +80,35 @@ class Run:
     verdict: Verdict
     seconds: dict[str, float] = field(default_factory=dict)
 
-    @functools.cached_property
-    def diagnostics(self) -> pd.DataFrame:
-        """One row per accepted step (row 0: the initial state), one column per record of
-        ``diagnostics.csv``: a :class:`pandas.DataFrame`, built on first use and kept."""
-        import pandas as pd
+    def _get_diagnostics(self) -> pd.DataFrame:
+        if self._table is None:
+            import pandas as pd
 
-        return pd.DataFrame(list(self._rows))
+            self._table, self._rows = pd.DataFrame(self._rows), None
+        return self._table
+
+    def _set_diagnostics(self, value: pd.DataFrame | Sequence[Mapping[str, Any]]) -> None:
+        if isinstance(value, list | tuple) and all(isinstance(r, Mapping) for r in value):
+            self._table, self._rows = None, list(value)
+            return
+        pd = sys.modules.get("pandas")  # a DataFrame comes with pandas imported
+        if pd is None or not isinstance(value, pd.DataFrame):
+            raise TypeError(
+                f"Run: diagnostics must be a pandas.DataFrame or a list of row dicts, got {type(value).__name__}"
+            )
+        self._table, self._rows = value, None
 
     def column(self, name: str) -> np.ndarray:
-        """The diagnostics column ``name`` as an array, ``run.diagnostics[name].to_numpy()``.
+        """The diagnostics column ``name`` as a new array, ``run.diagnostics[name].to_numpy()``.
 
         Read from the table where it has been built (a change made to it shows), else from the
         recorded rows without building it (no pandas import).  An unknown name raises ``KeyError``
         naming the columns.
         """
-        if "diagnostics" in self.__dict__:  # built (and possibly changed by the caller): the table is the run's
-            if name not in self.diagnostics:
-                raise KeyError(f"no diagnostics column {name!r}; the columns are {', '.join(self.diagnostics)}")
-            return self.diagnostics[name].to_numpy()
+        if self._table is not None:
+            if name not in self._table:
+                raise KeyError(f"no diagnostics column {name!r}; the columns are {', '.join(map(str, self._table))}")
+            return np.array(self._table[name].to_numpy())
         return column(self._rows, name)
 
     @property
@@ -169,8 +179,9 @@ class Run:
         return (
             f"mass drift {abs(mass[-1] - mass[0]) / mass[0]:.1e} (relative), "
             f"momentum drift {abs(momentum[-1] - momentum[0]):.1e}, "
-            f"max f over the run {self.column('max_f').max():.4g}, min dv {self.column('min_dv').min():.3g}"
-            + ("" if self.xgrid is None else f", min dx {self.column('min_dx').min():.3g}")
+            f"max f over the run {_nan_skipped(np.max, self.column('max_f')):.4g}, "
+            f"min dv {_nan_skipped(np.min, self.column('min_dv')):.3g}"
+            + ("" if self.xgrid is None else f", min dx {_nan_skipped(np.min, self.column('min_dx')):.3g}")
             + _time_error_words(self)
         )
 
@@ -195,6 +206,22 @@ class Run:
             ds = ds.assign_coords(x=(("t_snap", "ix"), x, {"long_name": "space grid of the snapshot"}))
         ds.attrs = _attrs(self)
         return ds
+
+
+Run.diagnostics = property(
+    Run._get_diagnostics,
+    Run._set_diagnostics,
+    doc="""One row per accepted step (row 0: the initial state), one column per record of ``diagnostics.csv``:
+    a :class:`pandas.DataFrame` (built on first use from the recorded rows, then kept).""",
+)
+
+
+def _nan_skipped(reduce, values: np.ndarray) -> float:
+    """``reduce`` (np.max or np.min) over the values that are not missing (NaN, None), as pandas' ``Series.max``
+    / ``min`` skip them; NaN where none is left."""
+    x = np.array([np.nan if v is None else v for v in values], dtype=float)
+    kept = x[~np.isnan(x)]
+    return float(reduce(kept)) if kept.size else float("nan")
 
 
 def _time_error_words(run: Run) -> str:
