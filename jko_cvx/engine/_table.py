@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["column", "csv_text"]
+__all__ = ["column", "csv_text", "unknown_column"]
 
 _PLAIN_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")  # a header cell pandas writes unquoted
 
@@ -80,6 +80,11 @@ def csv_text(rows: Rows) -> str:
     return os.linesep.join(lines) + os.linesep
 
 
+def unknown_column(name: str, names) -> KeyError:
+    """The error for a diagnostics column ``name`` the table does not have, naming the ones it has."""
+    return KeyError(f"no diagnostics column {name!r}; the columns are {', '.join(map(str, names))}")
+
+
 def column(rows: Rows, name: str) -> np.ndarray:
     """``pandas.DataFrame(rows)[name].to_numpy()`` without pandas where the column holds numbers.
 
@@ -90,7 +95,7 @@ def column(rows: Rows, name: str) -> np.ndarray:
     rows = list(rows)
     names = _columns(rows)
     if name not in names:
-        raise KeyError(f"no diagnostics column {name!r}; the columns are {', '.join(map(str, names))}")
+        raise unknown_column(name, names)
     values = [r.get(name) for r in rows]
     kind = _kind(values)
     if kind == "int":

@@ -482,7 +482,7 @@ def _finish(scene: Scene, state: RunState, trackers: list[Tracker], snaps: Snaps
     state.verdict = state.verdict.with_fit(state.rows, first_order=scene.time.order == 1, set_points=set_points)
     for tr in trackers:
         tr.finish(state)
-    run = Run(scene, list(state.rows), snaps.snapshots, state.f, state.vgrid, state.xgrid, state.t,
+    run = Run(scene, state.rows, snaps.snapshots, state.f, state.vgrid, state.xgrid, state.t,
               state.verdict, state.seconds)  # fmt: skip
     if rd is not None:
         rd.write_verdict(state)

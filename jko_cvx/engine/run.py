@@ -31,7 +31,7 @@ import numpy as np
 
 from jko_cvx._version import __version__
 from jko_cvx.engine._state import Ledger, RunState, read_npz
-from jko_cvx.engine._table import column
+from jko_cvx.engine._table import column, unknown_column
 from jko_cvx.engine.errors import RunDirError
 from jko_cvx.engine.verdict import StopReason, Verdict
 from jko_cvx.grid import Grid, PeriodicGrid
@@ -107,7 +107,7 @@ class Run:
         """
         if self._table is not None:
             if name not in self._table:
-                raise KeyError(f"no diagnostics column {name!r}; the columns are {', '.join(map(str, self._table))}")
+                raise unknown_column(name, self._table.columns)
             return np.array(self._table[name].to_numpy())
         return column(self._rows, name)
 
@@ -216,10 +216,15 @@ Run.diagnostics = property(
 )
 
 
+def _floats(values: np.ndarray) -> np.ndarray:
+    """A diagnostics column as floats, a missing value (None in a column pandas keeps as objects) as NaN."""
+    return np.array([np.nan if v is None else v for v in values], dtype=float)
+
+
 def _nan_skipped(reduce, values: np.ndarray) -> float:
     """``reduce`` (np.max or np.min) over the values that are not missing (NaN, None), as pandas' ``Series.max``
     / ``min`` skip them; NaN where none is left."""
-    x = np.array([np.nan if v is None else v for v in values], dtype=float)
+    x = _floats(values)
     kept = x[~np.isnan(x)]
     return float(reduce(kept)) if kept.size else float("nan")
 
@@ -228,7 +233,7 @@ def _time_error_words(run: Run) -> str:
     """The largest ``time_error`` of a second-order run and its time, as a clause of the records line ("" where
     none was recorded: first-order steps, or a run written before the column)."""
     try:
-        err = np.array([np.nan if x is None else x for x in run.column("time_error")], dtype=float)
+        err = _floats(run.column("time_error"))
     except KeyError:
         return ""
     if not np.isfinite(err).any():

@@ -15,19 +15,9 @@ from jko_cvx.engine.loop import simulate
 from jko_cvx.engine.run import load_run
 from jko_cvx.scene import scene_from_dict
 
-HOM = {
-    "name": "table_hom",
-    "gamma": 1.0,
-    "t_end": 0.05,
-    "v": {"L": 2.0, "n": 41},
-    "initial": {"kind": "gaussians", "amplitudes": [1.0], "rates": [2.0], "centres": [0.0]},
-    "time": {"dt": 0.01},
-    "refine": {"v": {}},
-    "stop": {"eps_v": 1e-4},
-}
-INHOM = {**HOM, "name": "table_inhom", "gamma": 3.0, "strength": 2.0, "x": {"L": 1.0, "n": 8}, "v": {"L": 2.0, "n": 21},
-         "initial": {"kind": "two_bump_phase", "a": 6.0, "b": 6.0, "c": 0.5, "d": 0.5}, "refine": {}}  # fmt: skip
-ORDER2 = {**HOM, "name": "table_order2", "time": {"dt": 0.01, "order": 2}}  # a time_error column with numbers
+from .test_figures import HOM, INHOM
+
+ORDER2 = {**HOM, "name": "fig_order2", "time": {"dt": 0.01, "order": 2}}  # a time_error column with numbers
 
 
 def _same_column(ours: np.ndarray, theirs: np.ndarray) -> bool:
