@@ -41,6 +41,9 @@ def test_a_run_past_failed_solves_reports_how_many_steps_were_not_certified_and_
     assert back == v and back.uncertified_steps == 5
     fig = plot_records(run)
     assert "NOT CERTIFIED" in fig.axes[-1].get_title()
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)  # a figure left open fails the pyplot-free checks of tests that run later
 
 
 def test_a_certified_run_reports_as_before():
