@@ -33,6 +33,7 @@ nor CVXPY.
 
 from importlib import import_module
 
+import jko_cvx.environment  # noqa: F401  (first: it reads the package's files as imported, their code fingerprint)
 from jko_cvx._version import __version__
 from jko_cvx.collision import (
     Certificate,

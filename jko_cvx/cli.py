@@ -55,7 +55,10 @@ def _setting(text: str) -> tuple[str, Any, str]:
     if not eq or not _DOTTED_KEY.fullmatch(key) or not raw:
         raise argparse.ArgumentTypeError(f"must be KEY=VALUE with a dotted scene key (v.n=61), got {text!r}")
     try:
-        value = tomllib.loads(f"value = {raw}")["value"]
+        doc = tomllib.loads(f"value = {raw}")
+        if set(doc) != {"value"}:  # more TOML after the value (a newline, then other keys or tables)
+            raise argparse.ArgumentTypeError(f"{key}: one TOML value, nothing after it, got {raw!r}")
+        value = doc["value"]
     except tomllib.TOMLDecodeError:
         if not _BARE_WORD.fullmatch(raw):
             raise argparse.ArgumentTypeError(

@@ -30,6 +30,7 @@ from typing import Any
 __all__ = [
     "ENVIRONMENT_FILE",
     "PACKAGES",
+    "CodeChangedError",
     "code_fingerprint",
     "environment",
     "environment_line",
@@ -65,19 +66,43 @@ def package_files() -> list[Path]:
     )  # fmt: skip
 
 
-@functools.cache
-def code_fingerprint() -> str:
-    """SHA-256 over the relative paths and contents of the package's modules and data files (:func:`package_files`;
-    hex).
-
-    The code and its data (a shipped scene file is what ``shipped_scene`` reads), where the version number is not
-    enough: an edited checkout or an editable install keeps its version.  Read once per process (about 3 ms); a
-    study's cache and a run's checkpoint record it, and neither is reused under other code.
-    """
+def _files_sha256() -> str:
     h = hashlib.sha256()
     for path in package_files():
         h.update(str(path.relative_to(PACKAGE_DIR)).encode() + b"\0" + path.read_bytes() + b"\0")
     return h.hexdigest()
+
+
+# the files as this process imported them: ``import jko_cvx`` imports this module before any other of its own
+_AT_IMPORT = _files_sha256()
+
+
+class CodeChangedError(RuntimeError):
+    """The package's files changed on disk after this process imported them."""
+
+
+def code_fingerprint() -> str:
+    """SHA-256 over the relative paths and contents of the package's modules and data files (:func:`package_files`;
+    hex), as they were when this process imported the package.
+
+    The code and its data (a shipped scene file is what ``shipped_scene`` reads), where the version number is not
+    enough: an edited checkout or an editable install keeps its version.  A study's cache and a run's checkpoint
+    record it, and neither is reused under other code.
+
+    Raises
+    ------
+    CodeChangedError
+        The files on disk differ from those read at import (an edit since): the process runs the code it
+        imported, while a module it imports from now on would be the edited one, so no single fingerprint
+        describes what it computes.  Restart Python.  (Each call reads the files again, about 3 ms.)
+    """
+    if (now := _files_sha256()) != _AT_IMPORT:
+        raise CodeChangedError(
+            f"jko_cvx's files in {PACKAGE_DIR} changed since this process imported them (SHA-256 "
+            f"{_AT_IMPORT[:12]}... at import, {now[:12]}... now): a result computed now could not be labelled with "
+            "the code that made it; restart Python to run the edited code"
+        )
+    return _AT_IMPORT
 
 
 def installed_version(name: str) -> str:

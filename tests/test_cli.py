@@ -292,7 +292,11 @@ def test_bad_set_values_are_refused_naming_the_key_before_anything_is_written(tm
         "=3": "must be KEY=VALUE",
         "v.n": "must be KEY=VALUE",
         "v..n=3": "must be KEY=VALUE",
+        # more TOML after the value is not a second override: it is refused, not dropped
+        "strength=1.0\nstrength_typo=2.0": "strength: one TOML value, nothing after it",
+        "gamma=1.0\n[stop]\neps_v=0.5": "gamma: one TOML value, nothing after it",
     }
+
     def exit_code(argv):  # argparse's own refusals exit (status 2) instead of returning
         try:
             return main(argv)

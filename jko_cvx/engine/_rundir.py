@@ -67,6 +67,7 @@ they differ from the first leg's)."""
 _ASIDE = ".replaced"  # an overwritten run, kept until the new run has started
 _DISCARDED = ".replaced.done"  # the same, renamed once the new run has started, while it is deleted
 _ASIDE_TMP = ".replaced.tmp"  # the name .replaced is made under, before its mark makes it the package's
+_ASIDE_TMP_NAME = re.compile(re.escape(_ASIDE_TMP) + r"[a-z0-9_]{8}")  # tempfile.mkdtemp's names, and no others
 _ASIDE_MARK = ".moved_aside_by_jko_cvx"
 """The file that makes ``.replaced`` (and ``.replaced.done``) a folder this package made: written first, deleted
 last; a folder of that name without it is the user's, and nothing in or beside it is deleted or restored."""
@@ -240,7 +241,7 @@ def refuse_links(path: Path) -> None:
 
 def _remove_temp_files(path: Path) -> None:
     """Remove temporary files that a killed atomic write left (regular files of our naming only)."""
-    for folder, names in ((path, RUN_FILES + VERIFY_FILES), (path / "snapshots", None)):
+    for folder, names in ((path, RUN_FILES + VERIFY_FILES + FIGURES), (path / "snapshots", None)):
         if not folder.is_dir() or folder.is_symlink():
             continue
         for p in folder.iterdir():
@@ -283,15 +284,21 @@ class RunDir:
             raise RunDirError(f"run directory {rd.path} exists and is not a directory")
         if resume and not rd.path.is_dir():
             raise RunDirError(f"nothing to resume: run directory {rd.path} does not exist")
+        made = not rd.path.exists()
         rd.path.mkdir(parents=True, exist_ok=True)
         refuse_links(rd.path)
-        rd._lock()
+        made_lock = rd._lock()
         try:
             rd._restore_aside()
             _remove_temp_files(rd.path)
             rd._resume() if resume else rd._start(overwrite)
         except BaseException:
+            # a refused or failed start leaves no trace of its own: the lock it made, the directory it made
+            if made_lock:
+                (rd.path / ".lock").unlink(missing_ok=True)
             rd.close()
+            if made and not any(rd.path.iterdir()):
+                rd.path.rmdir()
             raise
         return rd
 
@@ -308,26 +315,39 @@ class RunDir:
     def snapshot_path(self, step: int) -> Path:
         return self.path / "snapshots" / f"step_{step:07d}.npz"
 
-    def _lock(self) -> None:
+    def _lock(self) -> bool:
+        """Take ``DIR/.lock`` (flock) and write this process's id in it; True where this call created the file."""
         import fcntl
 
         lock = self.path / ".lock"
+        made = True
         try:  # O_NOFOLLOW: a planted link is refused, never followed (refuse_links names it first)
-            fd = os.open(lock, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o666)
+            try:
+                fd = os.open(lock, os.O_RDWR | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o666)
+            except FileExistsError:
+                made = False
+                fd = os.open(lock, os.O_RDWR | os.O_NOFOLLOW)
         except OSError as exc:
             raise RunDirError(f"cannot open the lock {lock}: {exc.strerror or exc}") from None
+        held = os.read(fd, 64).decode(errors="replace").strip()
+        if held and not held.isdigit():  # not a process id this package wrote: the user's file, left as it is
+            os.close(fd)
+            raise RunDirError(
+                f"{lock} is not the lock of a run of this package (it holds {held[:30]!r}, not a process id), so "
+                "it may be a file of yours and nothing is changed: move it away or choose another --out"
+            )
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
-            holder = os.read(fd, 32).decode(errors="replace").strip() or "unknown"
             os.close(fd)
             raise RunDirError(
-                f"run directory {self.path} is in use by another run (process {holder} holds {lock}); "
+                f"run directory {self.path} is in use by another run (process {held or 'unknown'} holds {lock}); "
                 "wait for it to end or choose another --out"
             ) from None
         os.ftruncate(fd, 0)
-        os.write(fd, str(os.getpid()).encode())
+        os.pwrite(fd, str(os.getpid()).encode(), 0)
         self._lock_fd = fd
+        return made
 
     def close(self) -> None:
         """Release the lock (closing the descriptor drops the flock)."""
@@ -453,7 +473,7 @@ class RunDir:
         deleted or restored.
         """
         for made in self.path.glob(f"{_ASIDE_TMP}*"):  # killed before the rename: the mark at most, no run file
-            if made.is_dir() and not made.is_symlink() and _only_mark(made):
+            if _ASIDE_TMP_NAME.fullmatch(made.name) and made.is_dir() and not made.is_symlink() and _only_mark(made):
                 shutil.rmtree(made)
         if _foreign_aside(self.path) is not None:
             raise RunDirError(aside_state(self.path))

@@ -48,7 +48,7 @@ def _umask() -> int:
     return mask
 
 
-TEMP_FILE = re.compile(r"\.(?P<name>.+)\.[A-Za-z0-9_]{8}")
+TEMP_FILE = re.compile(r"\.(?P<name>.+)\.jko_tmp\.[a-z0-9_]{8}")
 """The name :func:`atomic_write` gives its temporary file beside ``name`` (``tempfile.mkstemp``)."""
 
 
@@ -62,7 +62,8 @@ def atomic_write(path: Path, write: Callable[[str], None], before_replace: Calla
     """
     path.parent.mkdir(parents=True, exist_ok=True)
     try:
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
+        # a name no file of the user's has (a dated backup ".diagnostics.csv.20240101" is not ours to remove)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.jko_tmp.")
     except OSError as exc:
         raise OSError(exc.errno, f"cannot write {path}: {exc.strerror}") from None
     os.close(fd)
@@ -277,7 +278,7 @@ class RunState:
 
     def done(self, t_end: float) -> bool:
         """A blow-up rule fired, or ``t_end`` is reached (to rounding in t)."""
-        return self.verdict.blowup or self.t >= t_end * (1 - 1e-12)
+        return self.verdict.stop.blowup or self.t >= t_end * (1 - 1e-12)
 
     def save(self, path: Path, provenance: dict[str, str], save: Callable[..., None] = save_npz) -> None:
         """Write the checkpoint (``provenance``: the scene fingerprint, package version and code fingerprint, as

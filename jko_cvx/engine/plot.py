@@ -149,13 +149,17 @@ def plot_records(run: Run, ax=None):
         a.axvline(run.verdict.T_b, color="r", lw=0.8, label=f"T_b = {run.verdict.T_b:.4g}")
     _draw_fit(run, a)
     v = run.verdict
-    if not v.certified:  # drawn from uncertified states: say so, claim no verdict
+    if v.uncertified_steps:  # drawn from uncertified states: say so, claim no verdict
         title = f"NOT CERTIFIED: {v.uncertified_steps} uncertified step(s) from t = {v.first_uncertified_t:.4g}"
         a.axvline(v.first_uncertified_t, color="m", lw=0.8, ls=":", label="first uncertified step")
-    elif run.blowup:
+    elif v.stop is StopReason.NO_STEP:
+        title = "NOT CERTIFIED: no step was accepted"
+    elif not v.certified:  # the paper's exit-flag rule: a failed solve, not a measured concentration
+        title = f"NOT CERTIFIED: e_f (failed collision solve) at T_b = {v.T_b:.4g}"
+    elif v.blowup:
         title = f"blow-up at T_b = {v.T_b:.4g}"
-    else:
-        title = "no blow-up" if v.stop is StopReason.T_END else v.reason
+    else:  # no rule fired up to the end of the run: no statement about later times
+        title = f"no blow-up rule fired by t = {run.t:.4g}"
     spacing = "min dv, min dx" if run.xgrid is not None else "min dv"
     spread = "\nmin spread_v: smallest velocity spread" if sc.stop.spread_v > 0 else ""
     quantities = f"{spacing}: smallest grid spacing\nmax f: largest density{spread} (log scale)"

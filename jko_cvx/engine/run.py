@@ -112,7 +112,9 @@ class Run:
         return column(self._rows, name)
 
     @property
-    def blowup(self) -> bool:
+    def blowup(self) -> bool | None:
+        """:attr:`Verdict.blowup`: True (a blow-up rule fired), False, or None (undetermined: an uncertified
+        run that no rule stopped)."""
         return self.verdict.blowup
 
     @property
@@ -253,7 +255,9 @@ def _attrs(run: Run) -> dict[str, Any]:
         "t_final": float(run.t),
         "stop": v.stop.name,
         "reason": v.reason,
-        "blowup": int(v.blowup),
+        # undetermined is no boolean: a 0 there would read as "no blow-up"
+        "blowup": "undetermined" if v.blowup is None else int(v.blowup),
+        "certified": int(v.certified),
         "T_b": float("nan") if v.T_b is None else float(v.T_b),
         **{k: int(v[k]) for k in ("B_x", "B_v", "e_f")},
         **{f"seconds_{k}": float(s) for k, s in run.seconds.items()},
@@ -342,7 +346,8 @@ def load_run(path: str | Path, *, allow_partial: bool = False) -> Run:
         A run directory (``jko-cvx run --out``, or ``simulate(..., out=path)``).
     allow_partial : bool
         Also load a run that has not ended (no ``verdict.json``: killed or interrupted) as
-        it stood at its last checkpoint (its verdict is then provisional).
+        it stood at its last checkpoint (its verdict is then provisional: where no rule has fired yet, it
+        stops with ``StopReason.NOT_ENDED`` and its blow-up is undetermined, None).
 
     Raises
     ------
@@ -399,5 +404,7 @@ def load_run(path: str | Path, *, allow_partial: bool = False) -> Run:
             f"the run in {path} has not ended (no verdict.json; checkpoint at step {state.step}, t = {state.t:g}): "
             "resume it (jko-cvx run SCENE --out DIR --resume) or pass allow_partial=True"
         )
+    else:  # a provisional verdict: no rule has fired yet, which says nothing of the rest of the run
+        state.verdict = state.verdict.not_ended(state.t, scene.t_end)
     snaps = read_snapshots(path, state.step, ledger)
     return Run(scene, state.rows, snaps, state.f, state.vgrid, state.xgrid, state.t, state.verdict, state.seconds)

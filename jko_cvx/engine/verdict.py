@@ -45,11 +45,13 @@ class StopReason(Enum):
     SOLVER_FAILURE = "collision solver failed"
     EPS_T = "dt <= eps_t"
     NO_STEP = "no step was accepted"
+    NOT_ENDED = "the run has not ended"
 
     @property
     def blowup(self) -> bool:
-        """Every reason but reaching ``t_end`` and a run that never took a step flags blow-up."""
-        return self not in (StopReason.T_END, StopReason.NO_STEP)
+        """Every reason but reaching ``t_end``, a run that never took a step and one that has not ended flags
+        blow-up."""
+        return self not in (StopReason.T_END, StopReason.NO_STEP, StopReason.NOT_ENDED)
 
 
 _FIT_KEYS = ("T_b_fit", "T_b_fit_err", "blowup_rate", "blowup_kind", "blowup_reason", "unflagged_growth")
@@ -60,6 +62,17 @@ UNFLAGGED_GROWTH = 20.0
 _MESH_RULES = (StopReason.EPS_V, StopReason.EPS_X, StopReason.SPREAD_V)
 # the stops after which the records are cut short: a fit cannot exclude a later collapse
 _EARLY = ("SOLVER_FAILURE", "EPS_T", "NO_STEP")
+# what a growth no rule flagged means, by the fit's kind: only a finite-time law makes it a missed blow-up
+_GROWTH_READING = {
+    "finite_time": "a concentration the mesh criterion did not see, and the records fit a finite-time law",
+    "no_finite_time": (
+        "the records fit no finite-time law (a concentration without a singularity, as gamma >= 2's exponential "
+        "contraction, or one that relaxed), so by the fit no blow-up was missed"
+    ),
+    None: "a concentration the mesh criterion did not see; the records neither show nor exclude a finite-time law",
+}
+# the stops on a failed collision solve (e_f) or before any step: nothing certified decides them
+_FAILED_SOLVE_STOPS = (StopReason.SOLVER_FAILURE, StopReason.EPS_T, StopReason.NO_STEP)
 
 
 @dataclass(frozen=True)
@@ -100,7 +113,8 @@ class Verdict(Mapping):
         not see, even where it relaxed before the run ended.
 
     A run that never accepted a step (its first solve failed and stopped it) stops with
-    :attr:`StopReason.NO_STEP`: not a blow-up, ``T_b`` None.
+    :attr:`StopReason.NO_STEP`: blow-up undetermined (:attr:`blowup` None), not certified, ``T_b`` None.
+    :attr:`blowup` is True, False or None (undetermined); verdict.json writes it as true, false or null.
     """
 
     stop: StopReason = StopReason.T_END
@@ -119,27 +133,28 @@ class Verdict(Mapping):
     unflagged_growth: float | None = None
 
     @property
-    def blowup(self) -> bool:
-        return self.stop.blowup
+    def blowup(self) -> bool | None:
+        """True: a blow-up rule fired (``B_v``, ``B_x`` or ``e_f``; :attr:`certified` says whether the states it
+        rests on are certified).  False: the run reached ``t_end`` with every state certified and no rule fired.
+        None (undetermined): no rule fired, but the run carried failed solves forward or accepted no step, so
+        it is no evidence either way."""
+        if self.stop.blowup:
+            return True
+        return False if self.certified and self.stop is StopReason.T_END else None
 
     @property
     def certified(self) -> bool:
-        """Every state the verdict is drawn from came from a certified collision solve."""
-        return self.uncertified_steps == 0
+        """Every state the verdict is drawn from came from a certified collision solve: no failed solve was
+        carried forward (``uncertified_steps``), and the run did not stop on one (``e_f``: a solver failure or a
+        step collapsed below ``eps_t`` by failed solves) or before its first step."""
+        return self.uncertified_steps == 0 and self.stop not in _FAILED_SOLVE_STOPS
 
     def describe(self) -> str:
         """The verdict in words, saying so where it is drawn from uncertified states."""
         text = self._describe_threshold()
         if self.unflagged_growth is not None:
-            text += (
-                f" (WARNING: max f grew by a factor {self.unflagged_growth:.3g} and no blow-up rule fired: "
-                "a concentration the mesh criterion did not see)"
-            )
-        if self.blowup and self.stop in (StopReason.SOLVER_FAILURE, StopReason.EPS_T):
-            text += (
-                " (the paper's exit-flag rule e_f: a failed collision solve, not a measured concentration; "
-                "the blow-up kind says what the records show)"
-            )
+            reading = _GROWTH_READING.get(self.blowup_kind, _GROWTH_READING[None])
+            text += f" (WARNING: max f grew by a factor {self.unflagged_growth:.3g}, no blow-up rule fired: {reading})"
         if self.blowup and self.stop in _MESH_RULES and self.blowup_kind == "undetermined":
             text += (
                 f" (WARNING: a blow-up rule fired at T_b = {self.T_b:.6g}, but the records establish no finite-time "
@@ -175,9 +190,18 @@ class Verdict(Mapping):
         return text
 
     def _describe_threshold(self) -> str:
+        if self.stop is StopReason.NOT_ENDED and self.certified:
+            return "blow-up = undetermined (provisional: the run has not ended)"
         if self.certified:
             return f"blow-up = {self.blowup}"
-        claim = "undetermined" if not self.blowup else "True, from uncertified states"
+        if self.stop is StopReason.NO_STEP:
+            return "blow-up = undetermined (NOT CERTIFIED: no step was accepted)"
+        if self.uncertified_steps == 0:  # stopped by the failed solve itself
+            return (
+                "blow-up = True (NOT CERTIFIED: the paper's exit-flag rule e_f: a failed collision solve, not a "
+                "measured concentration; the blow-up kind says what the records show)"
+            )
+        claim = "undetermined" if self.blowup is None else "True, from uncertified states"
         return (
             f"blow-up = {claim} (NOT CERTIFIED: {self.uncertified_steps} step(s) carried a failed collision "
             f"solve, from t = {self.first_uncertified_t:.6g}; stop.on_solver_failure = false)"
@@ -192,8 +216,16 @@ class Verdict(Mapping):
         e_f = self.e_f or stop in (StopReason.SOLVER_FAILURE, StopReason.EPS_T)
         return dataclasses.replace(self, stop=stop, T_b=float(t), reason=reason, e_f=e_f, **flag)
 
+    def not_ended(self, t: float, t_end: float) -> Verdict:
+        """The provisional verdict of a run read back before it ended (no rule fired by ``t`` < ``t_end``):
+        undetermined.  A verdict whose rule has fired is returned as it is."""
+        if self.stop is not StopReason.T_END:
+            return self
+        reason = f"{StopReason.NOT_ENDED.value} (at t = {t:.6g} of t_end = {t_end:.6g}: loaded from its checkpoint)"
+        return dataclasses.replace(self, stop=StopReason.NOT_ENDED, reason=reason)
+
     def no_step(self, reason: str) -> Verdict:
-        """The verdict of a run whose first step failed and stopped it: no blow-up, no ``T_b``."""
+        """The verdict of a run whose first step failed and stopped it: undetermined, no ``T_b``."""
         return dataclasses.replace(
             self, stop=StopReason.NO_STEP, T_b=None, B_v=False, B_x=False, e_f=True, reason=reason
         )
@@ -280,8 +312,15 @@ class Verdict(Mapping):
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"not a verdict record ({type(exc).__name__}: {exc}): {dict(d)!r}") from None
-        if "blowup" in d and bool(d["blowup"]) != v.blowup:
-            raise ValueError(f"verdict record says blowup = {d['blowup']} but stop = {stop.name}")
+        if "blowup" in d:
+            said = d["blowup"]
+            # records written before undetermined verdicts were null said false there; the other fields decide
+            legacy = said is False and v.blowup is None
+            if not (said is None or isinstance(said, bool)) or (said is not v.blowup and not legacy):
+                raise ValueError(
+                    f"verdict record says blowup = {said!r} but its stop ({stop.name}) and uncertified steps "
+                    f"({v.uncertified_steps}) make it {v.blowup!r}"
+                )
         if v.blowup_kind is not None and v.blowup_kind not in KINDS:
             raise ValueError(f"verdict record says blowup_kind = {v.blowup_kind!r}, not one of {KINDS}")
         return v

@@ -70,6 +70,7 @@ import secrets
 import sys
 import tempfile
 import threading
+import types
 import warnings
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_completed
@@ -113,14 +114,42 @@ def _sha(text: str) -> str:
 
 def _module_source(func: Callable[..., Any]) -> str:
     """The source of the module defining ``func`` (its helpers change the results too); the function's own
-    source where the module has none."""
+    source where the module has none.  ValueError where that source no longer compiles to the functions
+    running (the file was edited after the module was imported)."""
     module = sys.modules.get(getattr(func, "__module__", ""), None)
     for obj in (module, func):
         try:
-            return inspect.getsource(obj)
+            source = inspect.getsource(obj)
         except (OSError, TypeError):
             continue
+        _check_running(func, obj, source)
+        return source
     raise TypeError(f"cannot read the source of {func!r}: sweeps cache only functions defined in source files")
+
+
+def _code_shape(code: types.CodeType) -> tuple[Any, ...]:
+    """What a code object computes, line numbers left out (an edit that only moves code changes no result)."""
+    consts = tuple(_code_shape(c) if isinstance(c, types.CodeType) else repr(c) for c in code.co_consts)
+    return code.co_code, consts, code.co_names, code.co_varnames, code.co_freevars, code.co_cellvars
+
+
+def _check_running(func: Callable[..., Any], obj: Any, source: str) -> None:
+    """ValueError unless ``source`` (read now from the file of ``obj``, a module or ``func``) compiles to the code
+    of ``func`` that runs: the key must name the code that computes the results it stores."""
+    filename = func.__code__.co_filename
+    compiled: dict[str, list[tuple[Any, ...]]] = {}  # a name defined twice has two codes
+    todo = [compile(source, filename, "exec", dont_inherit=True)]
+    while todo:
+        code = todo.pop()
+        compiled.setdefault(code.co_qualname, []).append(_code_shape(code))
+        todo.extend(c for c in code.co_consts if isinstance(c, types.CodeType))
+    # the point function itself (the module's other functions may be rewritten on import, as pytest's asserts)
+    if _code_shape(func.__code__) not in compiled.get(func.__code__.co_qualname, ()):
+        raise ValueError(
+            f"{filename} changed since {getattr(obj, '__name__', obj)} was imported ({func.__qualname__} runs other "
+            "code than the file holds now): a cached result would be keyed by code that did not compute it; "
+            "restart Python to sweep the edited code"
+        )
 
 
 def _check_cacheable(func: Callable[..., Any]) -> None:
@@ -128,8 +157,6 @@ def _check_cacheable(func: Callable[..., Any]) -> None:
     function defined with ``def`` at module level, whose behaviour its module's source fixes (no lambda: two in one
     module share a name; no function defined inside another, nor a closure: the values it was made with are not in
     its source; no ``functools.partial`` or other callable object)."""
-    import types
-
     if not isinstance(func, types.FunctionType):
         raise TypeError(
             f"func must be a function defined with def (at module level), got {type(func).__module__}."

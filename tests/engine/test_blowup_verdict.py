@@ -108,7 +108,7 @@ def test_growth_that_no_rule_flagged_is_reported():
     t = np.linspace(0, 0.49, 50)
     v = Verdict().with_fit(_rows(t, 0.5 / (0.5 - t)))  # max f x 50, reached t_end
     assert v.unflagged_growth == pytest.approx(50, rel=1e-9)
-    assert "WARNING: max f grew by a factor 50" in v.describe()
+    assert "WARNING: max f grew by a factor 50, no blow-up rule fired" in v.describe()
     assert Verdict().with_fit(_rows(t[:30], 0.5 / (0.5 - t[:30]))).unflagged_growth is None  # x 2.4
     fired = Verdict().stopped(StopReason.EPS_V, 0.49, "min dv < eps_v").with_fit(_rows(t, 0.5 / (0.5 - t)))
     assert fired.unflagged_growth is None

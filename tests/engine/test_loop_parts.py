@@ -78,7 +78,7 @@ def test_verdict_round_trips_and_rejects_inconsistent_records():
     v = Verdict().solver_failed(0.1).stopped(StopReason.SPREAD_V, 0.25, "min spread_v = 0.1 < spread_v")
     assert Verdict.from_dict(v.to_dict()) == v
     assert Verdict.from_dict(v.to_dict()) != Verdict()
-    with pytest.raises(ValueError, match="blowup = False but stop = SPREAD_V"):
+    with pytest.raises(ValueError, match=r"blowup = False but its stop \(SPREAD_V\)"):
         Verdict.from_dict({**v.to_dict(), "blowup": False})
     with pytest.raises(ValueError, match="not a verdict record"):
         Verdict.from_dict({"blowup": True, "reason": "collision solver failed"})  # the pre-Verdict dict

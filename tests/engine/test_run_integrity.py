@@ -293,8 +293,15 @@ def test_an_overwrite_killed_midway_is_put_back_on_the_next_open(run_dir):
 
 
 def test_stray_temporary_files_of_a_killed_write_are_removed(run_dir):
-    strays = [run_dir / ".checkpoint.npz.ab12cd34", run_dir / "snapshots" / ".step_0000004.npz.x_y9Zq0w"]
-    keep = [run_dir / ".notes.txt.abcdefgh", run_dir / "snapshots" / "mine.txt"]
+    strays = [
+        run_dir / ".checkpoint.npz.jko_tmp.ab12cd34",
+        run_dir / "snapshots" / ".step_0000004.npz.jko_tmp.x_y9zq0w",
+    ]
+    keep = [
+        run_dir / ".notes.txt.jko_tmp.abcdefgh",
+        run_dir / "snapshots" / "mine.txt",
+        run_dir / ".checkpoint.npz.ab12cd34",
+    ]
     for p in strays + keep:
         p.write_text("partial")
     simulate(scene_from_dict(SMALL), out=run_dir, resume=True, progress=False)
@@ -377,3 +384,44 @@ def test_load_run_names_an_interrupted_overwrite_that_moved_scene_json_aside(run
     os.replace(run_dir / "scene.json", aside / "scene.json")
     with pytest.raises(RunDirError, match="an overwrite of it was interrupted"):
         load_run(run_dir)
+
+
+def _user_files(folder: Path) -> dict[str, bytes | None]:
+    """Every entry of ``folder`` with its bytes (None for a folder)."""
+    return {p.relative_to(folder).as_posix(): (p.read_bytes() if p.is_file() else None) for p in folder.rglob("*")}
+
+
+def test_a_refused_run_leaves_a_directory_of_the_users_exactly_as_it_was(tmp_path, capsys):
+    """Names that look like the package's (a lock, a temporary file, the aside folder's temporary name) in a directory
+    that never held a run: the refused command neither truncates, deletes nor creates anything there."""
+    out = tmp_path / "mine"
+    out.mkdir()
+    (out / "diagnostics.csv").write_text("my own table\n")  # a run-like name: the run is refused
+    (out / ".diagnostics.csv.20240101").write_text("a dated backup\n")  # 8 characters, as mkstemp's names
+    (out / ".replaced.tmp_notes").mkdir()  # an empty folder under the aside folder's temporary prefix
+    before = _user_files(out)
+    assert main(["run", "--quiet", "--set", "t_end=0.02", "--set", "v.n=21", "--out", str(out), "--overwrite"]) == 2
+    assert "no run this package wrote" in capsys.readouterr().err
+    assert _user_files(out) == before
+    (out / ".lock").write_text("team lock: do not touch\n")  # not a process id: not the package's lock
+    before = _user_files(out)
+    assert main(["run", "--quiet", "--set", "t_end=0.02", "--set", "v.n=21", "--out", str(out), "--overwrite"]) == 2
+    assert "is not the lock of a run of this package" in capsys.readouterr().err
+    assert _user_files(out) == before
+
+
+def test_a_run_beside_files_that_look_temporary_keeps_them(tmp_path):
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / ".diagnostics.csv.20240101").write_text("a dated backup\n")
+    (out / ".records.png.abcd1234").write_text("not a figure of ours\n")
+    simulate(scene_from_dict(SMALL), out=out, progress=False)
+    assert (out / ".diagnostics.csv.20240101").read_text() == "a dated backup\n"
+    assert (out / ".records.png.abcd1234").exists()
+
+
+def test_a_figure_left_half_written_by_a_kill_is_removed_on_the_next_start(run_dir):
+    stale = run_dir / ".records.png.jko_tmp.ab12cd34"  # what atomic_write names it
+    stale.write_bytes(b"\x89PNG half")
+    simulate(scene_from_dict(SMALL), out=run_dir, resume=True, progress=False)
+    assert not stale.exists()

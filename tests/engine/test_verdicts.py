@@ -86,3 +86,89 @@ def test_a_runs_figure_draws_the_fit_its_verdict_made_and_that_fit_is_fit_blowup
         assert getattr(first, name) == getattr(fresh, name), name
     other = fit_rows([{**r, "max_f": 2.0 * r["max_f"]} for r in rows], v)
     assert other is not first and other.log_C != first.log_C
+
+
+def test_an_uncertified_run_that_reached_t_end_is_undetermined_everywhere_it_is_read(tmp_path):
+    """No blow-up rule fired, but every step carried a failed solve: the verdict is neither True nor False, in the
+    API, in verdict.json, read back, and in the netCDF attributes (a boolean there read as "no blow-up")."""
+    scene = scene_from_dict(with_overrides(SMALL, {**FAILING, "stop.on_solver_failure": False}))
+    run = simulate(scene, out=tmp_path / "r")
+    v = run.verdict
+    assert v.stop is StopReason.T_END and v.uncertified_steps == run.steps > 0
+    assert v.blowup is None and run.blowup is None and v["blowup"] is None and not v.certified
+    assert json.loads((tmp_path / "r" / "verdict.json").read_text())["blowup"] is None
+    back = load_run(tmp_path / "r")
+    assert back.blowup is None and back.verdict == v
+    pytest.importorskip("xarray")
+    attrs = run.to_xarray().attrs
+    assert attrs["blowup"] == "undetermined" and attrs["certified"] == 0
+
+
+def test_a_run_that_took_no_step_is_undetermined_and_not_certified(tmp_path):
+    scene = scene_from_dict(with_overrides(SMALL, {**FAILING, "stop.on_solver_failure": True}))
+    run = simulate(scene, out=tmp_path / "r")
+    v = run.verdict
+    assert v.stop is StopReason.NO_STEP and v.blowup is None and not v.certified
+    line = run.summary()
+    assert "blow-up = undetermined" in line and "blow-up = False" not in line and "NOT CERTIFIED" in line
+    assert json.loads((tmp_path / "r" / "verdict.json").read_text())["blowup"] is None
+    assert load_run(tmp_path / "r").verdict == v
+
+
+@pytest.mark.parametrize("stop", [StopReason.SOLVER_FAILURE, StopReason.EPS_T])
+def test_a_blow_up_drawn_from_a_failed_solve_is_not_certified(stop):
+    """The paper's exit-flag rule e_f (a failed solve the step policy could not cure) flags blow-up, but the
+    verdict rests on a failed solve: not certified, and the words say so."""
+    v = Verdict().stopped(stop, 0.03, "collision solver failed (MAX_ITERATIONS)")
+    assert v.blowup is True and v.e_f and not v.certified
+    text = v.describe()
+    assert "NOT CERTIFIED" in text and "exit-flag rule e_f" in text and "blow-up = True (" in text
+    assert Verdict.from_dict(v.to_dict()) == v
+
+
+def test_a_records_figure_of_a_blow_up_by_a_failed_solve_says_so(tmp_path):
+    scene = scene_from_dict(with_overrides(SMALL, {"stop.on_solver_failure": True}))
+    run = simulate(scene)
+    v = run.verdict.stopped(StopReason.SOLVER_FAILURE, run.t, "collision solver failed (MAX_ITERATIONS)")
+    import dataclasses
+
+    import matplotlib.pyplot as plt
+
+    fig = plot_records(dataclasses.replace(run, verdict=v))
+    title = fig.axes[-1].get_title()
+    plt.close(fig)
+    assert "NOT CERTIFIED" in title and "e_f" in title and "blow-up at" not in title
+
+
+def test_verdict_records_say_blowup_as_true_false_or_null_only():
+    undetermined = Verdict().solver_failed(0.1).to_dict()
+    assert undetermined["blowup"] is None and Verdict.from_dict(undetermined).blowup is None
+    # a record written before undetermined verdicts were null says false there: the other fields decide
+    assert Verdict.from_dict({**undetermined, "blowup": False}).blowup is None
+    with pytest.raises(ValueError, match="blowup"):
+        Verdict.from_dict({**undetermined, "blowup": True})
+    with pytest.raises(ValueError, match="blowup"):
+        Verdict.from_dict({**Verdict().to_dict(), "blowup": None})  # a certified t_end verdict is False
+    for bad in ("false", 0, 1.0, "null"):
+        with pytest.raises(ValueError, match="blowup"):
+            Verdict.from_dict({**Verdict().to_dict(), "blowup": bad})
+
+
+def test_a_run_read_back_before_it_ended_has_a_provisional_undetermined_verdict(tmp_path, monkeypatch):
+    """An interrupted run loaded with allow_partial: no rule fired yet, which is no "reached t_end, no blow-up"."""
+    from jko_cvx.engine import RunInterrupted
+    from jko_cvx.engine.loop import Stepper
+
+    from ._inject import interrupted_commit
+
+    scene = scene_from_dict(with_overrides(SMALL, {"output.checkpoint_every": 1}))
+    with monkeypatch.context() as m:
+        m.setattr(Stepper, "commit", interrupted_commit(2))
+        with pytest.raises(RunInterrupted):
+            simulate(scene, out=tmp_path / "r")
+    part = load_run(tmp_path / "r", allow_partial=True)
+    v = part.verdict
+    assert part.t < scene.t_end and v.stop is StopReason.NOT_ENDED and v.blowup is None and part.blowup is None
+    assert "the run has not ended" in v.reason and "undetermined (provisional" in part.summary()
+    finished = simulate(scene, out=tmp_path / "r", resume=True)  # the resumed run's verdict is its own
+    assert finished.verdict.stop is StopReason.T_END and finished.blowup is False

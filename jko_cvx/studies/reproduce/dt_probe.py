@@ -154,7 +154,7 @@ def probe_run(
         "steps": int(len(d) - 1),
         "max_f_peak": float(d.max_f.iloc[peak]), "t_peak": float(d.t.iloc[peak]),
         "max_f_final": float(d.max_f.iloc[-1]), "min_dx": float(d.min_dx.min()), "min_dv": float(d.min_dv.min()),
-        "blowup": bool(v.blowup), "reason": v.reason, "T_b": v.T_b,
+        "blowup": v.blowup, "reason": v.reason, "T_b": v.T_b,
         "blowup_kind": v.blowup_kind, "T_b_fit": v.T_b_fit, "T_b_fit_err": v.T_b_fit_err, "blowup_rate": v.blowup_rate,
         "failed_steps": int(run.failed_steps), "seconds": seconds,
     }  # fmt: skip
@@ -266,7 +266,7 @@ def probe_report(df: pd.DataFrame, title_note: str = "", cases=FULL_CASES) -> st
                 f"- lambda = {lam:g}, {n} x {n}, order {order}: peak max f {g.max_f_peak.iloc[0]:.4g} at dt = "
                 f"{g.dt.iloc[0]:g} to {g.max_f_peak.iloc[-1]:.4g} at dt = {g.dt.iloc[-1]:g} (ratio per halving: "
                 f"{ratios}); min dx {g.min_dx.iloc[0]:.3g} to {g.min_dx.iloc[-1]:.3g}; blow-up flagged in "
-                f"{int(g.blowup.astype(bool).sum())} of {len(g)}."
+                f"{int(g.blowup.astype(str).str.lower().eq('true').sum())} of {len(g)}."
             )
     table = grid_table(df)
     if table.shape[1] > 1:

@@ -119,7 +119,7 @@ def g2bu_run(lam: float, n_x: int, n_v: int, t_end: float = 0.2) -> dict[str, An
         secondary = max(secondary, float(secondary_peaks(snap["f"]).max()))
     last = run.snapshots[-1]
     return {
-        "blowup": bool(run.blowup),
+        "blowup": run.blowup,  # None: undetermined (an uncertified run no rule stopped)
         "T_b": float(run.verdict["T_b"]) if run.blowup else float("nan"),
         "B_x": bool(run.verdict["B_x"]),
         "B_v": bool(run.verdict["B_v"]),

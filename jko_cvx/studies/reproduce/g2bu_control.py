@@ -44,7 +44,7 @@ def g2bu_control_run(lam: float, n_x: int, n_v: int, t_end: float = 0.2) -> dict
     run = simulate(scene)
     v, d = run.verdict, run.diagnostics
     return {
-        "verdict": "blow-up" if run.blowup else "no blow-up",
+        "verdict": {True: "blow-up", False: "no blow-up", None: "undetermined"}[run.blowup],
         "T_b": float(v["T_b"]) if run.blowup else float("nan"),
         "direction": "x" if v["B_x"] else ("v" if v["B_v"] else "-"),
         "stop": v.stop.name,

@@ -97,9 +97,16 @@ def _series(run) -> dict[str, list[float]]:
     return {k: run.diagnostics[k].tolist() for k in _SERIES}
 
 
+def _ours(flagged: str, in_v: bool, before: bool) -> str:
+    """A run's verdict in the table's words; ``flagged`` is its ``blowup`` as lower-case text."""
+    if flagged == "true":
+        return f"blow-up in {'v' if in_v else 'x'} {'before' if before else 'after'}"
+    return "no blow-up by t_end" if flagged == "false" else "undetermined (not certified)"
+
+
 def _verdict(run) -> dict[str, Any]:
     return {
-        "blowup": bool(run.blowup),
+        "blowup": run.blowup,  # None: undetermined (an uncertified run no rule stopped)
         "T_b": float(run.verdict["T_b"]) if run.blowup else float("nan"),
         "B_v": bool(run.verdict["B_v"]),
         "B_x": bool(run.verdict["B_x"]),
@@ -322,14 +329,12 @@ def reproduce_inhom_gamma1p5(out: Path, quick: bool = False, **sweep_opts: Any) 
     main = runs[runs.n == max(resolutions)].reset_index(drop=True)
     main["lambda"] = [_CASES[c][0] for c in main.case]
     main["meeting time c/d"] = meet
-    main["ours"] = [
-        ("no blow-up by t_end" if not bu else f"blow-up in {'v' if bv else 'x'} {'before' if tb < meet else 'after'}")
-        for bu, bv, tb in zip(main.blowup, main.B_v, main.T_b, strict=True)
-    ]
+    flagged = main.blowup.astype(str).str.lower()  # True, False, or missing: undetermined
+    main["ours"] = [_ours(bu, bv, tb < meet) for bu, bv, tb in zip(flagged, main.B_v, main.T_b, strict=True)]
     main["paper"] = main.case.map(_PAPER)
     main["supports"] = [
-        bool(bu and bv and ((tb < meet) == (c == "before")))
-        for bu, bv, tb, c in zip(main.blowup, main.B_v, main.T_b, main.case, strict=True)
+        bool(bu == "true" and bv and ((tb < meet) == (c == "before")))
+        for bu, bv, tb, c in zip(flagged, main.B_v, main.T_b, main.case, strict=True)
     ]
     tb = runs.groupby("case").T_b
     main["T_b over grids"] = [f"{tb.min()[c]:.3f}-{tb.max()[c]:.3f}" for c in main.case]
@@ -351,7 +356,8 @@ def reproduce_inhom_gamma1p5(out: Path, quick: bool = False, **sweep_opts: Any) 
     cols += ["reason", "steps", "max f (end)", "sigma_v (end)", "mass drift", "seconds"]
     main[cols].to_csv(out / "inhom_gamma1p5.csv", index=False)
     record_csv(out / "inhom_gamma1p5.csv")
-    write_markdown(out / "inhom_gamma1p5.md",
+    write_markdown(
+        out / "inhom_gamma1p5.md",
         "# sec:sp_inhom_gamma_1p5: gamma = 3/2 inhomogeneous\n\n"
         "T_b (the paper's criterion, min dv < eps_v) against the time c/d = 1 at which the bumps' "
         "centres meet at x = 0 (free transport), on the paper's 121 x 121 grids.  Beside it the "
@@ -363,7 +369,7 @@ def reproduce_inhom_gamma1p5(out: Path, quick: bool = False, **sweep_opts: Any) 
         "sigma_v: the smallest local velocity spread over slices with rho >= 0.1 max rho "
         "(a blow-up in v sends it to 0); 'end' is T_b where the run stopped on blow-up.\n\n"
         + resolution.to_markdown(index=False, floatfmt=".4g")
-        + f"\n\nSweep wall time {wall:.0f} s (cached points count 0).\n"
+        + f"\n\nSweep wall time {wall:.0f} s (cached points count 0).\n",
     )
     _figure(main, out / "inhom_gamma1p5.png", meet)
     _resolution_figure(runs, refs, out / "inhom_gamma1p5_resolution.png", meet)

@@ -10,7 +10,7 @@ def test_the_quick_control_runs_across_the_threshold_and_reports_it(tmp_path):
     table = reproduce_tab_g2bu_control(tmp_path, quick=True, executor="serial", progress=False)
     assert 309 < THRESHOLD < 310
     assert list(table["lambda"]) == [100.0, 310.0] and list(table["above threshold"]) == [False, True]
-    assert set(table.verdict) <= {"blow-up", "no blow-up"}
+    assert set(table.verdict) <= {"blow-up", "no blow-up", "undetermined"}
     above = table[table["above threshold"]].iloc[0]
     # at 310 the datum concentrates in x before t = 0.12 on this grid (tab:g2bu: 0.0985 at 121 x 201)
     assert above.verdict == "blow-up" and above.direction == "x" and 0.08 < above.T_b < 0.12

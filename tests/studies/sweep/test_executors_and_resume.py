@@ -105,6 +105,19 @@ def test_changed_point_function_is_recomputed(tmp_path):
     assert run_sweep(edited.double, points, tmp_path / "c", "serial", progress=False).cached.all()
 
 
+def test_a_module_edited_after_import_is_refused_not_keyed_by_its_new_source(tmp_path):
+    """The running code is the imported one; its file now holds other code: a result computed now and stored under
+    the file's key would be served to the edited code later."""
+    running = _point_module(tmp_path, "pts_edited", "2")
+    (tmp_path / "pts_edited.py").write_text(_MODULE.format(factor="2 + 100"))  # an editor saves; no re-import
+    with pytest.raises(ValueError, match=r"pts_edited\.py changed since pts_edited was imported"):
+        run_sweep(running.double, [{"a": 1.0}], tmp_path / "c", "serial", progress=False)
+    assert not (tmp_path / "c").exists() or not any((tmp_path / "c").iterdir())
+    # a change that moves code without changing it (a comment above) is the same code
+    (tmp_path / "pts_edited.py").write_text("# a comment\n" + _MODULE.format(factor="2"))
+    assert list(run_sweep(running.double, [{"a": 1.0}], tmp_path / "c", "serial", progress=False).y) == [2.0]
+
+
 def test_two_functions_at_one_point_have_distinct_keys(tmp_path):
     mod = _point_module(tmp_path, "pts_two", "2")
     assert point_key(mod.double, {"a": 1.0}) != point_key(mod.triple, {"a": 1.0})
