@@ -69,6 +69,11 @@ def _setting(text: str) -> tuple[str, Any, str]:
     return key, value, text
 
 
+def _printable(text: str) -> str:
+    """``text`` with its control characters escaped (a scene's description must not drive the terminal)."""
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+
+
 def _overrides(settings: list[tuple[str, Any, str]] | None) -> dict[str, Any]:
     """The ``--set`` options as the dotted-key overrides of a scene (a key given twice is refused)."""
     out: dict[str, Any] = {}
@@ -143,7 +148,10 @@ def _run_scene(
             file=sys.stderr,
         )
         return 130
-    print(f"jko-cvx {__version__}: {scene.name} -- {scene.description}")
+    # the description is the scene file's own words: --set may have changed what it describes
+    changed = ", ".join(f"{key} = {raw.partition('=')[2].strip()}" for key, _, raw in settings or ())
+    print(f"jko-cvx {__version__}: {scene.name} -- {_printable(scene.description)}"
+          + (f" [--set: {_printable(changed)}]" if changed else ""))  # fmt: skip
     print(f"  {run.summary()}")
     print(f"  {_seconds_line(run)}; steps with a failed collision solve: {run.failed_steps}")
     print(f"  {run.records_line()}")
@@ -582,7 +590,7 @@ def _scene(args) -> int:
         names = shipped_scene_names()
         width = max(map(len, names))
         for name in names:
-            print(f"{name:<{width}}  {shipped_scene(name).description}")
+            print(f"{name:<{width}}  {_printable(shipped_scene(name).description)}")
         return 0
     sys.stdout.write(scene_template(args.kind) if args.scene_command == "template" else keys_text())
     return 0

@@ -271,6 +271,18 @@ def test_set_overrides_scene_keys_as_a_file_would(tmp_path, capsys):
     assert "v.n: 21 -> 31" in capsys.readouterr().err
 
 
+def test_the_header_says_what_set_changed_and_escapes_control_characters(tmp_path, capsys):
+    """The description is the scene file's words: after --set it may describe another scene, and a control
+    character in it (an ANSI escape) must not reach the terminal raw."""
+    path = tmp_path / "described.toml"
+    path.write_text(SCENE.replace('name = ', 'description = "gamma = 1 \\u001b[2Jcleared"\nname = ', 1))
+    argv = ["run", str(path), "--set", "t_end=0.04", "--set", "v.n=21", "--out", str(tmp_path / "r"), "--quiet"]
+    assert main(argv) == 0
+    header = capsys.readouterr().out.splitlines()[0]
+    assert header.endswith("-- gamma = 1 \\x1b[2Jcleared [--set: t_end = 0.04, v.n = 21]"), header
+    assert "\x1b" not in header
+
+
 def test_set_on_the_default_scene_and_a_shipped_one(tmp_path):
     from jko_cvx.cli import _load, _setting
 

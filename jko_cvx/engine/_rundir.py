@@ -404,13 +404,25 @@ class RunDir:
                 continue
             if name == "reference":
                 try:
-                    Ledger.read(p)
+                    inner = set(Ledger.read(p).digests)
                 except RunDirError:
                     raise RunDirError(
                         f"cannot overwrite {self.path}: {p} is not a run directory this package wrote (a "
                         "verification's reference run has a metadata.json with its files' digests); nothing is "
                         "deleted: move it away or choose another --out"
                     ) from None
+                # the folder goes as a whole: every entry in it must be the reference run's own
+                for q in sorted(p.rglob("*")):
+                    rel = q.relative_to(p).as_posix()
+                    own = rel in inner or rel in (*FIGURES, "metadata.json", ".lock", "snapshots") or (
+                        rel.startswith("snapshots/") and _SNAPSHOT.fullmatch(q.name) is not None
+                    )
+                    if q.is_symlink() or not own:
+                        raise RunDirError(
+                            f"cannot overwrite {self.path}: {q} is not one of the files the reference run in {p} "
+                            "wrote, so it may be a file of yours and nothing is deleted: move it away or choose "
+                            "another --out"
+                        )
             elif name not in recorded:
                 raise RunDirError(
                     f"cannot overwrite {self.path}: {p} is not one of the files the run in {self.path} wrote "

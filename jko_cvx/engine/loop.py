@@ -23,6 +23,7 @@ checkpoint of the last accepted step and raise
 
 from __future__ import annotations
 
+import dataclasses
 import signal
 import time
 from collections.abc import Callable
@@ -85,10 +86,35 @@ def initial_state(scene: Scene) -> RunState:
     """f0 on the scene's grids, refined first where the scene refines (as the algorithms start;
     :meth:`~jko_cvx.mesh.policy.RemeshPolicy.initial`)."""
     vgrid, xgrid = scene.vgrid(), scene.xgrid()
-    f = scene.initial_density(xgrid, vgrid)
+    f = np.asarray(scene.initial_density(xgrid, vgrid), dtype=float)
+    # the density that runs (an Initial of the caller's own class included), not the one the loader checked
+    shape = (vgrid.n,) if xgrid is None else (xgrid.n, vgrid.n)
+    if f.shape != shape or not np.isfinite(f).all() or (f < 0).any() or not f.any():
+        raise SceneError(
+            f"initial: the density of {type(scene.initial).__name__} on the grids must be finite, >= 0 and not all "
+            f"zero, of shape {shape}; got shape {f.shape}, min {np.nanmin(f) if f.size else float('nan'):.3g}, "
+            f"{int(np.count_nonzero(~np.isfinite(f)))} non-finite value(s)"
+        )
     # v_params, x_params: the extent of the set each refined grid was built for
     f, vgrid, xgrid, v_params, x_params = remesh_policy(scene).initial(vgrid, xgrid, f)
     return RunState(0.0, 0, f, vgrid, xgrid, v_params, x_params, [], Verdict())
+
+
+def _check_recordable(scene: Scene) -> None:
+    """SceneError where a table of ``scene`` is of a class of the caller's own (an ``Initial`` with a density of its
+    own, say): scene.json records the loader's kind and values only, so the run directory would name a scene that
+    did not run, and ``load_run`` or a rerun of it would give another result."""
+    from jko_cvx.scene import scene_from_dict
+
+    recorded = scene_from_dict(scene.to_dict())
+    for name in (f.name for f in dataclasses.fields(scene)):
+        mine, theirs = getattr(scene, name), getattr(recorded, name)
+        if type(mine) is not type(theirs) or mine != theirs:
+            raise SceneError(
+                f"{name}: a {type(mine).__module__}.{type(mine).__qualname__} cannot be recorded in a run directory "
+                f"(scene.json rebuilds a {type(theirs).__qualname__} from its keys, which is not what would run); run "
+                "this scene in memory (out=None), or express it in scene keys"
+            )
 
 
 def _check_thresholds(scene: Scene, state: RunState) -> None:
@@ -437,6 +463,8 @@ def simulate(
     # a Scene built in code (dataclasses.replace) bypasses the loader: check it as the loader would (its size
     # limits included), before anything is written, and run it in the loader's form (what scene.json rebuilds)
     scene = scene.replace({})
+    if out is not None:
+        _check_recordable(scene)
     if attempts is not None and not isinstance(attempts, list):
         raise TypeError(f"attempts must be a list (it receives the failed attempts), got {type(attempts).__name__}")
     if observers is not None and not callable(observers):
@@ -479,7 +507,10 @@ def _finish(scene: Scene, state: RunState, trackers: list[Tracker], snaps: Snaps
     # before the last checkpoint, which records it
     spec = scene.refine.v
     set_points = scene.v.n * (spec.delta / spec.bumps if spec is not None else 1.0)  # a fixed grid: the whole of it
-    state.verdict = state.verdict.with_fit(state.rows, first_order=scene.time.order == 1, set_points=set_points)
+    state.verdict = state.verdict.with_fit(
+        state.rows, first_order=scene.time.order == 1, set_points=set_points, gamma=scene.gamma,
+        homogeneous=scene.homogeneous,
+    )  # fmt: skip
     for tr in trackers:
         tr.finish(state)
     run = Run(scene, state.rows, snaps.snapshots, state.f, state.vgrid, state.xgrid, state.t,

@@ -432,6 +432,14 @@ def _check_combinations(top, v, x, t, c, s, o) -> None:
             f"overflows on the velocity grid (W up to {math.exp(min(log_w, 700.0)):.3g}); strength or time.dt "
             "must be smaller"
         )
+    for axis, grid in (("v", v), ("x", x)):
+        spacing = 2 * grid.L / grid.n if grid is not None else 1.0
+        if not 1e-90 <= spacing <= 1e90:  # PCHIP's coefficients divide by its cube
+            raise SceneError(
+                f"{axis}.L = {grid.L:g} with {axis}.n = {grid.n}: the grid spacing 2 L / n = {spacing:.3g} must lie in "
+                "[1e-90, 1e90] (its cube, in the cubic interpolation of the transport and the remaps, must stay "
+                "floating-point)"
+            )
     if math.isfinite(c.beta) and t.dt / c.beta > 1e150:
         raise SceneError(
             f"collision.beta = {c.beta:g} with time.dt = {t.dt:g}: the Fisher weight (dt/beta)^2 overflows; "

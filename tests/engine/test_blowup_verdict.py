@@ -183,3 +183,39 @@ def test_a_rule_and_a_fit_that_disagree_are_warned_in_both_directions():
     fired_too = Verdict().stopped(StopReason.EPS_V, 0.47, "min dv < eps_v")
     shown = fired_too.with_fit(_rows(singular, 0.5 / (0.5 - singular)))
     assert shown.blowup_kind == "finite_time" and "WARNING" not in shown.describe()  # the two agree
+
+
+def test_a_first_order_bar_off_gamma_1_holds_the_steps_lag():
+    """gamma = 1.5, tab_bu_g1's datum, first order at dt = 0.01: T_b_fit lags the second-order fit at dt = 0.005 (the
+    reference: its own lag is O(dt^2)) by about 5 dt; the verdict's bar must cover that, and say why it is wide."""
+    first = simulate(shipped_scene("tab_bu_g1", {"gamma": 1.5, "t_end": 3.0})).verdict
+    second = simulate(
+        shipped_scene("tab_bu_g1", {"gamma": 1.5, "t_end": 3.0, "time.order": 2, "time.dt": 0.005})
+    ).verdict
+    assert first.blowup_kind == second.blowup_kind == "finite_time"
+    lag = first.T_b_fit - second.T_b_fit
+    assert lag > 2 * 0.01  # the premise: a lag of several steps
+    assert abs(lag) <= first.T_b_fit_err, (first.T_b_fit, first.T_b_fit_err, second.T_b_fit)
+    assert "first-order steps lag the blow-up by O(dt) (gamma = 1.5)" in first.blowup_reason
+    assert "the bar is widened for it" in first.describe_fit()
+    assert "lag the blow-up" not in second.blowup_reason  # second order: no lag term
+
+
+def test_the_lag_term_widens_only_first_order_bars_off_gamma_1():
+    t = np.linspace(0, 0.48, 49)
+    rows = _rows(t, 0.5 / (0.5 - t))
+    plain = Verdict().with_fit(rows, first_order=True, gamma=1.0)
+    assert plain == Verdict().with_fit(rows) and "lag the blow-up" not in plain.blowup_reason
+    for gamma in (0.75, 1.5):
+        wide = Verdict().with_fit(rows, first_order=True, gamma=gamma)
+        assert wide.T_b_fit == plain.T_b_fit and wide.T_b_fit_err > plain.T_b_fit_err
+        dt = t[-1] - t[-2]
+        from jko_cvx.blowup import ERR_SCALE, FIRST_ORDER_LAG
+
+        assert wide.T_b_fit_err**2 == pytest.approx(
+            plain.T_b_fit_err**2 + (ERR_SCALE * FIRST_ORDER_LAG * abs(gamma - 1) * dt) ** 2
+        )
+        assert Verdict().with_fit(rows, first_order=False, gamma=gamma) == plain
+    split = Verdict().with_fit(rows, first_order=True, gamma=1.0, homogeneous=False)
+    assert split.T_b_fit_err == plain.T_b_fit_err and "the bar does not hold it" in split.blowup_reason
+    assert "WARNING: first-order steps lag the blow-up by O(dt)" in split.describe_fit()

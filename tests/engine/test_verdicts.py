@@ -172,3 +172,36 @@ def test_a_run_read_back_before_it_ended_has_a_provisional_undetermined_verdict(
     assert "the run has not ended" in v.reason and "undetermined (provisional" in part.summary()
     finished = simulate(scene, out=tmp_path / "r", resume=True)  # the resumed run's verdict is its own
     assert finished.verdict.stop is StopReason.T_END and finished.blowup is False
+
+
+def test_a_scene_table_of_the_callers_own_class_runs_in_memory_but_is_not_recorded(tmp_path):
+    """An Initial subclass with its own density: scene.json could only record the stock kind, so a run directory
+    would name a datum that did not run; the density that runs is checked, not the stock one."""
+    import dataclasses
+
+    from jko_cvx.scene import SceneError
+    from jko_cvx.scene.initial import GaussiansInitial
+
+    base = scene_from_dict(SMALL)
+
+    @dataclasses.dataclass(frozen=True)
+    class Doubled(GaussiansInitial):
+        def density(self, xgrid, vgrid):
+            return 2.0 * super().density(xgrid, vgrid)
+
+    @dataclasses.dataclass(frozen=True)
+    class Negative(GaussiansInitial):
+        def density(self, xgrid, vgrid):
+            f = super().density(xgrid, vgrid).copy()
+            f[..., 3] = -5.0
+            return f
+
+    fields = {f.name: getattr(base.initial, f.name) for f in dataclasses.fields(base.initial)}
+    doubled = dataclasses.replace(base, initial=Doubled(**fields))
+    with pytest.raises(SceneError, match=r"initial: a .*Doubled cannot be recorded in a run directory"):
+        simulate(doubled, out=tmp_path / "r")
+    assert not (tmp_path / "r").exists()
+    ran = simulate(doubled)  # in memory: the caller's datum, twice the stock mass
+    assert ran.column("mass")[0] == pytest.approx(2 * simulate(base).column("mass")[0], rel=1e-12)
+    with pytest.raises(SceneError, match=r"initial: the density of Negative .* must be finite, >= 0"):
+        simulate(dataclasses.replace(base, initial=Negative(**fields)))

@@ -434,6 +434,13 @@ def test_trajectories_of_newton_and_conic_agree(tmp_path):
         verify(sc, "conic", trajectory=True, out=out)
     again = verify(sc, "conic", trajectory=True, out=out, overwrite=True)
     assert again.trajectory.agree and (out / "reference" / "verdict.json").exists()
+    # a file of the user's inside reference/ (the folder is replaced whole): the overwrite refuses, deleting nothing
+    (out / "reference" / "analysis").mkdir()
+    (out / "reference" / "analysis" / "fit.ipynb").write_text("hours of work")
+    with pytest.raises(RunDirError, match=r"reference/analysis is not one of the files the reference run"):
+        verify(sc, "conic", trajectory=True, out=out, overwrite=True)
+    assert (out / "reference" / "analysis" / "fit.ipynb").read_text() == "hours of work"
+    assert (out / "reference" / "verdict.json").exists() and (out / "verify.json").exists()
 
 
 def test_a_loose_method_parts_in_max_f_and_is_flagged():

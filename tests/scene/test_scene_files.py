@@ -66,3 +66,23 @@ def test_a_half_width_whose_square_leaves_the_float_range_is_named(tmp_path, tab
     path.write_text(text)
     with pytest.raises(SceneError, match=rf"^{table}\.L must be a number in \[1e-150, 1e150\]"):
         load_scene(path)
+
+
+@pytest.mark.parametrize(
+    ("table", "half_width", "n"), [("x", 1e-150, 9), ("x", 1e-120, 9), ("x", 1e140, 8), ("v", 1e-95, 21)]
+)
+def test_a_grid_spacing_whose_cube_leaves_the_float_range_is_refused_before_anything_is_written(
+    tmp_path, table, half_width, n
+):
+    """Half-widths inside their own range whose spacing 2 L / n cubes out of the floats: the cubic interpolation
+    of the transport (NaN at x.L = 1e-150) and the moments (overflow at x.L = 1e140) would fail mid-run."""
+    if table == "v":
+        text = TEXT.replace("L = 2.0", f"L = {half_width!r}").replace("n = 21", f"n = {n}")
+    else:
+        text = TEXT + f"\n[x]\nL = {half_width!r}\nn = {n}\n"
+    path = tmp_path / "s.toml"
+    path.write_text(text)
+    with pytest.raises(
+        SceneError, match=rf"^{table}\.L = .* with {table}\.n = {n}: the grid spacing 2 L / n = .* \[1e-90, 1e90\]"
+    ):
+        load_scene(path)
