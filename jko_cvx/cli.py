@@ -87,12 +87,12 @@ def _overrides(settings: list[tuple[str, Any, str]] | None) -> dict[str, Any]:
 def _load(scene_path: Path | None, settings) -> Any:
     """The scene a command runs: a file or a shipped scene by name (the default scene without one),
     with the ``--set`` overrides applied before validation."""
-    from jko_cvx.scene.model import default_scene, load_scene, scene_from_dict, with_overrides
+    from jko_cvx.scene.model import default_scene, load_scene
 
     overrides = _overrides(settings)
     if scene_path is not None:
         return load_scene(scene_path, overrides)
-    return scene_from_dict(with_overrides(default_scene().to_dict(), overrides)) if overrides else default_scene()
+    return default_scene(overrides)  # the limits are checked on the scene with its overrides
 
 
 def _set_args(settings) -> list[str]:

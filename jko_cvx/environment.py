@@ -81,7 +81,7 @@ class CodeChangedError(RuntimeError):
     """The package's files changed on disk after this process imported them."""
 
 
-def code_fingerprint() -> str:
+def code_fingerprint(*, verify: bool = True) -> str:
     """SHA-256 over the relative paths and contents of the package's modules and data files (:func:`package_files`;
     hex), as they were when this process imported the package.
 
@@ -94,9 +94,10 @@ def code_fingerprint() -> str:
     CodeChangedError
         The files on disk differ from those read at import (an edit since): the process runs the code it
         imported, while a module it imports from now on would be the edited one, so no single fingerprint
-        describes what it computes.  Restart Python.  (Each call reads the files again, about 3 ms.)
+        describes what it computes.  Restart Python.  (Each call reads the files again, about 3 ms;
+        ``verify=False`` skips that and returns the fingerprint taken at import.)
     """
-    if (now := _files_sha256()) != _AT_IMPORT:
+    if verify and (now := _files_sha256()) != _AT_IMPORT:
         raise CodeChangedError(
             f"jko_cvx's files in {PACKAGE_DIR} changed since this process imported them (SHA-256 "
             f"{_AT_IMPORT[:12]}... at import, {now[:12]}... now): a result computed now could not be labelled with "

@@ -252,6 +252,18 @@ def _remove_temp_files(path: Path) -> None:
                 p.unlink()
 
 
+def check_metadata(ledger: Ledger, recorded: dict[str, str], path: Path) -> None:
+    """RunDirError where ``metadata.json`` names another package version, code or scene than the checkpoint
+    (``recorded``, whose digest metadata.json holds): an edited metadata.json mislabels the run."""
+    for key in ("jko_cvx", "code_sha256", "scene_sha256"):
+        if key in recorded and ledger.metadata.get(key) != recorded[key]:
+            raise RunDirError(
+                f"{path / 'metadata.json'} records {key} = {ledger.metadata.get(key)!r}, but the checkpoint records "
+                f"{recorded[key]!r}: metadata.json was edited since the run wrote it, so the run's provenance cannot "
+                "be vouched for"
+            )
+
+
 class RunDir:
     """An open run directory: locked, checked, and (on resume) its state and snapshots read.
 
@@ -527,6 +539,15 @@ class RunDir:
         for name in ("scene.json", "diagnostics.csv", "verdict.json"):  # the last two are rewritten, if present
             if (self.path / name).exists():
                 self.ledger.verify(self.path / name)
+        try:  # as load_run reads it: scene.json must be the scene the checkpoint was made from
+            same = record_fingerprint(json.loads(scene_file.read_text())) == recorded["scene_sha256"]
+        except (OSError, ValueError, RecursionError):
+            same = False
+        if not same:
+            raise RunDirError(
+                f"{scene_file} does not record the scene the checkpoint was made from (its fingerprint differs): "
+                "the run cannot be vouched for; start it again with --overwrite"
+            )
         state.check(self.checkpoint)
         self.state = state
         self.snapshots = self.read_snapshots(state.step)
@@ -539,6 +560,7 @@ class RunDir:
         self.ledger.append("resumed", {**leg, "environment_differs": differs})
 
     def _check_provenance(self, recorded: dict[str, str]) -> None:
+        check_metadata(self.ledger, recorded, self.path)
         if recorded["scene_sha256"] != self.provenance["scene_sha256"]:
             try:
                 old = json.loads((self.path / "scene.json").read_text())

@@ -34,6 +34,7 @@ from typing import Any
 
 import numpy as np
 
+from jko_cvx._version import __version__
 from jko_cvx.collision import CollisionProblem, Status, solve_collision
 from jko_cvx.collision._checks import check_bool
 from jko_cvx.engine._interrupts import InterruptGuard, RunInterrupted
@@ -42,6 +43,7 @@ from jko_cvx.engine._state import RunState
 from jko_cvx.engine.run import Run, load_run
 from jko_cvx.engine.trackers import Snapshots, StepInfo, Tracker, default_trackers
 from jko_cvx.engine.verdict import SolverFailureRule, StopReason, Verdict
+from jko_cvx.environment import code_fingerprint
 from jko_cvx.kernels import PowerKernel
 from jko_cvx.mesh.policy import RemeshPolicy
 from jko_cvx.scene.model import Scene, SceneError
@@ -513,8 +515,9 @@ def _finish(scene: Scene, state: RunState, trackers: list[Tracker], snaps: Snaps
     )  # fmt: skip
     for tr in trackers:
         tr.finish(state)
+    made_by = {"jko_cvx": __version__, "code_sha256": code_fingerprint(verify=False)}  # a run directory checked it
     run = Run(scene, state.rows, snaps.snapshots, state.f, state.vgrid, state.xgrid, state.t,
-              state.verdict, state.seconds)  # fmt: skip
+              state.verdict, state.seconds, made_by)  # fmt: skip
     if rd is not None:
         rd.write_verdict(state)
     return run

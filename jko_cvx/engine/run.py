@@ -30,6 +30,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from jko_cvx._version import __version__
+from jko_cvx.collision._checks import check_bool
 from jko_cvx.engine._state import Ledger, RunState, read_npz
 from jko_cvx.engine._table import column, unknown_column
 from jko_cvx.engine.errors import RunDirError
@@ -54,7 +55,9 @@ class Run:
     ``vgrid`` (and ``xgrid`` for an inhomogeneous scene), ``verdict`` the stopping reason and
     whether the run blew up.  ``diagnostics`` may be given as the table or as the rows the loop
     recorded (a list of dicts, one per row): the run then builds the table on first use, and
-    :meth:`column` reads a column without it (the CLI's run imports no pandas).
+    :meth:`column` reads a column without it (the CLI's run imports no pandas).  ``made_by`` names the
+    package that computed the run (``jko_cvx``: its version, ``code_sha256``: its code fingerprint), as
+    :func:`load_run` reads them from the checkpoint; :meth:`to_xarray` records them, not the exporter's.
 
     Examples
     --------
@@ -79,6 +82,7 @@ class Run:
     t: float
     verdict: Verdict
     seconds: dict[str, float] = field(default_factory=dict)
+    made_by: dict[str, str] = field(default_factory=dict)
 
     def _get_diagnostics(self) -> pd.DataFrame:
         if self._table is None:
@@ -251,7 +255,9 @@ def _attrs(run: Run) -> dict[str, Any]:
     return {
         "scene": canonical_scene(run.scene),
         "scene_sha256": scene_fingerprint(run.scene),
-        "jko_cvx": __version__,
+        # the package that computed the run (read back from its checkpoint), not the one exporting it
+        "jko_cvx": run.made_by.get("jko_cvx", __version__),
+        "code_sha256": run.made_by.get("code_sha256", "not recorded"),
         "t_final": float(run.t),
         "stop": v.stop.name,
         "reason": v.reason,
@@ -368,10 +374,11 @@ def load_run(path: str | Path, *, allow_partial: bool = False) -> Run:
     >>> back.steps, back.t == run.t, bool((back.f == run.f).all()), back.scene == run.scene
     (5, True, True, True)
     """
+    check_bool("allow_partial", allow_partial)
     path = Path(path)
     if not path.is_dir():
         raise RunDirError(f"run directory {path} does not exist")
-    from jko_cvx.engine._rundir import aside_state, read_snapshots, refuse_links
+    from jko_cvx.engine._rundir import aside_state, check_metadata, read_snapshots, refuse_links
 
     interrupted = aside_state(path)  # before the files: an interrupted overwrite may have moved scene.json aside
     if interrupted:
@@ -387,12 +394,13 @@ def load_run(path: str | Path, *, allow_partial: bool = False) -> Run:
     ck = path / "checkpoint.npz"
     fingerprint = str(read_npz(ck, "checkpoint", ("scene_sha256",))["scene_sha256"])
     scene = _scene_from_record(record, fingerprint, path / "scene.json")
-    state, _ = RunState.load(ck, None if scene.homogeneous else scene.xgrid().period)
+    state, recorded = RunState.load(ck, None if scene.homogeneous else scene.xgrid().period)
     # the files read whole first (a truncated one is named as such), then each against its digest
     for name in ("scene.json", "checkpoint.npz", "diagnostics.csv", "verdict.json"):
         if name != "verdict.json" or (path / name).exists():
             ledger.verify(path / name)
     state.check(ck)
+    check_metadata(ledger, recorded, path)
     verdict_file = path / "verdict.json"
     if verdict_file.exists():
         try:
@@ -407,4 +415,6 @@ def load_run(path: str | Path, *, allow_partial: bool = False) -> Run:
     else:  # a provisional verdict: no rule has fired yet, which says nothing of the rest of the run
         state.verdict = state.verdict.not_ended(state.t, scene.t_end)
     snaps = read_snapshots(path, state.step, ledger)
-    return Run(scene, state.rows, snaps, state.f, state.vgrid, state.xgrid, state.t, state.verdict, state.seconds)
+    made_by = {k: recorded[k] for k in ("jko_cvx", "code_sha256") if k in recorded}
+    return Run(scene, state.rows, snaps, state.f, state.vgrid, state.xgrid, state.t, state.verdict, state.seconds,
+               made_by)  # fmt: skip

@@ -191,7 +191,7 @@ def _in_class_of(mine: Any, theirs: Any) -> Any:
 def _replace_path(obj: Any, path: list[str], val: Any, dotted: str) -> Any:
     head, *rest = path
     if not dataclasses.is_dataclass(obj) or head not in {f.name for f in dataclasses.fields(obj)}:
-        raise AttributeError(f"scene has no attribute path {dotted!r}")
+        raise SceneError(f"replace: the scene has no key {dotted!r} (jko-cvx scene keys lists them)")
     if rest:
         val = _replace_path(getattr(obj, head), rest, val, dotted)
     return dataclasses.replace(obj, **{head: val})
@@ -223,6 +223,8 @@ def scene_from_dict(d: Mapping[str, Any], limits: Limits | None = None) -> Scene
         a value of the wrong type or range, an inconsistent combination, or a scene
         beyond the limits.
     """
+    if limits is not None and not isinstance(limits, Limits):
+        raise TypeError(f"limits must be a jko_cvx.scene.limits.Limits or None, got {type(limits).__name__}")
     _unknown_keys(require_table(d, "scene"))  # typos in several tables are named in one error
     top = parse_table(SceneTable, d, "")
     v = parse_table(VTable, top.v, "v")
@@ -481,6 +483,11 @@ def with_overrides(data: Mapping[str, Any], overrides: Mapping[str, Any] | None)
     validated here; :func:`scene_from_dict` does that, so a misspelt override is refused
     like a misspelt key in a file.
     """
+    if overrides is not None and not isinstance(overrides, Mapping):
+        raise TypeError(
+            f"overrides must be a mapping of dotted scene keys to values ({{'v.n': 41}}), "
+            f"got {type(overrides).__name__}"
+        )
     out = copy.deepcopy(dict(data))
     _check_overlap(overrides or {})
     for dotted, val in (overrides or {}).items():
@@ -505,6 +512,8 @@ MAX_SCENE_BYTES = 1 << 20
 def _read_toml(path: Path) -> dict[str, Any]:
     if path.is_dir():
         raise SceneError(f"scene path {str(path)!r} is a directory, not a TOML file")
+    if path.exists() and not path.is_file():  # a FIFO or a device would block the read or never end
+        raise SceneError(f"scene path {str(path)!r} is not a regular file")
     try:
         with path.open("rb") as fh:
             raw = fh.read(MAX_SCENE_BYTES + 1)
@@ -611,10 +620,11 @@ def shipped_scene(name: str, overrides: Mapping[str, Any] | None = None, limits:
     return scene_from_dict(with_overrides(data, overrides), limits)
 
 
-def default_scene() -> Scene:
+def default_scene(overrides: Mapping[str, Any] | None = None, limits: Limits | None = None) -> Scene:
     """The built-in default: homogeneous gamma = 1, g1 = exp(-2 v^2), Table tab:bu set-up (dt = 0.01,
     N_v = 121, delta = delta0 = 0.5, eps_v = 1e-3/4, log Fisher beta = 6000: the physics of the shipped
-    ``tab_bu_g1``), run to blow-up (exact T = 0.5).
+    ``tab_bu_g1``), run to blow-up (exact T = 0.5).  ``overrides`` sets dotted keys before validation,
+    as for :func:`shipped_scene` (the limits are checked on the scene that runs).
 
     Examples
     --------
@@ -622,8 +632,10 @@ def default_scene() -> Scene:
     >>> scene = default_scene()
     >>> scene.name, scene.gamma, scene.v.n, scene.time.dt, scene.stop.eps_v
     ('default_tab_bu_g1', 1.0, 121, 0.01, 0.00025)
+    >>> default_scene({"t_end": 0.05}).t_end
+    0.05
     """
-    return scene_from_dict(
+    data = with_overrides(
         {
             "name": "default_tab_bu_g1",
             "description": "homogeneous gamma = 1, g1 = exp(-2 v^2), mesh refinement, fixed dt (Table tab:bu)",
@@ -642,5 +654,7 @@ def default_scene() -> Scene:
             "collision": {"method": "newton", "beta": 6000.0, "fisher": "log"},
             "stop": {"eps_v": 1e-3 / 4, "on_solver_failure": False},
             "output": {"every": 5, "checkpoint_every": 5},
-        }
+        },
+        overrides,
     )
+    return scene_from_dict(data, limits)

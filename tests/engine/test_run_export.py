@@ -217,3 +217,25 @@ def test_summary_counts_steps_as_verdict_json_and_a_failure_stop_as_a_failed_ste
     assert f"steps = {verdict['steps']}," in text
     assert "steps with a failed collision solve: 1" in text
     assert "max f over the run" in text
+
+
+def test_an_edited_metadata_json_is_refused_and_an_export_names_the_code_that_ran(tmp_path):
+    """metadata.json holds the digests, so no digest covers it: its provenance fields are checked against the
+    checkpoint's (whose digest it holds), and an export records the version that computed the run."""
+    out = tmp_path / "r"
+    run = simulate(default_scene().replace({"t_end": 0.03, "v.n": 41}), out=out)
+    back = jko_cvx.load_run(out)
+    assert back.made_by == run.made_by and set(run.made_by) == {"jko_cvx", "code_sha256"}
+    pytest.importorskip("xarray")
+    made = dataclasses.replace(back, made_by={"jko_cvx": "0.0.9", "code_sha256": "ab" * 32})
+    attrs = made.to_xarray().attrs
+    assert attrs["jko_cvx"] == "0.0.9" and attrs["code_sha256"] == "ab" * 32
+    meta = json.loads((out / "metadata.json").read_text())
+    for key, forged in (("jko_cvx", "0.0.9"), ("code_sha256", "0" * 64), ("scene_sha256", "1" * 64)):
+        (out / "metadata.json").write_text(json.dumps({**meta, key: forged}))
+        with pytest.raises(RunDirError, match=rf"metadata.json records {key} = '{forged}', but the checkpoint"):
+            jko_cvx.load_run(out)
+        with pytest.raises(RunDirError, match=rf"records {key} = '{forged}'"):
+            simulate(run.scene, out=out, resume=True)
+    (out / "metadata.json").write_text(json.dumps(meta))
+    assert jko_cvx.load_run(out).t == run.t
