@@ -35,14 +35,17 @@ every worker.  :func:`run_sweep` refuses such a call before any work, with a
 
 Interactive sessions, notebooks and ``python -c`` have no main script to import again.
 
-The cache cannot serve stale results.  A point's key (:func:`point_key`) covers the point
+The cache serves no result of code other than what its key names.  A point's key (:func:`point_key`) covers the point
 (NumPy numbers as the Python numbers of their kind), the function's qualified name, the source
 of the module that defines it, the package version and a hash of every file of the package
 (its modules and the shipped scenes, :func:`jko_cvx.environment.code_fingerprint`): after any
 change of code or shipped data, old entries are simply not found (and the point runs again).
 Functions whose results that key cannot pin are refused before any point runs: lambdas (two in
 one module share a name), closures and functions defined inside functions (the values they were
-made with are not in the source) and callable objects such as ``functools.partial``.  Each entry records its key and
+made with are not in the source) and callable objects such as ``functools.partial``, and so is a point function
+whose file no longer holds the code that runs (edited after its module was imported).  Code in neither the
+function's module nor the package (a helper module of the caller's that it imports) is not in the key: a
+point function that "depends on nothing else" keeps such code in its module.  Each entry records its key and
 a SHA-256 digest of its content; an entry that does not parse, records another key or
 point, or fails its digest (truncated, tampered with) is recomputed with a
 :class:`StaleCacheWarning` naming the file.  ``fresh=True`` (``jko-cvx reproduce --fresh``)
