@@ -94,7 +94,7 @@ def code_fingerprint(*, verify: bool = True) -> str:
     CodeChangedError
         The files on disk differ from those read at import (an edit since): the process runs the code it
         imported, while a module it imports from now on would be the edited one, so no single fingerprint
-        describes what it computes.  Restart Python.  (Each call reads the files again, about 3 ms;
+        describes what it computes.  Restart Python.  (Each call reads the files again, about 10 ms;
         ``verify=False`` skips that and returns the fingerprint taken at import.)
     """
     if verify and (now := _files_sha256()) != _AT_IMPORT:

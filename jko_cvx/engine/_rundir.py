@@ -296,21 +296,15 @@ class RunDir:
             raise RunDirError(f"run directory {rd.path} exists and is not a directory")
         if resume and not rd.path.is_dir():
             raise RunDirError(f"nothing to resume: run directory {rd.path} does not exist")
-        made = not rd.path.exists()
         rd.path.mkdir(parents=True, exist_ok=True)
         refuse_links(rd.path)
-        made_lock = rd._lock()
+        rd._lock()  # never unlinked: a process waiting on the file it opened must lock the one in place
         try:
             rd._restore_aside()
             _remove_temp_files(rd.path)
             rd._resume() if resume else rd._start(overwrite)
         except BaseException:
-            # a refused or failed start leaves no trace of its own: the lock it made, the directory it made
-            if made_lock:
-                (rd.path / ".lock").unlink(missing_ok=True)
             rd.close()
-            if made and not any(rd.path.iterdir()):
-                rd.path.rmdir()
             raise
         return rd
 
@@ -327,18 +321,13 @@ class RunDir:
     def snapshot_path(self, step: int) -> Path:
         return self.path / "snapshots" / f"step_{step:07d}.npz"
 
-    def _lock(self) -> bool:
-        """Take ``DIR/.lock`` (flock) and write this process's id in it; True where this call created the file."""
+    def _lock(self) -> None:
+        """Take ``DIR/.lock`` (flock) and write this process's id in it."""
         import fcntl
 
         lock = self.path / ".lock"
-        made = True
         try:  # O_NOFOLLOW: a planted link is refused, never followed (refuse_links names it first)
-            try:
-                fd = os.open(lock, os.O_RDWR | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o666)
-            except FileExistsError:
-                made = False
-                fd = os.open(lock, os.O_RDWR | os.O_NOFOLLOW)
+            fd = os.open(lock, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o666)
         except OSError as exc:
             raise RunDirError(f"cannot open the lock {lock}: {exc.strerror or exc}") from None
         held = os.read(fd, 64).decode(errors="replace").strip()
@@ -359,7 +348,6 @@ class RunDir:
         os.ftruncate(fd, 0)
         os.pwrite(fd, str(os.getpid()).encode(), 0)
         self._lock_fd = fd
-        return made
 
     def close(self) -> None:
         """Release the lock (closing the descriptor drops the flock)."""
@@ -426,9 +414,12 @@ class RunDir:
                 # the folder goes as a whole: every entry in it must be the reference run's own
                 for q in sorted(p.rglob("*")):
                     rel = q.relative_to(p).as_posix()
-                    own = rel in inner or rel in (*FIGURES, "metadata.json", ".lock", "snapshots") or (
-                        rel.startswith("snapshots/") and _SNAPSHOT.fullmatch(q.name) is not None
-                    )
+                    own = (
+                        rel in inner
+                        or rel in (*FIGURES, "metadata.json", ".lock", "snapshots")
+                        or (rel.startswith("snapshots/") and _SNAPSHOT.fullmatch(q.name) is not None)
+                        or TEMP_FILE.fullmatch(q.name) is not None
+                    )  # (the last: a killed write's temporary file, of this package's naming)
                     if q.is_symlink() or not own:
                         raise RunDirError(
                             f"cannot overwrite {self.path}: {q} is not one of the files the reference run in {p} "

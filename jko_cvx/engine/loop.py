@@ -103,20 +103,28 @@ def initial_state(scene: Scene) -> RunState:
 
 
 def _check_recordable(scene: Scene) -> None:
-    """SceneError where a table of ``scene`` is of a class of the caller's own (an ``Initial`` with a density of its
-    own, say): scene.json records the loader's kind and values only, so the run directory would name a scene that
-    did not run, and ``load_run`` or a rerun of it would give another result."""
-    from jko_cvx.scene import scene_from_dict
+    """SceneError where a table of ``scene`` is of a class of the caller's own that brings behaviour of its own (an
+    ``Initial`` with its own ``density``, say): scene.json records the loader's kind and values only, so the run
+    directory would name a scene that did not run, and ``load_run`` or a rerun of it would give another result.  A
+    subclass that adds nothing but the dataclass machinery records as its base does."""
 
-    recorded = scene_from_dict(scene.to_dict())
-    for name in (f.name for f in dataclasses.fields(scene)):
-        mine, theirs = getattr(scene, name), getattr(recorded, name)
-        if type(mine) is not type(theirs) or mine != theirs:
-            raise SceneError(
-                f"{name}: a {type(mine).__module__}.{type(mine).__qualname__} cannot be recorded in a run directory "
-                f"(scene.json rebuilds a {type(theirs).__qualname__} from its keys, which is not what would run); run "
-                "this scene in memory (out=None), or express it in scene keys"
-            )
+    def walk(value: Any, where: str) -> None:
+        if not dataclasses.is_dataclass(value) or isinstance(value, type):
+            return
+        for cls in type(value).__mro__:
+            if cls.__module__.startswith("jko_cvx.") or cls is object:
+                break
+            own = sorted(n for n in vars(cls) if not n.startswith("__"))
+            if own:
+                raise SceneError(
+                    f"{where}: a {cls.__module__}.{cls.__qualname__} defines {', '.join(own)} of its own, which a run "
+                    "directory cannot record (scene.json rebuilds the package's table from its keys, which is not "
+                    "what would run); run this scene in memory (out=None), or express it in scene keys"
+                )
+        for f in dataclasses.fields(value):
+            walk(getattr(value, f.name), f"{where}.{f.name}" if where else f.name)
+
+    walk(scene, "")
 
 
 def _check_thresholds(scene: Scene, state: RunState) -> None:
@@ -467,6 +475,8 @@ def simulate(
     scene = scene.replace({})
     if out is not None:
         _check_recordable(scene)
+    else:  # (a run directory's start checks it) the code that runs must be the code its record names
+        code_fingerprint()
     if attempts is not None and not isinstance(attempts, list):
         raise TypeError(f"attempts must be a list (it receives the failed attempts), got {type(attempts).__name__}")
     if observers is not None and not callable(observers):

@@ -117,8 +117,9 @@ class Run:
 
     @property
     def blowup(self) -> bool | None:
-        """:attr:`Verdict.blowup`: True (a blow-up rule fired), False, or None (undetermined: an uncertified
-        run that no rule stopped)."""
+        """:attr:`Verdict.blowup`: True (a blow-up rule fired), False (reached ``t_end``, certified), or None
+        (undetermined: an uncertified run that no rule stopped, no step accepted, or a run read back before it
+        ended)."""
         return self.verdict.blowup
 
     @property

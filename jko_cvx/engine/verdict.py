@@ -447,11 +447,13 @@ def run_failure(verdict: Mapping[str, Any]) -> str | None:
     ``to_dict()`` record), else None.
 
     A failed solve of the tested method that ended the run (``stop.on_solver_failure``: that step is never
-    committed, so it has no row), or failed solves the run went on with (``stop.on_solver_failure = false``:
+    committed, so it has no row; a step collapsed below ``eps_t`` by failed solves; no step accepted), or failed
+    solves the run went on with (``stop.on_solver_failure = false``:
     ``uncertified_steps``; ``every`` or ``slices`` may skip them, and the states after them are carried on
     from an uncertified one).
     """
-    if verdict.get("stop") in (StopReason.SOLVER_FAILURE, StopReason.SOLVER_FAILURE.name):
+    stop = verdict.get("stop")
+    if stop in _FAILED_SOLVE_STOPS or stop in [s.name for s in _FAILED_SOLVE_STOPS]:  # as Verdict.certified
         return f"a failed solve stopped the run ({verdict.get('reason')})"
     n = int(verdict.get("uncertified_steps") or 0)
     if n:

@@ -211,8 +211,8 @@ def problem_from_scene(scene, t: float) -> CollisionProblem:
         if scene.time.policy == "fixed" and scene.time.dt > t:
             cut["time.dt"] = float(t)
         run = simulate(scene.replace(cut))
-        if run.blowup:
-            raise ValueError(f"the scene flags blow-up at t = {run.t:g} < {t:g}: {run.verdict['reason']}")
+        if run.blowup is not False:  # a blow-up, or an undetermined (uncertified) state: no density to compare
+            raise ValueError(f"the scene's run to t = {t:g} gives no certified state there: {run.summary()}")
         f, grid = run.f, run.vgrid
     else:
         grid = scene.vgrid()

@@ -65,6 +65,7 @@ import ast
 import hashlib
 import inspect
 import json
+import linecache
 import multiprocessing
 import os
 import random
@@ -83,7 +84,7 @@ from typing import Any
 
 import pandas as pd
 
-from jko_cvx.environment import code_fingerprint, git_state, library_versions
+from jko_cvx.environment import CodeChangedError, code_fingerprint, git_state, library_versions
 
 __all__ = [
     "TIMING_KEY",
@@ -125,21 +126,31 @@ def _module_source(func: Callable[..., Any]) -> str:
             source = inspect.getsource(obj)
         except (OSError, TypeError):
             continue
-        _check_running(func, obj, source)
+        _check_running(func)
         return source
     raise TypeError(f"cannot read the source of {func!r}: sweeps cache only functions defined in source files")
 
 
 def _code_shape(code: types.CodeType) -> tuple[Any, ...]:
     """What a code object computes, line numbers left out (an edit that only moves code changes no result)."""
-    consts = tuple(_code_shape(c) if isinstance(c, types.CodeType) else repr(c) for c in code.co_consts)
+    consts = tuple(
+        _code_shape(c) if isinstance(c, types.CodeType)
+        else repr(sorted(c, key=repr)) if isinstance(c, frozenset)  # printed in the string-hash seed's order
+        else repr(c)
+        for c in code.co_consts
+    )  # fmt: skip
     return code.co_code, consts, code.co_names, code.co_varnames, code.co_freevars, code.co_cellvars
 
 
-def _check_running(func: Callable[..., Any], obj: Any, source: str) -> None:
-    """ValueError unless ``source`` (read now from the file of ``obj``, a module or ``func``) compiles to the code
-    of ``func`` that runs: the key must name the code that computes the results it stores."""
+def _check_running(func: Callable[..., Any]) -> None:
+    """ValueError unless the file ``func`` was defined in (read now) compiles to the code of ``func`` that runs: the
+    key must name the code that computes the results it stores.  The whole file is compiled: a function compiled
+    alone is compiled differently (its module's imports and future statements shape its bytecode)."""
     filename = func.__code__.co_filename
+    linecache.checkcache(filename)
+    source = "".join(linecache.getlines(filename))
+    if not source:  # no file (defined in an interactive session): its source is the function's own, read above
+        return
     compiled: dict[str, list[tuple[Any, ...]]] = {}  # a name defined twice has two codes
     todo = [compile(source, filename, "exec", dont_inherit=True)]
     while todo:
@@ -149,9 +160,9 @@ def _check_running(func: Callable[..., Any], obj: Any, source: str) -> None:
     # the point function itself (the module's other functions may be rewritten on import, as pytest's asserts)
     if _code_shape(func.__code__) not in compiled.get(func.__code__.co_qualname, ()):
         raise ValueError(
-            f"{filename} changed since {getattr(obj, '__name__', obj)} was imported ({func.__qualname__} runs other "
-            "code than the file holds now): a cached result would be keyed by code that did not compute it; "
-            "restart Python to sweep the edited code"
+            f"{filename} changed since {func.__module__} was imported ({func.__qualname__} runs other code than the "
+            "file holds now): a cached result would be keyed by code that did not compute it; restart Python to "
+            "sweep the edited code"
         )
 
 
@@ -234,7 +245,11 @@ def _canonical(obj: Any) -> str:
 
 def point_key(func: Callable[..., Any], point: Mapping[str, Any]) -> str:
     """Cache key of ``func`` at ``point``: SHA-256 of :func:`code_identity` and the point's canonical JSON."""
-    return _sha(_canonical({"code": code_identity(func), "point": dict(point)}))[:32]
+    return _key(code_identity(func), point)
+
+
+def _key(identity: Mapping[str, str], point: Mapping[str, Any]) -> str:
+    return _sha(_canonical({"code": dict(identity), "point": dict(point)}))[:32]
 
 
 def _entry(key: str, point: Mapping[str, Any], result: Mapping[str, Any]) -> str:
@@ -309,8 +324,33 @@ def _read_cache(cache: Path, points: Mapping[str, Mapping[str, Any]]) -> dict[st
     return results
 
 
-def _call(func: Callable[..., dict], point: dict) -> dict:
-    return func(**point)
+def _call(func: Callable[..., dict], point: dict, identity: Mapping[str, str] | None = None) -> dict:
+    """``func(**point)``, in a worker or here; with ``identity`` (the :func:`code_identity` the point's key was made
+    of), checked before and after against the code that runs it: a worker imports its own copy of the code."""
+    if identity is not None:
+        _check_identity(func, identity)
+    result = func(**point)
+    if identity is not None:
+        _check_identity(func, identity)
+    return result
+
+
+def _check_identity(func: Callable[..., Any], identity: Mapping[str, str]) -> None:
+    """CodeChangedError unless the code here is the code ``identity`` names (see :func:`_call`)."""
+    from jko_cvx._version import __version__
+
+    here = {"package_version": __version__, "package_sha256": code_fingerprint(), "libraries": library_versions()}
+    try:
+        here["module_sha256"] = _sha(_module_source(func))
+    except TypeError:  # a function sent by value (Dask's cloudpickle): its code is the parent's own
+        pass
+    differ = sorted(k for k, v in here.items() if identity.get(k) != v)
+    if differ:
+        raise CodeChangedError(
+            f"the code computing a point of {identity.get('func')} is not the code its cache key names "
+            f"({', '.join(differ)} differ): a file changed during the sweep, or a worker runs another installation; "
+            "restart the sweep"
+        )
 
 
 _HELD = threading.local()
@@ -360,14 +400,14 @@ def shared_points() -> Iterator[None]:
             _SHARED = None
 
 
-def _submit(pool: Executor, func: Callable[..., dict], key: str, point: dict) -> Future:
+def _submit(pool: Executor, func: Callable[..., dict], key: str, point: dict, identity: Mapping[str, str]) -> Future:
     """``pool.submit`` of one point, or the future of the same point already submitted (:func:`shared_points`)."""
     with _SHARED_LOCK:
         if _SHARED is None:
-            return pool.submit(_call, func, point)
+            return pool.submit(_call, func, point, identity)
         fut = _SHARED.get(key)
         if fut is None:
-            fut = _SHARED[key] = pool.submit(_call, func, point)
+            fut = _SHARED[key] = pool.submit(_call, func, point, identity)
         return fut
 
 
@@ -461,7 +501,8 @@ def run_sweep(
         raise TypeError(f"audit_seed must be None or an integer, got {audit_seed!r}")
     if scheduler is None and isinstance(executor, str):
         check_main_guard(executor)
-    keys = [point_key(func, p) for p in points]
+    identity = code_identity(func)  # once: it reads and compiles the module and hashes the package
+    keys = [_key(identity, p) for p in points]
     cache = Path(cache_dir)
     cache.mkdir(parents=True, exist_ok=True)
     results = {} if fresh else _read_cache(cache, dict(zip(keys, points, strict=True)))
@@ -493,11 +534,11 @@ def run_sweep(
     try:
         if work and (executor == "serial" and scheduler is None):
             for key, point in work.items():
-                store(key, _call(func, point))
+                store(key, _call(func, point, identity))
         elif work:
             with ExitStack() as stack:
                 pool = _open_executor(stack, executor, scheduler, workers)
-                futures: dict[Future, str] = {_submit(pool, func, k, p): k for k, p in work.items()}
+                futures: dict[Future, str] = {_submit(pool, func, k, p, identity): k for k, p in work.items()}
                 with _lock_released():  # other holders of a shared pool run meanwhile (holding)
                     for fut in as_completed(futures):
                         store(futures[fut], fut.result())

@@ -23,7 +23,7 @@ SCRIPT = textwrap.dedent(
         loop = sys.argv[1] + "/jko_cvx/engine/loop.py"
         open(loop, "a").write("\\n# an edit after import\\n")
     try:
-        simulate(scene, out=sys.argv[2])
+        simulate(scene, out=None if sys.argv[4] == "memory" else sys.argv[2])
     except CodeChangedError as exc:
         print("refused:", exc)
     else:
@@ -32,12 +32,12 @@ SCRIPT = textwrap.dedent(
 )
 
 
-def _run(tmp_path: Path, mode: str) -> str:
-    copy = tmp_path / f"pkg_{mode}"
+def _run(tmp_path: Path, mode: str, where: str = "disk") -> str:
+    copy = tmp_path / f"pkg_{mode}_{where}"
     shutil.copytree(Path(jko_cvx.__file__).parent, copy / "jko_cvx", ignore=shutil.ignore_patterns("__pycache__"))
     out = tmp_path / f"run_{mode}"
-    done = subprocess.run([sys.executable, "-c", SCRIPT, str(copy), str(out), mode], capture_output=True, text=True,
-                          timeout=300, check=True)  # fmt: skip
+    argv = [sys.executable, "-c", SCRIPT, str(copy), str(out), mode, where]
+    done = subprocess.run(argv, capture_output=True, text=True, timeout=300, check=True)
     return done.stdout + str(sorted(p.name for p in out.iterdir()) if out.exists() else "no run directory")
 
 
@@ -46,3 +46,12 @@ def test_a_package_edited_after_import_is_refused_before_anything_is_written(tmp
     edited = _run(tmp_path, "edit")
     assert "refused: jko_cvx's files in" in edited and "changed since this process imported them" in edited
     assert edited.endswith("no run directory")
+
+
+def test_a_run_in_memory_is_refused_too_its_record_would_name_the_imported_code():
+    """A run kept in memory records the code that made it (Run.made_by, exported with it): the same check."""
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        edited = _run(Path(tmp), "edit", "memory")
+    assert "refused: jko_cvx's files in" in edited and "changed since this process imported them" in edited

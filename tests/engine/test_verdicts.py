@@ -198,7 +198,7 @@ def test_a_scene_table_of_the_callers_own_class_runs_in_memory_but_is_not_record
 
     fields = {f.name: getattr(base.initial, f.name) for f in dataclasses.fields(base.initial)}
     doubled = dataclasses.replace(base, initial=Doubled(**fields))
-    with pytest.raises(SceneError, match=r"initial: a .*Doubled cannot be recorded in a run directory"):
+    with pytest.raises(SceneError, match=r"initial: a .*Doubled defines density of its own, which a run directory"):
         simulate(doubled, out=tmp_path / "r")
     assert not (tmp_path / "r").exists()
     ran = simulate(doubled)  # in memory: the caller's datum, twice the stock mass

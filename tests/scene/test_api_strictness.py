@@ -17,7 +17,7 @@ def test_overrides_limits_and_flags_of_the_wrong_kind_are_named():
         shipped_scene("tab_bu_g1", [("v.n", 41)])
     with pytest.raises(TypeError, match="overrides must be a mapping"):
         default_scene("t_end=0.1")
-    with pytest.raises(TypeError, match="limits must be a jko_cvx.scene.limits.Limits or None, got str"):
+    with pytest.raises(TypeError, match=r"limits must be a jko_cvx\.scene\.limits\.Limits or None, got str"):
         scene_from_dict(default_scene().to_dict(), limits="x")
     with pytest.raises(TypeError, match="allow_partial must be True or False"):
         load_run(".", allow_partial="yes")

@@ -160,7 +160,7 @@ def _time_step_rows(quick: bool) -> list[dict[str, Any]]:
                 "transport_s": run.seconds["transport"] / n_steps,
                 "refine_s": run.seconds["refine"] / n_steps,
                 "steps": n_steps,
-                "reached_t_end": not run.blowup,
+                "reached_t_end": run.verdict.stop.name == "T_END",
             }
         )
     return rows

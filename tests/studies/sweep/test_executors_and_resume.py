@@ -118,6 +118,32 @@ def test_a_module_edited_after_import_is_refused_not_keyed_by_its_new_source(tmp
     assert list(run_sweep(running.double, [{"a": 1.0}], tmp_path / "c", "serial", progress=False).y) == [2.0]
 
 
+_SELF_EDITING = """
+from pathlib import Path
+
+
+def point(a):
+    if a == 2.0:  # an editor saves the module while the sweep runs
+        Path(__file__).write_text(Path(__file__).read_text().replace("a * 2", "a * 3"))
+    return {"y": a * 2}
+"""
+
+
+def test_a_module_edited_while_its_sweep_runs_stores_nothing_after_the_edit(tmp_path):
+    import importlib.util
+
+    file = tmp_path / "pts_during.py"
+    file.write_text(_SELF_EDITING)
+    spec = importlib.util.spec_from_file_location("pts_during", file)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules["pts_during"] = mod
+    spec.loader.exec_module(mod)
+    with pytest.raises(ValueError, match=r"pts_during\.py changed since pts_during was imported"):
+        run_sweep(mod.point, [{"a": 1.0}, {"a": 2.0}, {"a": 3.0}], tmp_path / "c", "serial", progress=False)
+    stored = [json.loads(p.read_text())["point"] for p in (tmp_path / "c").glob("*.json")]
+    assert stored == [{"a": 1.0}]  # the point computed before the edit, under the key of the code that ran
+
+
 def test_two_functions_at_one_point_have_distinct_keys(tmp_path):
     mod = _point_module(tmp_path, "pts_two", "2")
     assert point_key(mod.double, {"a": 1.0}) != point_key(mod.triple, {"a": 1.0})
