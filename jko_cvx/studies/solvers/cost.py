@@ -31,6 +31,7 @@ import pandas as pd
 
 from jko_cvx.collision import CollisionProblem, Status, solve_collision
 from jko_cvx.collision.conic import clear_model_cache
+from jko_cvx.engine.verdict import StopReason
 from jko_cvx.environment import record_csv, write_markdown
 from jko_cvx.grid import Grid
 from jko_cvx.kernels import PowerKernel
@@ -160,7 +161,7 @@ def _time_step_rows(quick: bool) -> list[dict[str, Any]]:
                 "transport_s": run.seconds["transport"] / n_steps,
                 "refine_s": run.seconds["refine"] / n_steps,
                 "steps": n_steps,
-                "reached_t_end": run.verdict.stop.name == "T_END",
+                "reached_t_end": run.verdict.stop is StopReason.T_END,
             }
         )
     return rows
