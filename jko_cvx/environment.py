@@ -60,10 +60,11 @@ PACKAGE_SUFFIXES = (".py", ".toml")
 def package_files() -> list[Path]:
     """The package's modules and data files (:data:`PACKAGE_SUFFIXES`), sorted: what :func:`code_fingerprint`
     covers (an editor's swap file or a ``.DS_Store`` beside them is no change of code)."""
-    return sorted(
-        p for p in PACKAGE_DIR.rglob("*")
-        if p.suffix in PACKAGE_SUFFIXES and p.is_file() and "__pycache__" not in p.relative_to(PACKAGE_DIR).parts
-    )  # fmt: skip
+    found = []
+    for root, dirs, files in os.walk(PACKAGE_DIR):  # a tenth of rglob's time: the bytecode folders are not entered
+        dirs[:] = [d for d in dirs if d != "__pycache__"]
+        found += [p for name in files if (p := Path(root, name)).suffix in PACKAGE_SUFFIXES and p.is_file()]
+    return sorted(found)
 
 
 def _files_sha256() -> str:
@@ -94,8 +95,8 @@ def code_fingerprint(*, verify: bool = True) -> str:
     CodeChangedError
         The files on disk differ from those read at import (an edit since): the process runs the code it
         imported, while a module it imports from now on would be the edited one, so no single fingerprint
-        describes what it computes.  Restart Python.  (Each call reads the files again, about 10 ms;
-        ``verify=False`` skips that and returns the fingerprint taken at import.)
+        describes what it computes.  Restart Python.  (Each call reads the files again, a few ms; ``verify=False``
+        skips that and returns the fingerprint taken at import.)
     """
     if verify and (now := _files_sha256()) != _AT_IMPORT:
         raise CodeChangedError(
