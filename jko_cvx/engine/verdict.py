@@ -136,8 +136,8 @@ class Verdict(Mapping):
     def blowup(self) -> bool | None:
         """True: a blow-up rule fired (``B_v``, ``B_x`` or ``e_f``; :attr:`certified` says whether the states it
         rests on are certified).  False: the run reached ``t_end`` with every state certified and no rule fired.
-        None (undetermined): no rule fired, but the run carried failed solves forward or accepted no step, so
-        it is no evidence either way."""
+        None (undetermined): no rule fired, but the run carried failed solves forward, accepted no step, or has
+        not ended (read back from its checkpoint), so it is no evidence either way."""
         if self.stop.blowup:
             return True
         return False if self.certified and self.stop is StopReason.T_END else None
