@@ -128,13 +128,14 @@ class _Absent:
 _ABSENT = _Absent()
 
 
-def _metadata(scene: Scene) -> dict[str, Any]:
-    """What ``metadata.json`` records: the scene, the start time and :func:`jko_cvx.environment.environment`
-    (package and library versions, git commit, the BLAS library, its kernel and threads)."""
+def _metadata(scene: Scene, provenance: dict[str, str]) -> dict[str, Any]:
+    """What ``metadata.json`` records: the scene, the start time, :func:`jko_cvx.environment.environment`
+    (package and library versions, git commit, the BLAS library, its kernel and threads) and the fingerprints of
+    ``provenance`` (the run directory's, taken when it was opened: the package is not hashed again)."""
     return {
         **environment(),
-        "code_sha256": code_fingerprint(),
-        "scene_sha256": scene_fingerprint(scene),
+        "code_sha256": provenance["code_sha256"],
+        "scene_sha256": provenance["scene_sha256"],
         "started": time.strftime("%Y-%m-%dT%H:%M:%S"),
         "scene": scene.name,
     }
@@ -374,7 +375,7 @@ class RunDir:
             self._check_replaceable(found)
         moved = self._move_aside() if found else []
         try:
-            self.ledger = Ledger(self.path, _metadata(self.scene))
+            self.ledger = Ledger(self.path, _metadata(self.scene, self.provenance))
             self.ledger.save_text(self.path / "scene.json", json.dumps(self.scene.to_dict(), indent=2, default=str))
             (self.path / "snapshots").mkdir(exist_ok=True)
         except BaseException:

@@ -201,16 +201,19 @@ def code_identity(func: Callable[..., Any]) -> dict[str, str]:
 
     Raises TypeError or ValueError for a function whose results these do not determine (a lambda, a closure,
     a ``functools.partial`` or other callable object)."""
-    from jko_cvx._version import __version__
-
     _check_cacheable(func)
     return {
         "func": f"{func.__module__}.{func.__qualname__}",
         "module_sha256": _sha(_module_source(func)),
-        "package_version": __version__,
-        "package_sha256": code_fingerprint(),
-        "libraries": library_versions(),
+        **_package_identity(),
     }
+
+
+def _package_identity() -> dict[str, str]:
+    """The part of :func:`code_identity` that is not the function's: the package's version and code, the libraries."""
+    from jko_cvx._version import __version__
+
+    return {"package_version": __version__, "package_sha256": code_fingerprint(), "libraries": library_versions()}
 
 
 def code_provenance(func: Callable[..., Any]) -> dict[str, Any]:
@@ -337,9 +340,7 @@ def _call(func: Callable[..., dict], point: dict, identity: Mapping[str, str] | 
 
 def _check_identity(func: Callable[..., Any], identity: Mapping[str, str]) -> None:
     """CodeChangedError unless the code here is the code ``identity`` names (see :func:`_call`)."""
-    from jko_cvx._version import __version__
-
-    here = {"package_version": __version__, "package_sha256": code_fingerprint(), "libraries": library_versions()}
+    here = _package_identity()
     try:
         here["module_sha256"] = _sha(_module_source(func))
     except TypeError:  # a function sent by value (Dask's cloudpickle): its code is the parent's own

@@ -177,7 +177,7 @@ def test_an_empty_out_is_refused(tmp_path, monkeypatch, capsys):
 def test_a_failed_overwrite_leaves_the_old_run_intact(run_dir, monkeypatch):
     before = _files(run_dir)
 
-    def broken(scene):
+    def broken(scene, provenance):
         raise OSError(28, "No space left on device")
 
     monkeypatch.setattr(rundir_module, "_metadata", broken)
