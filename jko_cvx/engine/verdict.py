@@ -55,7 +55,10 @@ class StopReason(Enum):
 
 
 _FIT_KEYS = ("T_b_fit", "T_b_fit_err", "blowup_rate", "blowup_kind", "blowup_reason", "unflagged_growth")
-_KEYS = ("blowup", "T_b", "B_x", "B_v", "e_f", "reason", "stop", "uncertified_steps", "first_uncertified_t", *_FIT_KEYS)
+_KEYS = (
+    "blowup", "certified", "T_b", "B_x", "B_v", "e_f", "reason", "stop", "uncertified_steps", "first_uncertified_t",
+    *_FIT_KEYS,
+)  # fmt: skip
 #: max f growing by this factor in a run that no blow-up rule stopped is reported (``unflagged_growth``)
 UNFLAGGED_GROWTH = 20.0
 # the stops of the paper's mesh criteria (a threshold crossed), not of a failure
@@ -114,7 +117,8 @@ class Verdict(Mapping):
 
     A run that never accepted a step (its first solve failed and stopped it) stops with
     :attr:`StopReason.NO_STEP`: blow-up undetermined (:attr:`blowup` None), not certified, ``T_b`` None.
-    :attr:`blowup` is True, False or None (undetermined); verdict.json writes it as true, false or null.
+    :attr:`blowup` is True, False or None (undetermined); verdict.json writes it as true, false or null,
+    beside :attr:`certified` (true or false), which :meth:`from_dict` checks against the other fields.
     """
 
     stop: StopReason = StopReason.T_END
@@ -317,7 +321,8 @@ class Verdict(Mapping):
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> Verdict:
-        """Inverse of :meth:`to_dict`; ``blowup`` must agree with ``stop``."""
+        """Inverse of :meth:`to_dict`; ``blowup`` and ``certified`` must agree with ``stop`` and
+        ``uncertified_steps``."""
         try:
             stop = StopReason[d["stop"]]
             v = cls(
@@ -345,6 +350,12 @@ class Verdict(Mapping):
                     f"verdict record says blowup = {said!r} but its stop ({stop.name}) and uncertified steps "
                     f"({v.uncertified_steps}) make it {v.blowup!r}"
                 )
+        # records written before verdicts stated it have no "certified": the other fields decide
+        if "certified" in d and d["certified"] is not v.certified:
+            raise ValueError(
+                f"verdict record says certified = {d['certified']!r} but its stop ({stop.name}) and uncertified "
+                f"steps ({v.uncertified_steps}) make it {v.certified!r}"
+            )
         if v.blowup_kind is not None and v.blowup_kind not in KINDS:
             raise ValueError(f"verdict record says blowup_kind = {v.blowup_kind!r}, not one of {KINDS}")
         return v

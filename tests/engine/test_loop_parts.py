@@ -42,6 +42,7 @@ def test_verdict_default_is_no_blowup_and_reads_as_the_old_mapping():
     assert v.stop is StopReason.T_END and not v.blowup
     assert dict(v) == {
         "blowup": False,
+        "certified": True,
         "T_b": None,
         "B_x": False,
         "B_v": False,

@@ -96,7 +96,8 @@ def test_an_uncertified_run_that_reached_t_end_is_undetermined_everywhere_it_is_
     v = run.verdict
     assert v.stop is StopReason.T_END and v.uncertified_steps == run.steps > 0
     assert v.blowup is None and run.blowup is None and v["blowup"] is None and not v.certified
-    assert json.loads((tmp_path / "r" / "verdict.json").read_text())["blowup"] is None
+    record = json.loads((tmp_path / "r" / "verdict.json").read_text())
+    assert record["blowup"] is None and record["certified"] is False
     back = load_run(tmp_path / "r")
     assert back.blowup is None and back.verdict == v
     pytest.importorskip("xarray")
@@ -124,6 +125,29 @@ def test_a_blow_up_drawn_from_a_failed_solve_is_not_certified(stop):
     text = v.describe()
     assert "NOT CERTIFIED" in text and "exit-flag rule e_f" in text and "blow-up = True (" in text
     assert Verdict.from_dict(v.to_dict()) == v
+    assert v["certified"] is False and v.to_dict()["certified"] is False
+
+
+def test_verdict_records_say_whether_they_are_certified_and_agree_with_their_fields(tmp_path):
+    """verdict.json states ``certified`` (a reader of the file alone sees a verdict drawn from failed solves),
+    and a record whose ``certified`` disagrees with its stop and uncertified steps is refused."""
+    run = simulate(scene_from_dict(SMALL), out=tmp_path / "r")
+    record = json.loads((tmp_path / "r" / "verdict.json").read_text())
+    assert record["certified"] is True and run.verdict.certified
+    failed = Verdict().stopped(StopReason.SOLVER_FAILURE, 0.03, "collision solver failed (MAX_ITERATIONS)")
+    carried = Verdict().solver_failed(0.1)
+    for v in (failed, carried):
+        assert v.to_dict()["certified"] is False
+        with pytest.raises(ValueError, match="certified"):
+            Verdict.from_dict({**v.to_dict(), "certified": True})
+    with pytest.raises(ValueError, match="certified"):
+        Verdict.from_dict({**run.verdict.to_dict(), "certified": False})
+    for bad in ("true", 1, None):
+        with pytest.raises(ValueError, match="certified"):
+            Verdict.from_dict({**run.verdict.to_dict(), "certified": bad})
+    # records written before verdicts stated it have no such key: the other fields decide
+    legacy = {k: x for k, x in failed.to_dict().items() if k != "certified"}
+    assert Verdict.from_dict(legacy) == failed and not Verdict.from_dict(legacy).certified
 
 
 def test_a_records_figure_of_a_blow_up_by_a_failed_solve_says_so(tmp_path):
