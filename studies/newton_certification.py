@@ -21,8 +21,15 @@ commit, the label, the seed set and the BLAS thread setting; run it once per cod
 
     OPENBLAS_NUM_THREADS=1 PYTHONPATH=. python studies/newton_certification.py LABEL [PER_FAMILY] [SEEDS]
 
-``SEEDS``: ``development`` (default; the families the solver was tuned on) or ``held_out``
-(other seeds of the same families, drawn once a change is made, to measure it).
+``SEEDS``: ``development`` (default; the families the solver was tuned on), ``held_out``
+(other seeds of the same families, drawn once a change is made, to measure it) or ``review``:
+six families an independent review drew to probe the claim (seed 515000, N in [20, 250],
+gamma ~ U(0.5, 5), dt log-uniform in [1e-4, 1], beta log-uniform in [1, 1e4] or inf, scales
+of f* from 1e-3 to 1e3): ``offcentre`` (one to three asymmetric bumps off v = 0), ``vacuum``
+(tails down to 1e-30 of the peak), ``nonuniform`` (spacing ratios 10-50: random, clustered or
+one jump), ``bigcfl`` (no Fisher term, explicit CFL numbers 10-1000), ``special_gamma``
+(gamma at 1, 2 or 3, shifted by 0, 1e-6, 1e-3 or 0.05) and ``extreme_dt`` (dt in
+[1e-4, 5e-4] or [0.4, 1]).
 """
 
 from __future__ import annotations
@@ -102,27 +109,124 @@ def problems(family: str, count: int, seeds: dict[str, int] = SEEDS) -> list[tup
     return out
 
 
+REVIEW_SEED = 515000
+REVIEW_FAMILIES = ("offcentre", "vacuum", "nonuniform", "bigcfl", "special_gamma", "extreme_dt")
+
+
+def _review_grid(rng: np.random.Generator, n: int, ratio: float, half_width: float) -> Grid:
+    """A grid on [-half_width, half_width] with spacing ratio ``ratio``: random spacings, a smooth cluster
+    (fine about a random centre) or one jump between a fine and a coarse block, one in three each."""
+    kind = rng.integers(3)
+    if ratio <= 1.0001 or (kind == 0 and ratio < 1.5):
+        return Grid.uniform(-half_width, half_width, n)
+    if kind == 0:
+        steps = ratio ** rng.uniform(0, 1, n - 1)
+        steps[rng.integers(n - 1)], steps[rng.integers(n - 1)] = 1.0, ratio
+    elif kind == 1:
+        x = np.linspace(0, 1, n - 1)
+        c, w = rng.uniform(0.1, 0.9), rng.uniform(0.03, 0.3)
+        steps = 1 + (ratio - 1) * (1 - np.exp(-(((x - c) / w) ** 2)))
+        steps[np.argmin(steps)], steps[np.argmax(steps)] = 1.0, ratio
+    else:
+        steps = np.ones(n - 1)
+        k = int(rng.integers(3, n - 4))
+        if rng.uniform() < 0.5:
+            steps[:k] = ratio
+        else:
+            steps[k:] = ratio
+    pts = np.concatenate([[0.0], np.cumsum(steps)])
+    return Grid(-half_width + 2 * half_width * pts / pts[-1])
+
+
+def _review_bumps(rng: np.random.Generator, v: np.ndarray, half_width: float) -> np.ndarray:
+    """One to three bumps off v = 0, each with other widths on its two sides."""
+    f = np.zeros_like(v)
+    for _ in range(int(rng.integers(1, 4))):
+        c, a = rng.uniform(-0.8 * half_width, 0.8 * half_width), 10 ** rng.uniform(-0.3, 1.5)
+        aa = np.where(v < c, a, a * 10 ** rng.uniform(-1, 1))
+        f += rng.uniform(0.05, 3.0) * np.exp(-aa * (v - c) ** 2)
+    return f
+
+
+def review_problem(family: str, i: int) -> tuple[CollisionProblem, dict]:
+    """Problem ``i`` of the review's ``family`` (see the module docstring) with its parameters."""
+    rng = np.random.default_rng([REVIEW_SEED, REVIEW_FAMILIES.index(family), i])
+    n, L = int(rng.integers(20, 251)), float(rng.uniform(1.5, 3.0))
+    gamma, dt = float(rng.uniform(0.5, 5.0)), float(10 ** rng.uniform(-4, 0))
+    if rng.uniform() < 0.25:
+        beta, fisher = np.inf, None
+    else:
+        beta, fisher = float(10 ** rng.uniform(0, 4)), str(rng.choice(["perspective", "log"]))
+    if family == "offcentre":
+        grid = _review_grid(rng, n, float(10 ** rng.uniform(0, 1)), L)
+        f = _review_bumps(rng, grid.points, L)
+        f = np.maximum(f, 10 ** rng.uniform(-12, -3) * f.max())
+    elif family == "vacuum":
+        grid = _review_grid(rng, n, float(10 ** rng.uniform(0, 1)), L)
+        v, c = grid.points, rng.uniform(-0.5, 0.5) * L
+        floor = 10 ** rng.uniform(-30, -8)
+        a = -np.log(floor) / (L - abs(c)) ** 2 * rng.uniform(1.0, 3.0)  # at the floor well before the ends
+        f = np.exp(-a * (v - c) ** 2)
+        if rng.uniform() < 0.5:
+            f = f + rng.uniform(0.1, 1) * np.exp(-a * rng.uniform(0.5, 4) * (v - c - rng.uniform(-0.5, 0.5)) ** 2)
+        f = np.maximum(f, floor)
+    elif family == "nonuniform":
+        grid = _review_grid(rng, n, float(rng.uniform(10, 50)), L)
+        f = _review_bumps(rng, grid.points, L)
+        f = np.maximum(f, 10 ** rng.uniform(-8, -2) * f.max())
+    elif family == "bigcfl":
+        grid = _review_grid(rng, n, float(10 ** rng.uniform(0, np.log10(20))), L)
+        f = _review_bumps(rng, grid.points, L)
+        f = np.maximum(f, 10 ** rng.uniform(-6, -1) * f.max())
+        beta, fisher = np.inf, None
+        f = f * 10 ** rng.uniform(-3, 3)
+        dt = float(10 ** rng.uniform(1, 3)) / CollisionProblem(grid, PowerKernel(gamma), f, 1.0).cfl()
+    elif family == "special_gamma":
+        gamma = float(rng.choice([1.0, 2.0, 3.0])) + float(rng.choice([0.0, 1e-6, -1e-6, 1e-3, -1e-3, 0.05, -0.05]))
+        grid = _review_grid(rng, n, float(10 ** rng.uniform(0, np.log10(50))), L)
+        f = _review_bumps(rng, grid.points, L)
+        f = np.maximum(f, 10 ** rng.uniform(-10, -2) * f.max())
+    elif family == "extreme_dt":
+        dt = float(10 ** rng.uniform(-4, -3.3)) if rng.uniform() < 0.5 else float(10 ** rng.uniform(-0.4, 0))
+        grid = _review_grid(rng, n, float(10 ** rng.uniform(0, np.log10(50))), L)
+        f = _review_bumps(rng, grid.points, L)
+        f = np.maximum(f, 10 ** rng.uniform(-10, -2) * f.max())
+    else:
+        raise ValueError(f"family must be one of {REVIEW_FAMILIES}, got {family!r}")
+    if family != "bigcfl":
+        f = f * 10 ** rng.uniform(-3, 3)
+    P = CollisionProblem(grid, PowerKernel(gamma), f, dt, beta=beta, fisher=fisher)
+    return P, {"n": n, "gamma": gamma, "dt": dt, "beta": beta, "cfl": P.cfl()}
+
+
 def study_args(count: int, seed_set: str) -> tuple[str, int, str]:
     """``LABEL [PER_FAMILY] [SEEDS]`` from the command line, with the study's defaults for the last two."""
     label = sys.argv[1] if len(sys.argv) > 1 else "current"
     count = int(sys.argv[2]) if len(sys.argv) > 2 else count
     seed_set = sys.argv[3] if len(sys.argv) > 3 else seed_set
-    if seed_set not in ("development", "held_out"):
-        raise SystemExit(f"SEEDS must be 'development' or 'held_out', got {seed_set!r}")
+    if seed_set not in ("development", "held_out", "review"):
+        raise SystemExit(f"SEEDS must be 'development', 'held_out' or 'review', got {seed_set!r}")
     return label, count, seed_set
 
 
 def main() -> None:
     label, count, seed_set = study_args(20, "development")
-    seeds = SEEDS if seed_set == "development" else HELD_OUT_SEEDS
+    seeds = {"development": SEEDS, "held_out": HELD_OUT_SEEDS}.get(seed_set)
+    families = tuple(SEEDS) if seeds is not None else REVIEW_FAMILIES
+
+    def family_problems(family: str) -> list[tuple[CollisionProblem, dict]]:
+        if seeds is None:
+            return [review_problem(family, i) for i in range(count)]
+        return problems(family, count, seeds)
+
     commit = subprocess.run(
         ["git", "-C", str(Path(__file__).parent), "describe", "--always", "--dirty"], capture_output=True, text=True
     ).stdout.strip()
     date = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M")
     threads = os.environ.get("OPENBLAS_NUM_THREADS", "unset")
     rows = []
-    for family in SEEDS:
-        for i, (P, par) in enumerate(problems(family, count, seeds)):
+    for family in families:
+        for i, (P, par) in enumerate(family_problems(family)):
             t = time.perf_counter()
             rn = solve_newton(P)
             tn = time.perf_counter() - t
@@ -156,7 +260,7 @@ def main() -> None:
         "where nlp is | same at 1e-10 | both NONCONVEX |",
         "|---|---|---|---|---|---|---|---|---|",
     ]
-    for family in seeds:
+    for family in families:
         fam = [r for r in rows if r["family"] == family]
         ref = [r for r in fam if r["nlp_cert"] == conv]
         ref10 = [r for r in fam if r["nlp_cert10"] == conv]

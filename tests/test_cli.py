@@ -9,7 +9,7 @@ import pytest
 
 from jko_cvx.cli import main
 from jko_cvx.engine.loop import simulate
-from jko_cvx.scene.model import load_scene
+from jko_cvx.scene.model import load_scene, scene_from_dict
 
 SCENE = """
 name = "cli_tiny"
@@ -159,6 +159,23 @@ def test_scene_template_is_a_scene_run_accepts_as_written(tmp_path, capsys):
         short = scene.replace({"t_end": 2 * scene.time.dt, "output.every": 1, "output.checkpoint_every": 1})
         run = simulate(short, out=tmp_path / f"run_{kind}")
         assert run.steps == 2 and run.verdict.certified
+
+
+def test_scene_template_leaves_resolved_defaults_absent(tmp_path, capsys):
+    """The template writes the example scene's own keys, not the values the loader resolved from them: a key
+    the example leaves at its default stays commented out, so a newcomer who edits the initial datum keeps
+    ``refine.v.centre = "auto"`` (resolved against the new f0) and the method-dependent momentum constraint."""
+    import tomllib
+
+    assert main(["scene", "template"]) == 0
+    text = capsys.readouterr().out
+    doc = tomllib.loads(text)
+    assert "centre" not in doc["refine"]["v"] and "conserve_momentum" not in doc["collision"]
+    doc["initial"]["centres"] = [0.6]
+    assert scene_from_dict(doc).refine.v.centre == "follow"  # off-centre f0: the map follows it
+    doc["initial"]["centres"] = [0.0]
+    doc["collision"]["method"] = "sqp"
+    assert scene_from_dict(doc).collision.method == "sqp"  # the paper's SQP without a momentum constraint
 
 
 def test_scene_template_comments_every_key_with_type_and_default(capsys):

@@ -302,14 +302,19 @@ def _direction(problem: CollisionProblem, bands, g: NDArray) -> tuple[NDArray, N
             else add_pentadiagonal(scale * problem.energy.flux_block(), *(b[bad] for b in bands))
         )
         d = np.einsum("...ii->...i", Hb)
-        finite = np.all(np.isfinite(Hb), axis=(-2, -1)) & np.all(d > 0, axis=-1)
-        todo = finite.copy()
-        for tau in (1e-6, 1e-4, 1e-2, 1.0, 1e2):
+        finite = np.all(np.isfinite(Hb), axis=(-2, -1))
+        # A diagonal entry <= 0 (a concave energy outweighing the convex terms: gamma < 2 at a large CFL
+        # number) is shifted by its magnitude (floored at 1e-8 of the largest), so that H + tau D still
+        # becomes positive definite as tau grows; a positive diagonal is its own shift.
+        big = np.abs(d).max(axis=-1, keepdims=True)
+        shift = np.where(np.all(d > 0, axis=-1, keepdims=True), d, np.maximum(np.abs(d), 1e-8 * big))
+        todo = finite & (big[..., 0] > 0)
+        for tau in (1e-6, 1e-4, 1e-2, 1.0, 1e2, 1e4, 1e6):
             if not todo.any():
                 break
             idx = np.flatnonzero(todo)
             Hs = Hb[idx].copy()
-            Hs[:, np.arange(Hs.shape[-1]), np.arange(Hs.shape[-1])] += tau * d[idx]
+            Hs[:, np.arange(Hs.shape[-1]), np.arange(Hs.shape[-1])] += tau * shift[idx]
             xs, ok = _newton_direction(Hs, rhs[bad[idx]])
             x[bad[idx[ok]]] = xs[ok]
             valid[bad[idx[ok]]] = True
@@ -867,7 +872,36 @@ def _merge(res: CollisionResult, rows: NDArray[np.bool_], again: CollisionResult
         getattr(res, name)[idx[take]] = getattr(again, name)[take]
 
 
-def _cascade(P: CollisionProblem, m0: NDArray | None, opts: NewtonOptions) -> CollisionResult:
+_CONTINUATION_STAGES = 12
+"""At most this many halvings of dt in the continuation (:func:`_continuation`): an explicit CFL number up to 4096
+starts below 1."""
+
+
+def _continuation(P: CollisionProblem, opts: NewtonOptions) -> tuple[CollisionResult, NDArray]:
+    """The step solved along dt / 2^k, ..., dt / 2, dt, each stage started from the last one's point.
+
+    The constraint does not involve dt, so every stage's point is feasible for the next; the first stage's dt
+    brings the explicit CFL number below one, where the start is close to the minimiser, and each doubling of
+    dt then moves the minimiser by a step Newton's local convergence covers.  For steps the other attempts
+    leave at a point that is not stationary with no descending direction: large CFL numbers with a concave
+    energy (gamma < 2).  It stops at the first stage it cannot certify.  Returns the last stage's result and
+    every stage's iterations summed.
+    """
+    k = int(np.clip(np.ceil(np.log2(max(P.cfl(), 1.0))), 1, _CONTINUATION_STAGES))
+    m = None
+    iterations = np.zeros(P.batch_size, dtype=int)
+    for stage in range(k, -1, -1):
+        res = _cascade(P.with_dt(P.dt / 2.0**stage), m, opts, continuation=False)
+        iterations += res.iterations
+        if stage and not all(s is Status.CONVERGED for s in res.status):
+            break  # a stage it cannot certify: no start for the next (and the cost of a hopeless path bounded)
+        m = res.m
+    return res, iterations
+
+
+def _cascade(
+    P: CollisionProblem, m0: NDArray | None, opts: NewtonOptions, continuation: bool = True
+) -> CollisionResult:
     """The retry cascade, per slice.
 
     1. Undamped, ending a slice whose iterates jam at the vacuum boundary.
@@ -890,13 +924,16 @@ def _cascade(P: CollisionProblem, m0: NDArray | None, opts: NewtonOptions) -> Co
        ``info["lower_minimum"]`` marks those slices: another minimiser, or the same one reached more
        accurately.  Slices certified by the first attempt, and certified slices that did not jam, are
        never solved again, so their results do not depend on this stage.
+    5. Slices ``NONCONVEX`` at a point that is not stationary, on a step of explicit CFL number above one: a
+       continuation in dt (:func:`_continuation`), kept where it certifies.
     """
     res = _attempt(P, m0, opts, _Attempt(damping=False, jam_exit=True))
     jammed = res.info["jammed"]
     damped = np.zeros(jammed.shape, dtype=bool)
     barrier = np.zeros(jammed.shape, dtype=bool)
     if all(s is Status.CONVERGED for s in res.status):  # the common case (a jam ends a slice unconverged): no retry
-        res.info.update(jammed=jammed, interior_damping=damped, barrier=barrier, lower_minimum=np.zeros_like(jammed))
+        res.info.update(jammed=jammed, interior_damping=damped, barrier=barrier, lower_minimum=np.zeros_like(jammed),
+                        continued=np.zeros_like(jammed))  # fmt: skip
         return res
     retry = np.array([s in _RETRY for s in res.status]) & np.all(P.f_star > 0, axis=-1)
     if retry.any():
@@ -940,7 +977,22 @@ def _cascade(P: CollisionProblem, m0: NDArray | None, opts: NewtonOptions) -> Co
         barrier[np.flatnonzero(todo)[better]] = True
         damped[np.flatnonzero(todo)[better]] = False
         lower[np.flatnonzero(todo)[better & second]] = True
-    res.info.update(jammed=jammed, interior_damping=damped, barrier=barrier, lower_minimum=lower)
+    continued = np.zeros(jammed.shape, dtype=bool)
+    if continuation and P.cfl() > 1.0:
+        # only where no direction descended at a point that is not stationary: an iteration limit keeps its
+        # meaning (max_iter=k returns the k-th iterate), and a stationary non-minimiser is the answer
+        rest = np.array([s == Status.NONCONVEX and not k <= opts.tol
+                         for s, k in zip(res.status, res.kkt_residual, strict=True)], dtype=bool)  # fmt: skip
+        rest &= np.all(P.f_star > 0, axis=-1)
+        if rest.any():
+            again, iterations = _continuation(P.rows(rest), opts)
+            ok = again.status == Status.CONVERGED
+            again.iterations[:] = iterations
+            _merge(res, rest, again, ok)
+            continued[np.flatnonzero(rest)[ok]] = True
+            damped[np.flatnonzero(rest)[ok]] = False
+            barrier[np.flatnonzero(rest)[ok]] = False
+    res.info.update(jammed=jammed, interior_damping=damped, barrier=barrier, lower_minimum=lower, continued=continued)
     return res
 
 
@@ -1037,7 +1089,7 @@ def _compiled_single(P: CollisionProblem, opts: NewtonOptions, t0: float) -> Col
     if cert.status is not Status.CONVERGED:  # the cascade goes on from such a first attempt: solve it all there
         return None
     info = {"warm_started": warm, "jammed": False, "interior_damping": False, "barrier": False,
-            "lower_minimum": False, "compiled": True}  # fmt: skip
+            "lower_minimum": False, "continued": False, "compiled": True}  # fmt: skip
     return CollisionResult.from_certificate(P, f, m, cert, "newton", iterations, time.perf_counter() - t0, info)
 
 
@@ -1098,7 +1150,7 @@ def _compiled_batch(P: CollisionProblem, opts: NewtonOptions, t0: float) -> Coll
     done[done] = accepted
     if not done.any():
         return None
-    flags = ("jammed", "interior_damping", "barrier", "lower_minimum")
+    flags = ("jammed", "interior_damping", "barrier", "lower_minimum", "continued")
     info = {"warm_started": warm & done, **{name: np.zeros(B, dtype=bool) for name in flags}, "compiled": done}
     if done.all():  # every slice compiled and certified (so every was True): the result as it stands
         return CollisionResult(f, m, cert.status, "newton", its, phi, kkt, mass_error, time.perf_counter() - t0, info)
@@ -1214,7 +1266,8 @@ def solve_newton(
         (the returned point comes from the interior-damped attempt) and ``barrier`` (it
         comes from the barrier attempt) and ``lower_minimum`` (the second start found a certified
         local minimiser with a lower J than the one first certified, beyond rounding, and that is
-        returned: another minimiser, or the same one reached more accurately) and ``compiled`` (the
+        returned: another minimiser, or the same one reached more accurately), ``continued`` (it comes
+        from the continuation in dt, the cascade's last resort) and ``compiled`` (the
         point comes from the compiled iteration); per slice when batched.  ``iterations`` counts every
         attempt (the compiled one only where its point is returned).
         A single problem is solved as a batch of one.
@@ -1231,7 +1284,17 @@ def solve_newton(
     res = _cascade(batch, m0, opts)
     res.info["compiled"] = np.zeros(batch.batch_size, dtype=bool)
     res.seconds = time.perf_counter() - t0
-    return res if problem.batched else _single(res)
+    if problem.batched:
+        return res
+    res = _single(res)
+    if res.status is Status.NONCONVEX and not res.kkt_residual <= opts.tol:
+        # no stationary point: the modified directions found no descent there (not a saddle point it reached)
+        res.info["hint"] = (
+            f"at a point that is not stationary (KKT {res.kkt_residual:.1e}): no shifted Newton direction "
+            "descended there, and no retry (barrier, continuation in dt) reached a minimiser; method='nlp' is "
+            "the reference for such steps"
+        )
+    return res
 
 
 solve_newton.batched = True  # type: ignore[attr-defined]

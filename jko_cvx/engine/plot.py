@@ -7,7 +7,7 @@
   where the scene stops on it) with the scene's thresholds (eps_v, eps_x, spread_v) as
   horizontal lines, the refinement switches (steps at which the mesh map changed the grid)
   marked on the mesh records, T_b where a rule fired, and the exact law where one is known:
-  for gamma = 1 in the homogeneous equation ``eqn: gke_hom`` (W = |v|, strength s) f obeys
+  for gamma = 1 in the homogeneous equation ``eqn: gke_hom`` (``W = |v|``, strength s) f obeys
   df/dt = 2 s f^2 along characteristics, so max f(t) = M0 / (1 - 2 s M0 t) with M0 = max f0,
   and the blow-up time is T = 1 / (2 s M0) (Table ``tab:bu``);
 * :func:`save_figures`: both, as ``solution.png`` and ``records.png`` (the CLI's figures).

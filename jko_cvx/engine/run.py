@@ -152,6 +152,8 @@ class Run:
         """One line: time reached, steps, verdict."""
         v = self.verdict
         where = ", ".join(k for k in ("B_x", "B_v") if v[k]) or "none"
+        if v.e_f and v.B_v and not v.B_x and v.stop in (StopReason.SOLVER_FAILURE, StopReason.EPS_T):
+            where = "B_v, which e_f sets as alg:MR_JKO_ver2 does"
         return (
             f"{self.scene.name}: t = {self.t:.6g}, steps = {self.steps}, "
             f"{v.describe()} (direction: {where}; {v.reason})"

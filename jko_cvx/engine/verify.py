@@ -206,9 +206,17 @@ def _check_settings(
             'for the log form, or verify the scene with collision.fisher = "perspective"'
         )
     if reference == scene.collision.method:
+        others = [r for r in REFERENCES if r != reference and not (r == "conic" and scene.collision.fisher == "log")]
+        way_out = (
+            f"choose reference={others[0]!r}"
+            if others
+            else 'no other reference poses collision.fisher = "log" (conic cannot): verify a run of another '
+            'collision.method (newton, sqp) against nlp, or the scene with collision.fisher = "perspective" '
+            "against conic"
+        )
         raise ValueError(
             f"reference={reference!r} is the scene's own collision.method: a solver checked against itself proves "
-            f"nothing; choose the other of {list(REFERENCES)}"
+            f"nothing; {way_out}"
         )
     if scene.time.order != 1:
         raise ValueError(

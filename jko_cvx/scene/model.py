@@ -135,6 +135,10 @@ class Scene:
         subclass of ``Initial``, say) kept as it is; a change that makes the scene
         inconsistent (``{"collision.method": "sqp"}`` on a scene whose momentum constraint or
         options belong to Newton) raises :class:`SceneError` naming the key, before any work.
+        What the loader resolved stays resolved: ``refine.<axis>.centre = "auto"`` became ``"origin"`` or
+        ``"follow"`` for the scene's own f0, so a new datum off v = 0 needs ``{"refine.v.centre": "follow"}``
+        beside it, or the scene built again with overrides (``shipped_scene(name, overrides)``,
+        ``default_scene(overrides)``), which resolves it for the new f0.
 
         >>> default_scene().replace({"time.dt": 0.005, "t_end": 0.5}).time.dt
         0.005
@@ -616,8 +620,15 @@ def shipped_scene(name: str, overrides: Mapping[str, Any] | None = None, limits:
         close = difflib.get_close_matches(str(name), names, n=4)
         hint = f" (did you mean {' or '.join(map(repr, close))}?)" if close else ""
         raise SceneError(f"no shipped scene {name!r}{hint}; shipped: {names}")
-    data = tomllib.loads((_SHIPPED / f"{name}.toml").read_text(encoding="utf-8"))
-    return scene_from_dict(with_overrides(data, overrides), limits)
+    return scene_from_dict(with_overrides(shipped_document(name), overrides), limits)
+
+
+def shipped_document(name: str) -> dict[str, Any]:
+    """The TOML document of a shipped scene as its file writes it: the keys it sets, nothing the loader
+    fills in or resolves (``refine.v.centre = "auto"`` stays ``"auto"``; absent keys stay absent)."""
+    if name not in shipped_scene_names():
+        return shipped_scene(name).to_dict()  # raises, naming the shipped scenes
+    return tomllib.loads((_SHIPPED / f"{name}.toml").read_text(encoding="utf-8"))
 
 
 def default_scene(overrides: Mapping[str, Any] | None = None, limits: Limits | None = None) -> Scene:
@@ -635,26 +646,28 @@ def default_scene(overrides: Mapping[str, Any] | None = None, limits: Limits | N
     >>> default_scene({"t_end": 0.05}).t_end
     0.05
     """
-    data = with_overrides(
-        {
-            "name": "default_tab_bu_g1",
-            "description": "homogeneous gamma = 1, g1 = exp(-2 v^2), mesh refinement, fixed dt (Table tab:bu)",
-            "gamma": 1.0,
-            "strength": 1.0,
-            "t_end": 1.0,
-            "v": {"L": 2.0, "n": 121},
-            "initial": {"kind": "gaussians", "amplitudes": [1.0], "rates": [2.0], "centres": [0.0]},
-            "time": {"policy": "fixed", "dt": 0.01},
-            "refine": {"v": {"bumps": 1, "delta0": 0.5, "delta": 0.5}},
-            # log-Fisher (the paper's form: a barrier that keeps Newton's iterates interior) with
-            # beta = 6000, the weight of the package's tab:bu (tab_bu_g1; the paper states none): weak
-            # enough that the fitted blow-up time lands on the exact one with a tight bar.  A stronger
-            # term slows the final narrowing: beta = 1000 meets the table's T_b = 0.51 but its fit comes
-            # late with a wide bar; beta = 10 / 100 cap max f at 9.6 / 42.
-            "collision": {"method": "newton", "beta": 6000.0, "fisher": "log"},
-            "stop": {"eps_v": 1e-3 / 4, "on_solver_failure": False},
-            "output": {"every": 5, "checkpoint_every": 5},
-        },
-        overrides,
-    )
-    return scene_from_dict(data, limits)
+    return scene_from_dict(with_overrides(default_document(), overrides), limits)
+
+
+def default_document() -> dict[str, Any]:
+    """The document of :func:`default_scene` as written: the keys it sets, nothing the loader fills in
+    or resolves (the scene template's example)."""
+    return {
+        "name": "default_tab_bu_g1",
+        "description": "homogeneous gamma = 1, g1 = exp(-2 v^2), mesh refinement, fixed dt (Table tab:bu)",
+        "gamma": 1.0,
+        "strength": 1.0,
+        "t_end": 1.0,
+        "v": {"L": 2.0, "n": 121},
+        "initial": {"kind": "gaussians", "amplitudes": [1.0], "rates": [2.0], "centres": [0.0]},
+        "time": {"policy": "fixed", "dt": 0.01},
+        "refine": {"v": {"bumps": 1, "delta0": 0.5, "delta": 0.5}},
+        # log-Fisher (the paper's form: a barrier that keeps Newton's iterates interior) with
+        # beta = 6000, the weight of the package's tab:bu (tab_bu_g1; the paper states none): weak
+        # enough that the fitted blow-up time lands on the exact one with a tight bar.  A stronger
+        # term slows the final narrowing: beta = 1000 meets the table's T_b = 0.51 but its fit comes
+        # late with a wide bar; beta = 10 / 100 cap max f at 9.6 / 42.
+        "collision": {"method": "newton", "beta": 6000.0, "fisher": "log"},
+        "stop": {"eps_v": 1e-3 / 4, "on_solver_failure": False},
+        "output": {"every": 5, "checkpoint_every": 5},
+    }

@@ -184,11 +184,14 @@ def keys_text() -> str:
 
 
 def _example(kind: str) -> dict[str, Any]:
-    from jko_cvx.scene.model import default_scene, shipped_scene
+    """The example's document as written (not the loaded scene's: a default the loader resolves, such as
+    ``refine.v.centre = "auto"`` or the method's momentum constraint, must stay absent so that it is
+    resolved again for the datum and method the user writes)."""
+    from jko_cvx.scene.model import default_document, shipped_document
 
     if kind not in TEMPLATE_KINDS:
         raise ValueError(f"kind must be one of {sorted(TEMPLATE_KINDS)}, got {kind!r}")
-    return (default_scene() if kind == "homogeneous" else shipped_scene("inhom_gamma3_lambda4")).to_dict()
+    return default_document() if kind == "homogeneous" else shipped_document("inhom_gamma3_lambda4")
 
 
 def _comment(text: str, width: int = 100) -> list[str]:

@@ -28,8 +28,10 @@ EXPECTED = {
     "beta=inf": ("CONVERGED", 5),
     "spacing ratio 1e3, gamma=1": ("CONVERGED", 4),
     "spacing ratio 1e3, gamma=3": ("CONVERGED", 4),
-    "non-convex step (peak, dt=0.3)": ("NONCONVEX", 300),
-    "non-convex step (peak, dt=10)": ("NONCONVEX", 300),
+    # these two also run the cascade's continuation in dt (a non-stationary NONCONVEX at CFL > 1), whose
+    # stages' iterations count: measured 464 and 541 (2026-12-07; 107 and 0 before the continuation)
+    "non-convex step (peak, dt=0.3)": ("NONCONVEX", 800),
+    "non-convex step (peak, dt=10)": ("NONCONVEX", 800),
 }
 # the independent solver that certifies each convex case (test_extremes.EXPECTED)
 CROSS = {
@@ -62,6 +64,8 @@ def test_newton_outcome_is_pinned(name):
         assert prob.is_local_minimiser(res.f, res.m)
     else:
         assert not res.success and prob.convexity_margin(res.f, res.m) < 0
+        # no stationary point was reached (the minimiser touches f = 0): the message says so, and names nlp
+        assert res.kkt_residual > 1e-10 and "not stationary" in res.message and "nlp" in res.message
     if name in CROSS:
         method, opts = CROSS[name]
         other = solve_collision(prob, method=method, **opts)

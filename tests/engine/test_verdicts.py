@@ -158,6 +158,8 @@ def test_a_records_figure_of_a_blow_up_by_a_failed_solve_says_so(tmp_path):
 
     import matplotlib.pyplot as plt
 
+    # the paper sets B_v on e_f (alg:MR_JKO_ver2): the summary says where that B_v comes from
+    assert "direction: B_v, which e_f sets" in dataclasses.replace(run, verdict=v).summary()
     fig = plot_records(dataclasses.replace(run, verdict=v))
     title = fig.axes[-1].get_title()
     plt.close(fig)

@@ -250,6 +250,10 @@ def test_a_reference_trajectory_with_uncertified_steps_is_judged_only_before_the
     [
         ({"collision.fisher": "log"}, {"reference": "conic"}, ValueError, "collision.fisher"),
         ({"collision.method": "conic"}, {"reference": "conic"}, ValueError, "collision.method"),
+        # the log form's only reference is nlp: the refusal of nlp against itself must not point to conic
+        ({"collision.method": "nlp", "collision.fisher": "log"}, {}, ValueError, r"no other reference poses"),
+        ({"collision.method": "nlp", "collision.fisher": "perspective"}, {"reference": "nlp"}, ValueError,
+         "choose reference='conic'"),
         ({"time.order": 2}, {}, ValueError, "time.order"),
         ({}, {"reference": "sqp"}, ValueError, "reference must be one of"),
         ({}, {"every": 0}, ValueError, "every"),

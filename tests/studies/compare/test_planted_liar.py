@@ -42,3 +42,35 @@ def test_every_row_carries_its_own_error_estimate_that_finds_the_liar():
     liar, honest = df.loc["liar"], df.loc["tol=1e-12"]
     assert liar.f_error > 1e-6 and liar.f_error / 2 <= liar.f_error_est <= 2 * liar.f_error
     assert honest.f_error_est < 1e-10
+
+
+def test_a_failed_reference_is_never_what_f_error_is_measured_against(monkeypatch):
+    """Where the tight Newton reference fails, f_error is measured against the best certified row (and the
+    table says so), never against the failed answer; with no certified row it is not measured (NaN)."""
+    import dataclasses
+
+    import jko_cvx.studies.compare as compare
+    from jko_cvx.collision import Status
+
+    grid = Grid.uniform(-2.0, 2.0, 41)
+    prob = CollisionProblem(grid, PowerKernel(1.0), np.exp(-2 * grid.points**2), 0.01, beta=3.0)
+    real = compare.solve_collision
+
+    def failing_reference(problem, method, **options):
+        res = real(problem, method, **options)
+        if method == "newton" and options.get("tol") == 1e-13:  # the reference: a planted failure, f far off
+            return dataclasses.replace(res, status=Status.NUMERICAL_ERROR, f=res.f * 1.5)
+        return res
+
+    monkeypatch.setattr(compare, "solve_collision", failing_reference)
+    configs = [
+        Configuration("newton", "newton", "tol=1e-12", {"tol": 1e-12}),
+        Configuration("sqp:banded", "sqp", "liar", {"tol": 1e-2, "kkt_tol": 0.5}),
+    ]
+    df = compare_solvers(prob, configs, repeats=1)
+    rows = df.set_index("setting")
+    assert bool(rows.loc["tol=1e-12", "certified"]) and rows.loc["tol=1e-12", "f_error"] == 0.0
+    assert rows.loc["liar", "f_error"] > 1e-6
+    assert "NUMERICAL_ERROR" in df.attrs["reference"] and "tol=1e-12" in df.attrs["reference"]
+    only_liar = compare_solvers(prob, configs[1:], repeats=1)
+    assert np.isnan(only_liar.f_error).all() and "not measured" in only_liar.attrs["reference"]

@@ -1,0 +1,48 @@
+"""Newton on steps whose energy is concave at a large CFL number (gamma < 2, the explicit step moving
+mass many cells): certified where the nonlinear reference certifies.
+
+Two failures of an independent review's held-out families (``studies/newton_certification.py``,
+seeds ``review``): at the explicit start the reduced Hessian had diagonal entries <= 0, so no
+modified-Newton shift was tried and the point was called NONCONVEX after no iteration (KKT 4e-2);
+and a step whose shifted iteration crawls, which the continuation in dt solves.
+"""
+
+import numpy as np
+import pytest
+
+from jko_cvx import CollisionProblem, Grid, PowerKernel, Status, solve_collision
+from jko_cvx.collision.certify import certify
+from jko_cvx.collision.nlp import nlp_available
+
+from ..studies.scripts import load_study_script
+
+
+def _certified_minimiser(P: CollisionProblem, res) -> None:
+    assert res.status is Status.CONVERGED, (res.status, res.message)
+    assert certify(P, res.f, res.m, kkt_tol=1e-8).status is Status.CONVERGED  # the run's threshold, re-judged
+    assert P.is_local_minimiser(res.f, res.m)
+
+
+@pytest.mark.parametrize("fisher", ["perspective", "log"])
+def test_a_start_without_a_positive_diagonal_is_shifted_not_called_nonconvex(fisher):
+    grid = Grid.uniform(-2.0, 2.0, 81)
+    P = CollisionProblem(grid, PowerKernel(0.8), 10 * np.exp(-2 * (grid.points - 0.5) ** 2), 0.3, beta=300.0,
+                         fisher=fisher)  # fmt: skip
+    H = P.reduced_hessian(*P.initial_point())
+    assert (np.diag(H) <= 0).any()  # the case: no positive diagonal to shift by at the start
+    res = solve_collision(P, method="newton")
+    _certified_minimiser(P, res)
+    if nlp_available():  # the independent reference reaches the same minimiser
+        ref = solve_collision(P, method="nlp", kkt_tol=1e-8)
+        assert ref.status is Status.CONVERGED
+        assert abs(res.objective - ref.objective) <= 1e-9 * abs(ref.objective)
+        assert np.abs(res.f - ref.f).max() <= 1e-5 * ref.f.max()
+
+
+def test_a_step_the_shifted_iteration_cannot_finish_is_solved_by_continuation_in_dt():
+    study = load_study_script("newton_certification.py")
+    P, par = study.review_problem("extreme_dt", 85)  # gamma 0.89, N = 42, log form, CFL 31
+    assert par["gamma"] < 1 and par["cfl"] > 20
+    res = solve_collision(P, method="newton")
+    _certified_minimiser(P, res)
+    assert res.info["continued"]
