@@ -877,26 +877,35 @@ _CONTINUATION_STAGES = 12
 starts below 1."""
 
 
-def _continuation(P: CollisionProblem, opts: NewtonOptions) -> tuple[CollisionResult, NDArray]:
+def _continuation(P: CollisionProblem, opts: NewtonOptions) -> tuple[CollisionResult | None, NDArray, NDArray]:
     """The step solved along dt / 2^k, ..., dt / 2, dt, each stage started from the last one's point.
 
     The constraint does not involve dt, so every stage's point is feasible for the next; the first stage's dt
     brings the explicit CFL number below one, where the start is close to the minimiser, and each doubling of
     dt then moves the minimiser by a step Newton's local convergence covers.  For steps the other attempts
     leave at a point that is not stationary with no descending direction: large CFL numbers with a concave
-    energy (gamma < 2).  It stops at the first stage it cannot certify.  Returns the last stage's result and
-    every stage's iterations summed.
+    energy (gamma < 2).  A slice leaves at the first stage it cannot certify (its point is no start for the
+    next, and the cost of a hopeless path is bounded).
+
+    Returns the result at dt itself of the slices that reached it (None if none did), those slices (a mask of
+    P's rows), and every slice's iterations over all its stages.
     """
     k = int(np.clip(np.ceil(np.log2(max(P.cfl(), 1.0))), 1, _CONTINUATION_STAGES))
-    m = None
+    alive = np.ones(P.batch_size, dtype=bool)
+    m = np.full((P.batch_size, P.n - 1), np.nan)  # _start takes m0 only where it is finite: the first stage starts cold
     iterations = np.zeros(P.batch_size, dtype=int)
     for stage in range(k, -1, -1):
-        res = _cascade(P.with_dt(P.dt / 2.0**stage), m, opts, continuation=False)
-        iterations += res.iterations
-        if stage and not all(s is Status.CONVERGED for s in res.status):
-            break  # a stage it cannot certify: no start for the next (and the cost of a hopeless path bounded)
-        m = res.m
-    return res, iterations
+        idx = np.flatnonzero(alive)
+        res = _cascade(P.rows(alive).with_dt(P.dt / 2.0**stage), m[alive], opts, continuation=False)
+        iterations[idx] += res.iterations
+        if stage == 0:
+            return res, alive, iterations
+        ok = np.array([s is Status.CONVERGED for s in res.status], dtype=bool)
+        m[idx] = res.m
+        alive[idx[~ok]] = False
+        if not alive.any():
+            break
+    return None, alive, iterations
 
 
 def _cascade(
@@ -985,13 +994,16 @@ def _cascade(
                          for s, k in zip(res.status, res.kkt_residual, strict=True)], dtype=bool)  # fmt: skip
         rest &= np.all(P.f_star > 0, axis=-1)
         if rest.any():
-            again, iterations = _continuation(P.rows(rest), opts)
-            ok = again.status == Status.CONVERGED
-            again.iterations[:] = iterations
-            _merge(res, rest, again, ok)
-            continued[np.flatnonzero(rest)[ok]] = True
-            damped[np.flatnonzero(rest)[ok]] = False
-            barrier[np.flatnonzero(rest)[ok]] = False
+            again, reached, iterations = _continuation(P.rows(rest), opts)
+            res.iterations[np.flatnonzero(rest)] += iterations  # every stage counts, kept or not
+            if again is not None:
+                rows = np.zeros(rest.shape, dtype=bool)
+                rows[np.flatnonzero(rest)[reached]] = True  # the slices whose last stage was dt itself
+                ok = again.status == Status.CONVERGED
+                again.iterations[:] = 0  # counted above
+                _merge(res, rows, again, ok)
+                won = np.flatnonzero(rows)[ok]
+                continued[won], damped[won], barrier[won] = True, False, False
     res.info.update(jammed=jammed, interior_damping=damped, barrier=barrier, lower_minimum=lower, continued=continued)
     return res
 

@@ -46,3 +46,35 @@ def test_a_step_the_shifted_iteration_cannot_finish_is_solved_by_continuation_in
     res = solve_collision(P, method="newton")
     _certified_minimiser(P, res)
     assert res.info["continued"]
+
+
+def test_a_slice_that_leaves_the_continuation_early_is_never_returned_as_a_solution_of_its_smaller_step(monkeypatch):
+    """In a batch, a slice whose intermediate stage (a smaller dt) is not certified leaves the continuation; the
+    result at dt holds only the slices that reached dt itself, each a solution of the step as posed."""
+    import dataclasses
+
+    from jko_cvx.collision import newton
+
+    study = load_study_script("newton_certification.py")
+    P1, _ = study.review_problem("extreme_dt", 85)
+    P = P1.with_f_star(np.stack([P1.f_star, P1.f_star]))
+    real = newton._cascade
+
+    def second_slice_fails_below_dt(Pk, m0, opts, continuation=True):
+        res = real(Pk, m0, opts, continuation=continuation)
+        if Pk.dt < P.dt and Pk.batch_size == 2:  # the first stage: the second slice is not certified there
+            status = res.status.copy()
+            status[1] = Status.NOT_CERTIFIED
+            res = dataclasses.replace(res, status=status)
+        return res
+
+    monkeypatch.setattr(newton, "_cascade", second_slice_fails_below_dt)
+    opts = newton._check_newton_args(P, 1e-10, None, 100, None, "explicit", True, True, False)
+    res, reached, iterations = newton._continuation(P, opts)
+    assert reached.tolist() == [True, False] and (iterations > 0).all()
+    assert res.f.shape == (1, P.n) and res.status[0] is Status.CONVERGED
+    assert certify(P1, res.f[0], res.m[0], kkt_tol=1e-8).status is Status.CONVERGED  # a solution at dt itself
+    monkeypatch.setattr(newton, "_cascade", real)
+    whole = solve_collision(P, method="newton")  # the batch: every certified slice certified for the step as posed
+    for i in range(2):
+        assert certify(P1, whole.f[i], whole.m[i], kkt_tol=1e-8).status is whole.status[i] is Status.CONVERGED
