@@ -171,6 +171,8 @@ def test_scene_template_leaves_resolved_defaults_absent(tmp_path, capsys):
     text = capsys.readouterr().out
     doc = tomllib.loads(text)
     assert "centre" not in doc["refine"]["v"] and "conserve_momentum" not in doc["collision"]
+    # a name of its own: run as written, it does not take the default scene's run directory
+    assert doc["name"] == "my_homogeneous_scene" and "template" in doc["description"]
     doc["initial"]["centres"] = [0.6]
     assert scene_from_dict(doc).refine.v.centre == "follow"  # off-centre f0: the map follows it
     doc["initial"]["centres"] = [0.0]

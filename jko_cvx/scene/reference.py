@@ -214,7 +214,10 @@ def _key_lines(entry: KeyEntry, doc: dict[str, Any] | None, off: bool) -> list[s
 
 def scene_template(kind: str = "homogeneous") -> str:
     """The commented TOML template of a ``kind`` scene (see the module docstring)."""
-    example = _example(kind)
+    # a name and description of its own: a copy run as written must not take the example's run directory
+    # (runs/<name>) nor head its output with the example's description
+    example = {**_example(kind), "name": f"my_{kind}_scene",
+               "description": f"my scene, from the {kind} template (values of {TEMPLATE_KINDS[kind]})"}  # fmt: skip
     inhom = _example("inhomogeneous")  # values for the tables a homogeneous scene leaves out
     entries = key_entries()
     by_table: dict[str, list[KeyEntry]] = {}

@@ -106,6 +106,18 @@ def test_resume_refuses_another_scene_and_names_what_differs(tmp_path):
         simulate(changed, out=out, resume=True)
 
 
+def test_scene_differences_name_the_keys_that_differ_and_nothing_else():
+    """An empty table has no keys: solver options dropped from a scene differ by the option, not also by a
+    "table: (absent) -> {}" line beside it."""
+    from jko_cvx.engine._rundir import scene_differences
+
+    old = {"gamma": 1.0, "collision": {"method": "newton", "options": {"max_iter": 5}}}
+    new = {"gamma": 1.0, "collision": {"method": "newton", "options": {}}}
+    assert scene_differences(old, new) == ["collision.options.max_iter: 5 -> (absent)"]
+    assert scene_differences(new, old) == ["collision.options.max_iter: (absent) -> 5"]
+    assert scene_differences(new, {"gamma": 1.0, "collision": {"method": "newton"}}) == []
+
+
 def test_resume_refuses_a_checkpoint_of_another_package_version(tmp_path, monkeypatch):
     out = tmp_path / "r"
     simulate(_small(), out=out)
