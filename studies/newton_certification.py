@@ -120,9 +120,8 @@ def _review_grid(rng: np.random.Generator, n: int, ratio: float, half_width: flo
     if ratio <= 1.0001 or (kind == 0 and ratio < 1.5):
         return Grid.uniform(-half_width, half_width, n)
     if kind == 0:
-        steps = ratio ** rng.uniform(0, 1, n - 1)
-        steps[rng.integers(n - 1)], steps[rng.integers(n - 1)] = 1.0, ratio
-    elif kind == 1:
+        return _grid(rng, n, ratio, half_width)
+    if kind == 1:
         x = np.linspace(0, 1, n - 1)
         c, w = rng.uniform(0.1, 0.9), rng.uniform(0.03, 0.3)
         steps = 1 + (ratio - 1) * (1 - np.exp(-(((x - c) / w) ** 2)))

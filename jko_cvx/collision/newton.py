@@ -861,6 +861,13 @@ def _attempt(P: CollisionProblem, m0: NDArray | None, opts: NewtonOptions, run: 
 _RETRY = (Status.MAX_ITERATIONS, Status.NUMERICAL_ERROR)
 
 
+def _nonconvex_not_stationary(res: CollisionResult, tol: float) -> NDArray[np.bool_]:
+    """Per slice: NONCONVEX at a point whose KKT residual is above ``tol`` (NaN included), a point where no
+    direction descended, not a stationary non-minimiser (which is an answer)."""
+    status, kkt = np.atleast_1d(res.status), np.atleast_1d(res.kkt_residual)
+    return np.array([s == Status.NONCONVEX and not k <= tol for s, k in zip(status, kkt, strict=True)], dtype=bool)
+
+
 def _merge(res: CollisionResult, rows: NDArray[np.bool_], again: CollisionResult, take: NDArray[np.bool_]) -> None:
     """Overwrite the batch rows ``rows`` of ``res`` with the rows ``take`` of a later attempt.
 
@@ -959,8 +966,7 @@ def _cascade(
     # NONCONVEX above tol: the iteration limit or a failed shift ended a slice that is no stationary point (a
     # minimiser on the vacuum boundary looks so to the interior iteration); a stationary non-minimiser is kept
     # (a NaN residual is no stationary point either); such a slice keeps its NONCONVEX unless the barrier certifies
-    nonconvex = np.array([s == Status.NONCONVEX and not k <= opts.tol
-                          for s, k in zip(res.status, res.kkt_residual, strict=True)], dtype=bool)  # fmt: skip
+    nonconvex = _nonconvex_not_stationary(res, opts.tol)
     unfinished = np.array([s in _RETRY or s == Status.NOT_CERTIFIED for s in res.status], dtype=bool) | nonconvex
     certified = np.array([s == Status.CONVERGED for s in res.status], dtype=bool)
     rival = jammed & certified & opts.second_start  # a jam a later attempt certified: start again, for a lower J
@@ -990,9 +996,7 @@ def _cascade(
     if continuation and P.cfl() > 1.0:
         # only where no direction descended at a point that is not stationary: an iteration limit keeps its
         # meaning (max_iter=k returns the k-th iterate), and a stationary non-minimiser is the answer
-        rest = np.array([s == Status.NONCONVEX and not k <= opts.tol
-                         for s, k in zip(res.status, res.kkt_residual, strict=True)], dtype=bool)  # fmt: skip
-        rest &= np.all(P.f_star > 0, axis=-1)
+        rest = _nonconvex_not_stationary(res, opts.tol) & np.all(P.f_star > 0, axis=-1)
         if rest.any():
             again, reached, iterations = _continuation(P.rows(rest), opts)
             res.iterations[np.flatnonzero(rest)] += iterations  # every stage counts, kept or not
@@ -1299,7 +1303,7 @@ def solve_newton(
     if problem.batched:
         return res
     res = _single(res)
-    if res.status is Status.NONCONVEX and not res.kkt_residual <= opts.tol:
+    if _nonconvex_not_stationary(res, opts.tol)[0]:
         # no stationary point: the modified directions found no descent there (not a saddle point it reached)
         res.info["hint"] = (
             f"at a point that is not stationary (KKT {res.kkt_residual:.1e}): no shifted Newton direction "

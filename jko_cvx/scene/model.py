@@ -615,19 +615,18 @@ def shipped_scene(name: str, overrides: Mapping[str, Any] | None = None, limits:
     >>> scene.name, scene.time.dt, scene.t_end
     ('tab_bu_g1', 0.005, 1.0)
     """
-    names = shipped_scene_names()
-    if name not in names:
-        close = difflib.get_close_matches(str(name), names, n=4)
-        hint = f" (did you mean {' or '.join(map(repr, close))}?)" if close else ""
-        raise SceneError(f"no shipped scene {name!r}{hint}; shipped: {names}")
     return scene_from_dict(with_overrides(shipped_document(name), overrides), limits)
 
 
 def shipped_document(name: str) -> dict[str, Any]:
     """The TOML document of a shipped scene as its file writes it: the keys it sets, nothing the loader
-    fills in or resolves (``refine.v.centre = "auto"`` stays ``"auto"``; absent keys stay absent)."""
-    if name not in shipped_scene_names():
-        return shipped_scene(name).to_dict()  # raises, naming the shipped scenes
+    fills in or resolves (``refine.v.centre = "auto"`` stays ``"auto"``; absent keys stay absent).
+    An unknown name raises :class:`SceneError` naming the shipped scenes."""
+    names = shipped_scene_names()
+    if name not in names:
+        close = difflib.get_close_matches(str(name), names, n=4)
+        hint = f" (did you mean {' or '.join(map(repr, close))}?)" if close else ""
+        raise SceneError(f"no shipped scene {name!r}{hint}; shipped: {names}")
     return tomllib.loads((_SHIPPED / f"{name}.toml").read_text(encoding="utf-8"))
 
 
