@@ -7,7 +7,8 @@ directory (refusing one that holds a run, unless ``--overwrite``) and prints the
 Ctrl-C (SIGINT) or SIGTERM writes a checkpoint, prints the command that resumes it and exits
 with status 130.  ``jko-cvx export RUN_DIR --netcdf FILE`` writes a run as netCDF.
 ``jko-cvx verify SCENE [--reference conic|nlp] [--every K] [--slices all|N] [--workers W] [--trajectory]``
-runs a scene and re-solves every K-th step's collision problems with a reference (:mod:`jko_cvx.engine.verify`).
+runs a scene and re-solves every K-th step's collision problems, and the last step's, with a reference
+(:mod:`jko_cvx.engine.verify`).
 ``jko-cvx solve [--method M ...] [--fisher perspective|log]`` solves one collision step with every
 method (or the given ones); ``jko-cvx solvers`` lists the installed conic solvers;
 ``jko-cvx scene template [--kind homogeneous|inhomogeneous]`` prints a commented scene template and
@@ -403,7 +404,8 @@ def _verify_parser(sub) -> None:
     p.add_argument("scene", type=Path, help="scene TOML file, or the name of a shipped scene")
     p.add_argument("--reference", choices=("conic", "nlp"), default=None,
                    help="the reference solver (default: conic; nlp for collision.fisher = 'log')")  # fmt: skip
-    p.add_argument("--every", type=_at_least(1), default=1, help="compare every K-th step (default %(default)s)")
+    p.add_argument("--every", type=_at_least(1), default=1,
+                   help="compare every K-th step and the last (default %(default)s)")  # fmt: skip
     p.add_argument("--slices", type=_slices, default="all",
                    help="x-slices compared: all, or N evenly spread (default %(default)s)")  # fmt: skip
     p.add_argument("--out", type=_directory, default=None, help="directory (default runs/<scene name>_verify)")

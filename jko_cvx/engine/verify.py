@@ -1,7 +1,9 @@
 """Verify a solver along a whole run: every K-th step's collision problems re-solved by a reference.
 
 ``verify(scene, reference="conic", every=K, slices="all")`` runs the scene with its own
-``collision.method``.  At every step whose number is a multiple of K, each compared x-slice's
+``collision.method``.  At every step whose number is a multiple of K, and at the run's last step (the
+step at t_end, or the one after which a blow-up rule stopped the run: the nearest the singularity,
+the hardest to solve), each compared x-slice's
 collision problem -- the very :class:`~jko_cvx.collision.CollisionProblem` the loop posed
 (``alg:SPMCSL-JKO``'s f* after transport, the grid, dt, strength, Fisher form and weight, the
 momentum constraint) -- is solved again by the reference, started cold from its own initial
@@ -96,6 +98,7 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+from numpy.typing import NDArray
 
 from jko_cvx.collision import CollisionProblem, CollisionResult, Status
 from jko_cvx.collision._checks import check_bool, check_int
@@ -108,7 +111,7 @@ from jko_cvx.engine.errors import RunDirError
 from jko_cvx.engine.loop import ACCEPT_KKT, simulate
 from jko_cvx.engine.run import Run
 from jko_cvx.engine.trackers import StepInfo, Tracker
-from jko_cvx.engine.verdict import run_failure
+from jko_cvx.engine.verdict import StopReason, run_failure
 from jko_cvx.scene.model import Scene
 from jko_cvx.threads import blas_limits, usable_cores
 
@@ -305,12 +308,14 @@ def _at(value: Any, i: int, batched: bool) -> Any:
 
 
 class VerifyTracker(Tracker):
-    """Re-solves the compared slices of every K-th step with the reference and keeps the rows."""
+    """Re-solves the compared slices of every K-th step and of the run's last step with the reference and keeps
+    the rows."""
 
     def __init__(self, scene: Scene, settings: VerifySettings, rundir: RunDir | None, workers: int = 1) -> None:
         self.scene, self.settings, self.rundir, self.workers = scene, settings, rundir, workers
         self.rows: list[dict[str, Any]] = []
         self.pending: list[dict[str, Any]] = []
+        self.held: tuple | None = None  # the arguments of _compare for a step not compared unless it is the last
         self.pool = None
 
     # files ---------------------------------------------------------------
@@ -334,7 +339,7 @@ class VerifyTracker(Tracker):
         if (rd.path / "verify.csv").exists():
             table = _read_table(rd.path, rd.ledger)
             self.rows = [r for r in table.to_dict("records") if r["step"] <= state.step]
-        missing = _missing_steps(self.rows, self.settings.every, state.step)
+        missing = _missing_steps(self.rows, self.settings.every, state.step, state.done(self.scene.t_end))
         if missing:
             raise RunDirError(
                 f"cannot resume the verification in {rd.path}: verify.csv lacks the compared steps {missing[:5]} "
@@ -348,10 +353,21 @@ class VerifyTracker(Tracker):
 
     # the loop's hooks ----------------------------------------------------
     def solved(self, state: RunState, problem: CollisionProblem | None, result: CollisionResult) -> None:
-        self.pending = []
+        self.pending, self.held = [], None
         step = state.step + 1
-        if problem is None or step % self.settings.every:
+        if problem is None:
             return
+        xs = None if state.xgrid is None else state.xgrid.points.copy()
+        if step % self.settings.every:  # compared only if the run ends with it (handle)
+            self.held = (step, state.t, xs, problem, result)
+            return
+        self.pending = self._compare(step, state.t, xs, problem, result)
+
+    def _compare(
+        self, step: int, t: float, xs: NDArray | None, problem: CollisionProblem, result: CollisionResult
+    ) -> list[dict[str, Any]]:
+        """The rows of step ``step`` (from time ``t``, on the x-points ``xs``): each compared slice re-solved."""
+        rows = []
         batched = problem.batched
         indices = self.settings.slice_indices(problem.batch_size) if batched else np.array([0])
         share = result.seconds / (problem.batch_size if batched else 1)
@@ -377,14 +393,15 @@ class VerifyTracker(Tracker):
                 dJ = float(abs(J - ref.objective) / max(abs(float(ref.objective)), np.finfo(float).tiny))
             df = df if np.isfinite(df) else np.inf
             dJ = dJ if np.isfinite(dJ) else np.inf
-            self.pending.append({
-                "step": step, "t": state.t + dt, "dt": dt, "slice": int(i),
-                "x": float("nan") if state.xgrid is None else float(state.xgrid.points[i]),
+            rows.append({
+                "step": step, "t": t + dt, "dt": dt, "slice": int(i),
+                "x": float("nan") if xs is None else float(xs[i]),
                 "status": status.name, "status_ref": ref.status.name, "kkt": kkt, "kkt_ref": float(ref.kkt_residual),
                 "df": df, "dJ": dJ, "err": err, "err_ref": err_ref, "tolerance": self.settings.tolerance,
                 "seconds": float(share), "seconds_ref": ref_seconds,
                 "outcome": _outcome(status, kkt, ref, df, dJ, err_ref, self.settings.tolerance),
             })  # fmt: skip
+        return rows
 
     def _map(self, tasks: list[tuple]) -> list[tuple[CollisionResult, float, float, float]]:
         """:func:`_compare_slice` of every task, in order: in worker processes where there are several tasks
@@ -418,6 +435,11 @@ class VerifyTracker(Tracker):
             self.pool = None
 
     def handle(self, state: RunState, step: StepInfo) -> None:
+        # the run's last step is compared whatever `every` says: the stop rules ran before this tracker, so
+        # the state says whether the run ends here (at t_end, or a blow-up rule fired)
+        if self.held is not None and state.done(self.scene.t_end):
+            self.pending = self._compare(*self.held)
+        self.held = None
         # saved at once (this tracker runs before the checkpoint tracker): never behind a checkpoint,
         # also not behind the one SIGINT / SIGTERM writes of the last accepted step
         if self.pending:
@@ -500,7 +522,7 @@ def verify_verdict(table: pd.DataFrame, reference: str | None = None, failure: s
         text = verify_verdict(table, reference)[1]
         return False, f"not verified: {failure}; the compared steps: {text}"
     if len(table) == 0:
-        return False, "unverified: no step was compared (the run took fewer steps than every)"
+        return False, "unverified: no step was compared (no step was accepted, or a failed solve stopped the run first)"
     bad = table[table["outcome"] != AGREE]
     if len(bad) == 0:
         steps = table["step"].nunique()
@@ -536,7 +558,7 @@ def verify(
     trajectory: bool = False,
     workers: int | None = None,
 ) -> Verification:
-    """Run ``scene`` and re-solve every ``every``-th step's collision problems with a reference.
+    """Run ``scene`` and re-solve every ``every``-th step's collision problems, and the last step's, with a reference.
 
     Parameters
     ----------
@@ -546,7 +568,8 @@ def verify(
         Default :func:`default_reference`: conic for the perspective form and no Fisher term,
         nlp for the log form.  Refused: conic for the log form, the scene's own method.
     every : int, default 1
-        Compare the steps whose number is a multiple of ``every``.
+        Compare the steps whose number is a multiple of ``every``, and the run's last step where the run
+        ended with an accepted step (at ``t_end`` or on a blow-up rule; not a failed solve's stop).
     slices : "all" or int, default "all"
         The x-slices compared (an integer: that many, evenly spread; homogeneous scenes have one).
     reference_options : dict, optional
@@ -635,9 +658,15 @@ REFERENCE_DIR = "reference"
 """The subdirectory of a verification directory that holds the reference's run (``trajectory``)."""
 
 
-def _missing_steps(rows: Sequence[dict[str, Any]], every: int, last: int) -> list[int]:
-    """The steps up to ``last`` a verification compares (multiples of ``every``) that have no row."""
-    return sorted(set(range(every, last + 1, every)) - {int(r["step"]) for r in rows})
+# the stops decided after an accepted step (RunState.done): that step was the run's last and is compared
+_ENDED_BY_A_STEP = (StopReason.T_END, StopReason.EPS_V, StopReason.EPS_X, StopReason.SPREAD_V, StopReason.EPS_T)
+
+
+def _missing_steps(rows: Sequence[dict[str, Any]], every: int, last: int, ended: bool) -> list[int]:
+    """The steps up to ``last`` a verification compares that have no row: the multiples of ``every`` and, where
+    the run ``ended`` with step ``last`` (at t_end or on a blow-up rule, not on a failed solve), that step."""
+    compared = set(range(every, last + 1, every)) | ({last} if ended and last > 0 else set())
+    return sorted(compared - {int(r["step"]) for r in rows})
 
 
 def _read_settings(path: Path, ledger: Ledger) -> dict[str, Any]:
@@ -672,7 +701,8 @@ def load_verification(path: str | Path) -> pd.DataFrame:
 
     Checked: the directory's lock-free files against the ledger (``metadata.json``), the
     settings (``verify.json``), the run has ended (``verdict.json``), and the table holds one
-    row per compared slice of every K-th step the run took; with ``trajectory``, the comparison of
+    row per compared slice of every K-th step the run took and of its last step (where the run ended with an
+    accepted step: at t_end or on a blow-up rule); with ``trajectory``, the comparison of
     the tested and the reference run is recomputed from the two runs as loaded and must equal
     ``trajectory.csv``.  ``attrs`` holds ``settings``, ``verified`` and ``verdict`` (the
     trajectory part included) and, with ``trajectory``, the ``trajectory`` table.
@@ -716,7 +746,8 @@ def load_verification(path: str | Path) -> pd.DataFrame:
     record = json.loads((path / "verdict.json").read_text())
     steps = int(record["steps"])
     table = _read_table(path, ledger) if (path / "verify.csv").exists() else _frame([])
-    missing = _missing_steps(table.to_dict("records"), settings["every"], steps)
+    ended = record.get("stop") in [s.name for s in _ENDED_BY_A_STEP]
+    missing = _missing_steps(table.to_dict("records"), settings["every"], steps, ended)
     if missing:
         raise RunDirError(
             f"{path / 'verify.csv'} lacks the steps {missing[:5]}{' ...' if len(missing) > 5 else ''} of a run of "
@@ -758,8 +789,8 @@ def _write_report(result: Verification, path: Path, ledger: Ledger) -> None:
         "",
         f"- scene: {run.scene.name} ({run.scene.description}); collision.fisher = {run.scene.collision.fisher}, "
         f"beta = {run.scene.collision.beta:g}",
-        f"- reference: {s.reference} with {json.dumps(s.options, sort_keys=True)}; every {s.every} step(s); "
-        f"slices: {s.slices}",
+        f"- reference: {s.reference} with {json.dumps(s.options, sort_keys=True)}; every {s.every} step(s) and the "
+        f"last; slices: {s.slices}",
         f"- tolerance: {s.tolerance:.2e} = {SAFETY:g} x sqrt(reference tol) (relative, in f and in J)",
         f"- run: {run.summary()}",
         "",

@@ -12,7 +12,7 @@ from jko_cvx.engine.errors import RunDirError
 from jko_cvx.engine.loop import simulate
 from jko_cvx.engine.trackers import Tracker
 from jko_cvx.engine.verify import TIMES, load_verification, verify
-from jko_cvx.scene import shipped_scene
+from jko_cvx.scene import default_scene, shipped_scene
 from jko_cvx.scene.model import load_scene
 
 from ._inject import failing
@@ -138,6 +138,20 @@ def _weighted_gap(f, exact):
     return float(np.max(f / f.max() * np.abs(f - exact)) / f.max())
 
 
+def test_the_runs_last_step_is_compared_whatever_every(tmp_path):
+    """``every`` thins the comparisons, but the run's last step -- at t_end, or the blow-up step where a rule
+    stopped it -- is always compared: the steps nearest the singularity are the hardest ones to solve."""
+    ver = verify(_scene(), "conic", every=2, out=tmp_path / "t_end")  # 5 steps to t_end
+    assert list(ver.table["step"]) == [2, 4, 5] and ver.verified, ver.verdict
+    back = load_verification(tmp_path / "t_end")
+    pd.testing.assert_frame_equal(back, ver.table, check_dtype=False, check_exact=True)
+    blowup = verify(default_scene(), every=20)  # stopped by min dv < eps_v at a step that is no multiple of 20
+    steps = blowup.run.steps
+    assert blowup.run.verdict.stop.name == "EPS_V" and steps % 20, (blowup.run.verdict.stop, steps)
+    assert sorted(set(blowup.table["step"])) == [20, 40, steps][: 1 + steps // 20], blowup.table["step"]
+    assert blowup.table["step"].iloc[-1] == steps and blowup.verified, blowup.verdict
+
+
 def test_a_failing_reference_leaves_the_run_unverified():
     ver = verify(_scene(**{"t_end": 0.02}), "conic", reference_options={"solver_options": {"max_iter": 2}})
     t = ver.table
@@ -201,12 +215,12 @@ def test_a_run_stopped_by_the_tested_methods_failure_is_not_verified(tmp_path):
 
 def test_a_run_that_went_on_with_failed_solves_is_not_verified_whatever_the_compared_steps(tmp_path):
     # stop.on_solver_failure = false: steps 2 and 4 fail (imposed) and the run goes on with them; every = 3 compares
-    # steps 3 only, which agrees -- the run still carries uncertified steps, so it is not verified
+    # step 3 and the last, step 5, which agree -- the run still carries uncertified steps, so it is not verified
     sc = _scene(**{"stop.on_solver_failure": False})
     with failing(lambda attempt, accepted, dt: attempt in (1, 3)):
         ver = verify(sc, "conic", every=3, out=tmp_path / "v")
     assert ver.run.verdict.uncertified_steps == 2 and ver.run.steps == 5
-    assert list(ver.table["step"]) == [3] and list(ver.table["outcome"]) == ["agree"]
+    assert list(ver.table["step"]) == [3, 5] and list(ver.table["outcome"]) == ["agree", "agree"]
     assert not ver.verified and ver.verdict.startswith("not verified: the run carried 2 uncertified step"), ver.verdict
     back = load_verification(tmp_path / "v")
     assert back.attrs["verified"] is False and back.attrs["verdict"] == ver.verdict
