@@ -86,6 +86,7 @@ PAGES: tuple[Page, ...] = (
             Entry("bench_newton_sqp.csv", title="Newton (NumPy and compiled) against the paper's SQP"),
             Entry("newton_single_path.md"),
             Entry("newton_certification.md", data=("newton_certification.csv",)),
+            Entry("certificate_weights.md", data=("certificate_weights.csv", "certificate_weights_run.csv")),
             Entry("newton_single_call.md", data=("newton_single_call.csv",)),
             Entry("bench_cost_model.md", data=("bench_cost_model.csv",)),
             Entry("bench_cli_run.md", data=("bench_cli_run.csv",)),
