@@ -29,7 +29,10 @@ boundary is no interior stationary point, which the two attempts before only cre
 towards (linearly, at KKT 1e-9 to 1e-3 after their iteration limits).  The step is not
 convex (the energy's concave part), and a certificate is local: a slice that jammed and was
 then certified is also solved with the barrier attempt, and the certified point with the lower J
-is returned (``info["lower_minimum"]``; :func:`_cascade`).  The
+is returned (``info["lower_minimum"]``; :func:`_cascade`).  A slice left stalled or without a
+descending direction is solved again with shifts of each row's own size and the barrier from the
+other start (``info["row_shift"]``), and at large CFL numbers by a continuation in dt
+(``info["continued"]``).  The
 solver stops on the KKT residual of
 :class:`~jko_cvx.collision.problem.CollisionProblem` (``tol``), never on step length
 alone, and :func:`~jko_cvx.collision.certify.certify` judges the point (``kkt_tol``).
@@ -255,7 +258,9 @@ def _second_order(
     return ok
 
 
-def _direction(problem: CollisionProblem, bands, g: NDArray) -> tuple[NDArray, NDArray[np.bool_], NDArray[np.bool_]]:
+def _direction(
+    problem: CollisionProblem, bands, g: NDArray, row_shift: bool = False
+) -> tuple[NDArray, NDArray[np.bool_], NDArray[np.bool_]]:
     """Newton direction ``-H^-1 g``, the per-slice positive-definiteness of H, and validity.
 
     With ``conserve_momentum`` the direction is the equality-constrained one: with
@@ -267,7 +272,8 @@ def _direction(problem: CollisionProblem, bands, g: NDArray) -> tuple[NDArray, N
     the direction is taken with ``H + tau diag(H)``, tau = 1e-6, 1e-4, ..., 1e2, the first
     that factorises: a descent direction, so the iteration can still reach a local
     minimiser, which the final second-order test certifies (modified Newton).
-    ``valid`` is False only where no shift helped.
+    ``valid`` is False only where no shift helped.  Where a diagonal entry is not positive,
+    ``D`` is :func:`_shift` (``row_shift``: each row's own size).
     """
     fb = problem.energy.flux_structure()
     scale = 2 * problem.energy_coef
@@ -303,12 +309,8 @@ def _direction(problem: CollisionProblem, bands, g: NDArray) -> tuple[NDArray, N
         )
         d = np.einsum("...ii->...i", Hb)
         finite = np.all(np.isfinite(Hb), axis=(-2, -1))
-        # A diagonal entry <= 0 (a concave energy outweighing the convex terms: gamma < 2 at a large CFL
-        # number) is shifted by its magnitude (floored at 1e-8 of the largest), so that H + tau D still
-        # becomes positive definite as tau grows; a positive diagonal is its own shift.
-        big = np.abs(d).max(axis=-1, keepdims=True)
-        shift = np.where(np.all(d > 0, axis=-1, keepdims=True), d, np.maximum(np.abs(d), 1e-8 * big))
-        todo = finite & (big[..., 0] > 0)
+        shift, big = _shift(Hb, d, row_shift)
+        todo = finite & (big > 0)
         for tau in (1e-6, 1e-4, 1e-2, 1.0, 1e2, 1e4, 1e6):
             if not todo.any():
                 break
@@ -327,8 +329,28 @@ def _direction(problem: CollisionProblem, bands, g: NDArray) -> tuple[NDArray, N
     return p, pd, valid
 
 
+def _shift(Hb: NDArray, d: NDArray, row_shift: bool) -> tuple[NDArray, NDArray]:
+    """The diagonal ``D`` of the modified-Newton shifts ``H + tau D`` (:func:`_direction`) and each slice's largest
+    ``|H_kk|``, for the stacked Hessians ``Hb`` with diagonals ``d``.
+
+    A positive diagonal is its own shift.  A diagonal entry <= 0 (a concave energy outweighing the convex
+    terms: gamma < 2 at a large CFL number) is shifted by its magnitude, floored at 1e-8 of the largest, so
+    that ``H + tau D`` still becomes positive definite as tau grows.  With ``row_shift`` every entry of such a
+    slice is shifted by its row's own size, :math:`\\max(|H_{kk}|, \\sum_{j \\ne k} |H_{kj}|)` (diagonally dominant
+    from tau = 2), floored only where the row is zero: next to an emptied cell the curvature 4 / s_k reaches
+    1e40, and 1e-8 of that on every other edge makes the shifted step vanish there (the point does not move).
+    """
+    big = np.abs(d).max(axis=-1, keepdims=True)
+    if row_shift:
+        size = np.maximum(np.abs(d), np.abs(Hb).sum(axis=-1) - np.abs(d))
+        other = np.where(size > 0, size, 1e-8 * big)
+    else:
+        other = np.maximum(np.abs(d), 1e-8 * big)
+    return np.where(np.all(d > 0, axis=-1, keepdims=True), d, other), big[..., 0]
+
+
 def _interior_damped(
-    problem: CollisionProblem, bands, g: NDArray, f: NDArray, p: NDArray, damping: bool
+    problem: CollisionProblem, bands, g: NDArray, f: NDArray, p: NDArray, damping: bool, row_shift: bool = False
 ) -> tuple[NDArray, NDArray[np.float64]]:
     """Where the Newton step would leave the domain, damp it in the relative metric of f.
 
@@ -364,7 +386,7 @@ def _interior_damped(
         c = mu[idx, None] / (f[idx] * f[idx])
         diag, off1, off2 = (band[idx] for band in bands)
         sub = (diag + aa * c[:, :-1] + bb * c[:, 1:], off1 + o1b * c[:, 1:-1], off2)
-        q, _, valid = _direction(problem, sub, g[idx])  # uses the grid and the energy, not f*
+        q, _, valid = _direction(problem, sub, g[idx], row_shift)  # uses the grid and the energy, not f*
         ok = valid & np.all(np.isfinite(q), axis=-1)
         qf = -divergence(q) / h
         inside = ok & np.all(qf >= -_KEEP * f[idx], axis=-1)
@@ -485,6 +507,7 @@ class _Attempt:
     damping: bool
     jam_exit: bool
     barrier: bool = False
+    row_shift: bool = False  # the modified-Newton shifts of each row's own size (_shift)
 
 
 @dataclass
@@ -715,7 +738,7 @@ def _step(Pa: CollisionProblem, st: NewtonState, g: NDArray, p: NDArray, bands, 
     function (:func:`_with_barrier`), and ``mu`` is lowered after each full step.
     """
     mu = st.mu if run.barrier else None
-    p, alpha = _interior_damped(Pa, bands, g, st.f, p, run.damping)
+    p, alpha = _interior_damped(Pa, bands, g, st.f, p, run.damping, run.row_shift)
     slope = np.einsum("bi,bi->b", g, p)
     dec = -slope / np.maximum(np.abs(st.phi), _TINY)
     st.decrement = dec
@@ -775,7 +798,7 @@ def _iterate(P: CollisionProblem, st: NewtonState, opts: NewtonOptions, run: _At
             g, bands, parts = _fused(Pa, st.f, st.m, want_parts=check if checking else False)
             if run.barrier:
                 g, bands = _with_barrier(Pa, st.f, st.mu, g, bands)
-            p, pd, valid = _direction(Pa, bands, g)
+            p, pd, valid = _direction(Pa, bands, g, run.row_shift)
             if checking:
                 _residual_test(Pa, st, parts, pd, check, opts)
             if it == opts.max_iter:
@@ -940,8 +963,17 @@ def _cascade(
        ``info["lower_minimum"]`` marks those slices: another minimiser, or the same one reached more
        accurately.  Slices certified by the first attempt, and certified slices that did not jam, are
        never solved again, so their results do not depend on this stage.
-    5. Slices ``NONCONVEX`` at a point that is not stationary, on a step of explicit CFL number above one: a
+    5. Slices ``NOT_CERTIFIED`` (a stall) or ``NONCONVEX`` at a point that is not stationary: once more with
+       the modified-Newton shifts of each row's own size (:func:`_shift`; a concave energy beside an emptied
+       cell, whose curvature floored the shifts so that the step vanished), kept where it certifies; then the
+       slices still stalled, with the barrier from the other cold start (``start`` "zero" for "explicit" and
+       the other way round), kept where it certifies or stalls at a smaller residual
+       (``info["row_shift"]``).
+    6. Slices ``NONCONVEX`` at a point that is not stationary, on a step of explicit CFL number above one: a
        continuation in dt (:func:`_continuation`), kept where it certifies.
+
+    Stages 5 and 6 run only on slices that every stage before left without a solution, so the results of
+    slices certified before them do not depend on them.
     """
     res = _attempt(P, m0, opts, _Attempt(damping=False, jam_exit=True))
     jammed = res.info["jammed"]
@@ -949,7 +981,7 @@ def _cascade(
     barrier = np.zeros(jammed.shape, dtype=bool)
     if all(s is Status.CONVERGED for s in res.status):  # the common case (a jam ends a slice unconverged): no retry
         res.info.update(jammed=jammed, interior_damping=damped, barrier=barrier, lower_minimum=np.zeros_like(jammed),
-                        continued=np.zeros_like(jammed))  # fmt: skip
+                        row_shift=np.zeros_like(jammed), continued=np.zeros_like(jammed))  # fmt: skip
         return res
     retry = np.array([s in _RETRY for s in res.status]) & np.all(P.f_star > 0, axis=-1)
     if retry.any():
@@ -992,6 +1024,31 @@ def _cascade(
         barrier[np.flatnonzero(todo)[better]] = True
         damped[np.flatnonzero(todo)[better]] = False
         lower[np.flatnonzero(todo)[better & second]] = True
+    # NOT_CERTIFIED (a stall) or NONCONVEX at a point that is not stationary: where a diagonal entry of the
+    # reduced Hessian was not positive, the global floor of the shifts may have frozen the step (_shift);
+    # once more with each row's own shift, kept where it certifies
+    shifted = np.zeros(jammed.shape, dtype=bool)
+    stuck = np.array([s == Status.NOT_CERTIFIED for s in res.status], dtype=bool) | _nonconvex_not_stationary(
+        res, opts.tol
+    )
+    stuck &= np.all(P.f_star > 0, axis=-1)
+    if stuck.any():
+        again = _attempt(P.rows(stuck), _m0_rows(m0, stuck), opts, _Attempt(False, False, row_shift=True))
+        ok = again.status == Status.CONVERGED
+        _merge(res, stuck, again, ok)
+        won = np.flatnonzero(stuck)[ok]
+        shifted[won], damped[won], barrier[won] = True, False, False
+        # a barrier attempt that stalled above tol (its path met the vacuum boundary where the minimiser is not):
+        # the barrier again from the other cold start, kept where it certifies or stalls at a smaller residual
+        stalled = stuck & np.array([s == Status.NOT_CERTIFIED for s in res.status], dtype=bool)
+        if stalled.any():
+            other = replace(opts, start="zero" if opts.start == "explicit" else "explicit", m0=None)
+            again = _attempt(P.rows(stalled), None, other, _Attempt(False, False, barrier=True, row_shift=True))
+            stall = np.array([s == Status.NOT_CERTIFIED for s in again.status], dtype=bool)
+            better = (again.status == Status.CONVERGED) | (stall & (again.kkt_residual < res.kkt_residual[stalled]))
+            _merge(res, stalled, again, better)
+            won = np.flatnonzero(stalled)[better]
+            shifted[won], damped[won], barrier[won] = True, False, True
     continued = np.zeros(jammed.shape, dtype=bool)
     if continuation and P.cfl() > 1.0:
         # only where no direction descended at a point that is not stationary: an iteration limit keeps its
@@ -1007,8 +1064,9 @@ def _cascade(
                 again.iterations[:] = 0  # counted above
                 _merge(res, rows, again, ok)
                 won = np.flatnonzero(rows)[ok]
-                continued[won], damped[won], barrier[won] = True, False, False
-    res.info.update(jammed=jammed, interior_damping=damped, barrier=barrier, lower_minimum=lower, continued=continued)
+                continued[won], damped[won], barrier[won], shifted[won] = True, False, False, False
+    res.info.update(jammed=jammed, interior_damping=damped, barrier=barrier, lower_minimum=lower, row_shift=shifted,
+                    continued=continued)  # fmt: skip
     return res
 
 
@@ -1105,7 +1163,7 @@ def _compiled_single(P: CollisionProblem, opts: NewtonOptions, t0: float) -> Col
     if cert.status is not Status.CONVERGED:  # the cascade goes on from such a first attempt: solve it all there
         return None
     info = {"warm_started": warm, "jammed": False, "interior_damping": False, "barrier": False,
-            "lower_minimum": False, "continued": False, "compiled": True}  # fmt: skip
+            "lower_minimum": False, "row_shift": False, "continued": False, "compiled": True}  # fmt: skip
     return CollisionResult.from_certificate(P, f, m, cert, "newton", iterations, time.perf_counter() - t0, info)
 
 
@@ -1166,7 +1224,7 @@ def _compiled_batch(P: CollisionProblem, opts: NewtonOptions, t0: float) -> Coll
     done[done] = accepted
     if not done.any():
         return None
-    flags = ("jammed", "interior_damping", "barrier", "lower_minimum", "continued")
+    flags = ("jammed", "interior_damping", "barrier", "lower_minimum", "row_shift", "continued")
     info = {"warm_started": warm & done, **{name: np.zeros(B, dtype=bool) for name in flags}, "compiled": done}
     if done.all():  # every slice compiled and certified (so every was True): the result as it stands
         return CollisionResult(f, m, cert.status, "newton", its, phi, kkt, mass_error, time.perf_counter() - t0, info)
@@ -1282,7 +1340,8 @@ def solve_newton(
         (the returned point comes from the interior-damped attempt) and ``barrier`` (it
         comes from the barrier attempt) and ``lower_minimum`` (the second start found a certified
         local minimiser with a lower J than the one first certified, beyond rounding, and that is
-        returned: another minimiser, or the same one reached more accurately), ``continued`` (it comes
+        returned: another minimiser, or the same one reached more accurately), ``row_shift`` (it comes
+        from the attempt whose modified-Newton shifts have each row's own size), ``continued`` (it comes
         from the continuation in dt, the cascade's last resort) and ``compiled`` (the
         point comes from the compiled iteration); per slice when batched.  ``iterations`` counts every
         attempt (the compiled one only where its point is returned).
@@ -1307,8 +1366,8 @@ def solve_newton(
         # no stationary point: the modified directions found no descent there (not a saddle point it reached)
         res.info["hint"] = (
             f"at a point that is not stationary (KKT {res.kkt_residual:.1e}): no shifted Newton direction "
-            "descended there, and no retry (barrier, continuation in dt) reached a minimiser; method='nlp' is "
-            "the reference for such steps"
+            "descended there, and no retry (barrier, row-sized shifts, continuation in dt) reached a minimiser; "
+            "method='nlp' is the reference for such steps"
         )
     return res
 

@@ -4,7 +4,8 @@ mass many cells): certified where the nonlinear reference certifies.
 Two failures of an independent review's held-out families (``studies/newton_certification.py``,
 seeds ``review``): at the explicit start the reduced Hessian had diagonal entries <= 0, so no
 modified-Newton shift was tried and the point was called NONCONVEX after no iteration (KKT 4e-2);
-and a step whose shifted iteration crawls, which the continuation in dt solves.
+a step whose shifted iteration crawls, which the continuation in dt solves; a step whose shifts, floored
+by an emptied cell's curvature, froze the iteration; and a barrier attempt that stalled from one start.
 """
 
 import numpy as np
@@ -46,6 +47,31 @@ def test_a_step_the_shifted_iteration_cannot_finish_is_solved_by_continuation_in
     res = solve_collision(P, method="newton")
     _certified_minimiser(P, res)
     assert res.info["continued"]
+
+
+def test_a_shift_floored_by_an_emptied_cell_does_not_freeze_the_step():
+    """Two bumps concentrating apart empty the cell between them (edge sums 1e-31, curvatures 4 / s_k near
+    1e40) while the energy is concave: shifts floored at 1e-8 of the largest diagonal entry (1e32 on every
+    edge) left a step of 1e-27 and Newton stalled where it started (NOT_CERTIFIED, KKT 5.5e-2); shifts of
+    each row's own size reach a certified local minimiser."""
+    study = load_study_script("newton_certification.py")
+    P, par = study.review_problem("vacuum", 4)  # gamma 1.23, N = 235, log form, CFL 512, tails 1e-26
+    assert par["gamma"] < 2 and par["cfl"] > 100 and P.f_star.min() < 1e-20 * P.f_star.max()
+    res = solve_collision(P, method="newton")
+    _certified_minimiser(P, res)
+    assert res.info["row_shift"]
+
+
+def test_a_barrier_attempt_that_stalls_above_tol_starts_again_from_the_other_start():
+    """A step at CFL 3000 (gamma 4.6, spacing ratio 27) whose minimiser empties cells: the barrier attempt from
+    the explicit start stalled at KKT 4.3e-6; from the zero start it reaches the minimiser, certified at a
+    run's threshold (Newton certifies at min(tol, 1e-8) in a run)."""
+    study = load_study_script("newton_certification.py")
+    P, par = study.review_problem("nonuniform", 89)
+    assert par["cfl"] > 1000
+    res = solve_collision(P, method="newton", tol=1e-8)
+    _certified_minimiser(P, res)
+    assert res.info["barrier"] and res.info["row_shift"]
 
 
 def test_a_slice_that_leaves_the_continuation_early_is_never_returned_as_a_solution_of_its_smaller_step(monkeypatch):
