@@ -1024,6 +1024,7 @@ def _cascade(
         barrier[np.flatnonzero(todo)[better]] = True
         damped[np.flatnonzero(todo)[better]] = False
         lower[np.flatnonzero(todo)[better & second]] = True
+        res.info["warm_started"][np.flatnonzero(todo)[better & second]] = False  # the second start is cold
     # NOT_CERTIFIED (a stall) or NONCONVEX at a point that is not stationary: where a diagonal entry of the
     # reduced Hessian was not positive, the global floor of the shifts may have frozen the step (_shift);
     # once more with each row's own shift, kept where it certifies
@@ -1038,8 +1039,8 @@ def _cascade(
         _merge(res, stuck, again, ok)
         won = np.flatnonzero(stuck)[ok]
         shifted[won], damped[won], barrier[won] = True, False, False
-        # a barrier attempt that stalled above tol (its path met the vacuum boundary where the minimiser is not):
-        # the barrier again from the other cold start, kept where it certifies or stalls at a smaller residual
+        # a slice still stalled above tol (the barrier's path met the vacuum boundary where the minimiser is not):
+        # the barrier again from the cold start other than `start`, kept where it certifies or stalls lower
         stalled = stuck & np.array([s == Status.NOT_CERTIFIED for s in res.status], dtype=bool)
         if stalled.any():
             other = replace(opts, start="zero" if opts.start == "explicit" else "explicit", m0=None)
@@ -1049,6 +1050,7 @@ def _cascade(
             _merge(res, stalled, again, better)
             won = np.flatnonzero(stalled)[better]
             shifted[won], damped[won], barrier[won] = True, False, True
+            res.info["warm_started"][won] = False  # a cold start
     continued = np.zeros(jammed.shape, dtype=bool)
     if continuation and P.cfl() > 1.0:
         # only where no direction descended at a point that is not stationary: an iteration limit keeps its

@@ -2,8 +2,8 @@
 
 ``verify(scene, reference="conic", every=K, slices="all")`` runs the scene with its own
 ``collision.method``.  At every step whose number is a multiple of K, and at the run's last step (the
-step at t_end, or the one after which a blow-up rule stopped the run: the nearest the singularity,
-the hardest to solve), each compared x-slice's
+step at t_end, or the one after which a blow-up rule or eps_t stopped the run: the nearest the
+singularity, the hardest to solve; not when a failed solve stopped it), each compared x-slice's
 collision problem -- the very :class:`~jko_cvx.collision.CollisionProblem` the loop posed
 (``alg:SPMCSL-JKO``'s f* after transport, the grid, dt, strength, Fisher form and weight, the
 momentum constraint) -- is solved again by the reference, started cold from its own initial
@@ -11,7 +11,12 @@ point (never from the tested method's answer; posed in units of the slice's larg
 certified against the problem itself, :func:`~jko_cvx.collision.estimate.solve_reference`), and the
 two answers are compared.  The run itself goes on with the tested method's answer: the reference
 only watches
-(:meth:`~jko_cvx.engine.trackers.Tracker.solved`, before the step is committed).
+(:meth:`~jko_cvx.engine.trackers.Tracker.solved`, before the step is committed).  Which step is the
+last is known only once it is committed (the stop rules read its diagnostics), so the last step,
+when its number is not a multiple of K, is compared in
+:meth:`~jko_cvx.engine.trackers.Tracker.handle`, where signals wait until its row and the checkpoint
+are written (Ctrl-C waits for those solves; a worker pool lost meanwhile, as to a signal sent to the
+whole process group, is replaced by the same solves in this process).
 
 Per step and slice (one row of ``verify.csv``): both statuses, both KKT residuals
 (:meth:`~jko_cvx.collision.CollisionProblem.kkt_residual`), the discrepancy in f,
@@ -166,7 +171,8 @@ def reference_accuracy(reference: str, options: dict[str, Any]) -> float:
 
 @dataclass(frozen=True)
 class VerifySettings:
-    """What a verification compares: the reference, its options, every K-th step, which slices."""
+    """What a verification compares: the reference, its options, every K-th step (and, with ``last``, the run's
+    last step), which slices."""
 
     reference: str
     options: dict[str, Any]
@@ -174,10 +180,13 @@ class VerifySettings:
     slices: str | int
     tolerance: float
     trajectory: bool = False
+    last: bool = True
 
     def to_dict(self) -> dict[str, Any]:
         d = {"reference": self.reference, "options": self.options, "every": self.every, "slices": self.slices,
-             "tolerance": self.tolerance}  # fmt: skip
+             "tolerance": self.tolerance, "last": self.last}  # fmt: skip
+        # verifications written before "last" existed compared the multiples of every only: their verify.json
+        # has no "last", they read as before, and a resume of one is refused (its settings differ)
         return {**d, "trajectory": True} if self.trajectory else d  # verifications without it read as before
 
     def slice_indices(self, n_x: int) -> np.ndarray:
@@ -339,7 +348,8 @@ class VerifyTracker(Tracker):
         if (rd.path / "verify.csv").exists():
             table = _read_table(rd.path, rd.ledger)
             self.rows = [r for r in table.to_dict("records") if r["step"] <= state.step]
-        missing = _missing_steps(self.rows, self.settings.every, state.step, state.done(self.scene.t_end))
+        ended = self.settings.last and state.done(self.scene.t_end)
+        missing = _missing_steps(self.rows, self.settings.every, state.step, ended)
         if missing:
             raise RunDirError(
                 f"cannot resume the verification in {rd.path}: verify.csv lacks the compared steps {missing[:5]} "
@@ -426,7 +436,16 @@ class VerifyTracker(Tracker):
                 initializer=_worker_start,
                 initargs=(os.getpid(), lock),
             )
-        return list(self.pool.map(_compare_slice, *zip(*tasks, strict=True)))
+        from concurrent.futures.process import BrokenProcessPool
+
+        try:
+            return list(self.pool.map(_compare_slice, *zip(*tasks, strict=True)))
+        except BrokenProcessPool:
+            # a worker died (a signal to the whole process group, which this process defers while it compares the
+            # run's last step in handle): the same deterministic solves here, so that the row is still written
+            self.close()
+            self.workers = 1
+            return [_compare_slice(*task) for task in tasks]
 
     def close(self) -> None:
         """Shut the reference solves' worker processes down (they are started at the first step that needs them)."""
@@ -437,7 +456,7 @@ class VerifyTracker(Tracker):
     def handle(self, state: RunState, step: StepInfo) -> None:
         # the run's last step is compared whatever `every` says: the stop rules ran before this tracker, so
         # the state says whether the run ends here (at t_end, or a blow-up rule fired)
-        if self.held is not None and state.done(self.scene.t_end):
+        if self.held is not None and self.settings.last and state.done(self.scene.t_end):
             self.pending = self._compare(*self.held)
         self.held = None
         # saved at once (this tracker runs before the checkpoint tracker): never behind a checkpoint,
@@ -569,7 +588,8 @@ def verify(
         nlp for the log form.  Refused: conic for the log form, the scene's own method.
     every : int, default 1
         Compare the steps whose number is a multiple of ``every``, and the run's last step where the run
-        ended with an accepted step (at ``t_end`` or on a blow-up rule; not a failed solve's stop).
+        ended with an accepted step (at ``t_end``, on a blow-up rule or on eps_t; not when a failed solve
+        stopped it).
     slices : "all" or int, default "all"
         The x-slices compared (an integer: that many, evenly spread; homogeneous scenes have one).
     reference_options : dict, optional
@@ -746,7 +766,7 @@ def load_verification(path: str | Path) -> pd.DataFrame:
     record = json.loads((path / "verdict.json").read_text())
     steps = int(record["steps"])
     table = _read_table(path, ledger) if (path / "verify.csv").exists() else _frame([])
-    ended = record.get("stop") in [s.name for s in _ENDED_BY_A_STEP]
+    ended = bool(settings.get("last")) and record.get("stop") in [s.name for s in _ENDED_BY_A_STEP]
     missing = _missing_steps(table.to_dict("records"), settings["every"], steps, ended)
     if missing:
         raise RunDirError(
@@ -784,13 +804,14 @@ def _load_trajectory(path: Path, ledger: Ledger, tolerance: float) -> Trajectory
 def _write_report(result: Verification, path: Path, ledger: Ledger) -> None:
     """verify.md (summary, verdict, worst rows) and verify.png."""
     t, s, run = result.table, result.settings, result.run
+    last = " and the last" if s.last and run.verdict.stop in _ENDED_BY_A_STEP else ""
     lines = [
         f"# Verification of {run.scene.name}: {run.scene.collision.method} against {s.reference}",
         "",
         f"- scene: {run.scene.name} ({run.scene.description}); collision.fisher = {run.scene.collision.fisher}, "
         f"beta = {run.scene.collision.beta:g}",
-        f"- reference: {s.reference} with {json.dumps(s.options, sort_keys=True)}; every {s.every} step(s) and the "
-        f"last; slices: {s.slices}",
+        f"- reference: {s.reference} with {json.dumps(s.options, sort_keys=True)}; every {s.every} step(s)"
+        f"{last}; slices: {s.slices}",
         f"- tolerance: {s.tolerance:.2e} = {SAFETY:g} x sqrt(reference tol) (relative, in f and in J)",
         f"- run: {run.summary()}",
         "",

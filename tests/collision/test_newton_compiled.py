@@ -156,7 +156,8 @@ def test_a_batch_is_its_slices_compiled_one_by_one_and_the_cascade_solves_the_re
             for name in ("f", "m", "iterations", "kkt_residual", "objective"):
                 assert np.array_equal(getattr(a, name)[rest], getattr(cascade, name), equal_nan=name != "iterations")
             assert list(a.status[rest]) == list(cascade.status)
-            for name in ("warm_started", "jammed", "interior_damping", "barrier", "lower_minimum"):
+            flags = ("warm_started", "jammed", "interior_damping", "barrier", "lower_minimum", "row_shift", "continued")
+            for name in flags:
                 assert np.array_equal(a.info[name][rest], cascade.info[name])
         handled += int(mine.sum())
         handed_back += int(rest.sum())

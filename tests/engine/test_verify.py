@@ -152,6 +152,54 @@ def test_the_runs_last_step_is_compared_whatever_every(tmp_path):
     assert blowup.table["step"].iloc[-1] == steps and blowup.verified, blowup.verdict
 
 
+def test_a_verification_written_before_the_last_step_was_compared_still_loads(tmp_path, monkeypatch):
+    """A directory whose verify.json has no "last" (older code compared the multiples of every only) loads
+    without the last step's row, and a resume of it is refused rather than mixing the two rules."""
+    import dataclasses
+
+    from jko_cvx.engine import verify as module
+
+    old_to_dict, old_check = module.VerifySettings.to_dict, module._check_settings
+    monkeypatch.setattr(module, "_check_settings", lambda *a: dataclasses.replace(old_check(*a), last=False))
+    monkeypatch.setattr(module.VerifySettings, "to_dict", lambda self: {
+        k: v for k, v in old_to_dict(self).items() if k != "last"})  # fmt: skip
+    old = verify(_scene(), "conic", every=2, out=tmp_path / "old")
+    assert list(old.table["step"]) == [2, 4]
+    monkeypatch.undo()
+    back = load_verification(tmp_path / "old")
+    assert list(back["step"]) == [2, 4] and back.attrs["verified"]
+    with pytest.raises(RunDirError, match="settings differ"):
+        verify(_scene(), "conic", every=2, out=tmp_path / "old", resume=True)
+
+
+def test_the_last_steps_comparison_survives_the_loss_of_its_workers(monkeypatch):
+    """The last step is compared after its commit, with signals deferred; a signal to the whole process group
+    kills the reference workers meanwhile.  The same solves then run in this process: the table is complete."""
+    import multiprocessing
+    import os
+
+    from jko_cvx.engine.verify import VerifyTracker
+
+    if multiprocessing.get_start_method() != "fork":
+        pytest.skip("the reference workers are forked processes only under the fork start method")
+    inhom = shipped_scene("inhom_gamma3_lambda4").replace({"v.n": 21, "x.n": 9, "t_end": 0.15})  # 3 steps
+    real = VerifyTracker.handle
+
+    def workers_die_first(self, state, step):
+        if self.held is not None and self.pool is not None:  # the last step, not a multiple of every
+            for pid in list(self.pool._processes):
+                os.kill(pid, signal.SIGKILL)
+        return real(self, state, step)
+
+    monkeypatch.setattr(VerifyTracker, "handle", workers_die_first)
+    two = verify(inhom, every=2, workers=2)
+    monkeypatch.undo()
+    one = verify(inhom, every=2, workers=1)
+    keep = [c for c in one.table.columns if c not in TIMES]
+    assert list(one.table["step"].unique()) == [2, 3] and one.verified, one.verdict
+    pd.testing.assert_frame_equal(one.table[keep], two.table[keep], check_exact=True)
+
+
 def test_a_failing_reference_leaves_the_run_unverified():
     ver = verify(_scene(**{"t_end": 0.02}), "conic", reference_options={"solver_options": {"max_iter": 2}})
     t = ver.table
