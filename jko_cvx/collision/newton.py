@@ -1024,7 +1024,6 @@ def _cascade(
         barrier[np.flatnonzero(todo)[better]] = True
         damped[np.flatnonzero(todo)[better]] = False
         lower[np.flatnonzero(todo)[better & second]] = True
-        res.info["warm_started"][np.flatnonzero(todo)[better & second]] = False  # the second start is cold
     # NOT_CERTIFIED (a stall) or NONCONVEX at a point that is not stationary: where a diagonal entry of the
     # reduced Hessian was not positive, the global floor of the shifts may have frozen the step (_shift);
     # once more with each row's own shift, kept where it certifies
@@ -1050,7 +1049,6 @@ def _cascade(
             _merge(res, stalled, again, better)
             won = np.flatnonzero(stalled)[better]
             shifted[won], damped[won], barrier[won] = True, False, True
-            res.info["warm_started"][won] = False  # a cold start
     continued = np.zeros(jammed.shape, dtype=bool)
     if continuation and P.cfl() > 1.0:
         # only where no direction descended at a point that is not stationary: an iteration limit keeps its
@@ -1337,7 +1335,9 @@ def solve_newton(
     Returns
     -------
     CollisionResult
-        One status per slice for a batched problem.  ``info`` holds ``warm_started``,
+        One status per slice for a batched problem.  ``info`` holds ``warm_started`` (``m0`` was
+        taken as the first attempt's start: finite, and f > 0 there; the flags below say which
+        attempt the returned point comes from, some of which start cold),
         ``jammed`` (the first, undamped attempt ended on a jam), ``interior_damping``
         (the returned point comes from the interior-damped attempt) and ``barrier`` (it
         comes from the barrier attempt) and ``lower_minimum`` (the second start found a certified

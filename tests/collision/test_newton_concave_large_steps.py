@@ -72,13 +72,14 @@ def test_a_barrier_attempt_that_stalls_above_tol_starts_again_from_the_other_sta
     res = solve_collision(P, method="newton", tol=1e-8)
     _certified_minimiser(P, res)
     assert res.info["barrier"] and res.info["row_shift"]
-    # warm-started at the explicit start's point: the point returned comes from the cold zero start, and says so
+    # warm-started at the explicit start's point: m0 is taken (warm_started), and the point returned comes from
+    # the retry's cold zero start (row_shift, barrier)
     from jko_cvx.collision import newton
 
     m0 = newton._start(P.rows(slice(None)), None, newton.NewtonOptions())[0].m[0]
     warm = solve_collision(P, method="newton", tol=1e-8, m0=m0)
     _certified_minimiser(P, warm)
-    assert warm.info["row_shift"] and not warm.info["warm_started"]
+    assert warm.info["warm_started"] and warm.info["row_shift"] and warm.info["barrier"]
 
 
 def test_a_slice_that_leaves_the_continuation_early_is_never_returned_as_a_solution_of_its_smaller_step(monkeypatch):
