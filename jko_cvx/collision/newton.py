@@ -31,8 +31,10 @@ convex (the energy's concave part), and a certificate is local: a slice that jam
 then certified is also solved with the barrier attempt, and the certified point with the lower J
 is returned (``info["lower_minimum"]``; :func:`_cascade`).  A slice left stalled or without a
 descending direction is solved again with shifts of each row's own size and the barrier from the
-other start (``info["row_shift"]``), and at large CFL numbers by a continuation in dt
-(``info["continued"]``).  The
+other start (``info["row_shift"]``), at large CFL numbers by a continuation in dt
+(``info["continued"]``), and last with the barrier from f* with a small share of its mass spread over
+the interval (``info["filled_start"]``: a minimiser that fills an emptied interval is out of reach of
+iterates that start at f*, whose steps into an emptied cell are bounded by its content).  The
 solver stops on the KKT residual of
 :class:`~jko_cvx.collision.problem.CollisionProblem` (``tol``), never on step length
 alone, and :func:`~jko_cvx.collision.certify.certify` judges the point (``kkt_tol``).
@@ -92,6 +94,7 @@ from jko_cvx.collision.terms import (
     wasserstein_value,
 )
 from jko_cvx.kernels import FluxBlock, PowerKernel
+from jko_cvx.mesh.moments import restore_moments
 from jko_cvx.threads import blas_limited, map_chunks
 
 __all__ = ["NewtonOptions", "NewtonState", "solve_newton"]
@@ -135,6 +138,11 @@ _MU_CENTRED = 1e-3  # mu is lowered after a full step whose decrement is at most
 # scene) or the same one reached more accurately (1e-10 to 1e-8 lower there, at KKT 1e-8); otherwise the
 # first point is kept bit for bit.
 _LOWER = 1e-12
+# The filled start (_filled_start): f* with this share of its mass spread over the interval.  Measured on the
+# two review steps it serves (gamma ~ 1, CFL 142 and 469, tails at 1e-22 of the maximum): certified from 1e-11
+# to 1e-5, not from 1e-14 (the step into an emptied cell is still bounded by its content) nor from 1e-3 (the
+# filled mass itself is far from the minimiser); 1e-8 lies in the middle of that range.
+_FILL = 1e-8
 
 
 def _fused(
@@ -902,6 +910,23 @@ def _merge(res: CollisionResult, rows: NDArray[np.bool_], again: CollisionResult
         getattr(res, name)[idx[take]] = getattr(again, name)[take]
 
 
+def _filled_start(P: CollisionProblem) -> NDArray:
+    """Fluxes to the filled start :math:`f_0 = (1 - \\epsilon) f^* + \\epsilon u` (``_FILL``), per slice.
+
+    ``u`` spreads f*'s mass over the whole interval with f*'s momentum (the uniform density tilted by
+    :func:`~jko_cvx.mesh.moments.restore_moments`), so :math:`f_0` has f*'s mass and momentum and every
+    cell holds at least about :math:`\\epsilon` times the mean density.  The fluxes solve the constraint
+    :math:`h (f_0 - f^*) + D m = 0`: :math:`m_k = -\\sum_{j \\le k} h_j (f_{0,j} - f^*_j)`.
+    """
+    h = band_coefficients(P.grid, 2)[0]
+    v = P.grid.points
+    hf = h * P.f_star
+    mass, momentum = hf.sum(axis=-1), (hf * v).sum(axis=-1)
+    u, _ = restore_moments(np.ones_like(P.f_star), h[0], v, mass, momentum)  # no tilt found: u keeps the mass
+    f0 = (1.0 - _FILL) * P.f_star + _FILL * u
+    return -np.cumsum(h * (f0 - P.f_star), axis=-1)[:, :-1]
+
+
 _CONTINUATION_STAGES = 12
 """At most this many halvings of dt in the continuation (:func:`_continuation`): an explicit CFL number up to 4096
 starts below 1."""
@@ -971,9 +996,15 @@ def _cascade(
        (``info["row_shift"]``).
     6. Slices ``NONCONVEX`` at a point that is not stationary, on a step of explicit CFL number above one: a
        continuation in dt (:func:`_continuation`), kept where it certifies.
+    7. Slices still ``NOT_CERTIFIED`` or ``NONCONVEX`` at a point that is not stationary: the barrier attempt
+       from the filled start (:func:`_filled_start`, ``info["filled_start"]``), kept where it certifies.  Every
+       start before it begins at f* or moves from f* by one explicit step, and where the minimiser fills an
+       emptied interval (tails at 1e-22 of the maximum, the minimiser's at 1e-10) a step into an emptied cell is
+       bounded by that cell's content: the iterates stall where they began.
 
-    Stages 5 and 6 run only on slices that every stage before left without a solution, so the results of
-    slices certified before them do not depend on them.
+    Stages 5 to 7 run only on slices that every stage before left without a solution, so the results of
+    slices certified before them do not depend on them; ``continuation=False`` (the continuation's own
+    stages) leaves out stages 6 and 7.
     """
     res = _attempt(P, m0, opts, _Attempt(damping=False, jam_exit=True))
     jammed = res.info["jammed"]
@@ -981,7 +1012,8 @@ def _cascade(
     barrier = np.zeros(jammed.shape, dtype=bool)
     if all(s is Status.CONVERGED for s in res.status):  # the common case (a jam ends a slice unconverged): no retry
         res.info.update(jammed=jammed, interior_damping=damped, barrier=barrier, lower_minimum=np.zeros_like(jammed),
-                        row_shift=np.zeros_like(jammed), continued=np.zeros_like(jammed))  # fmt: skip
+                        row_shift=np.zeros_like(jammed), continued=np.zeros_like(jammed),
+                        filled_start=np.zeros_like(jammed))  # fmt: skip
         return res
     retry = np.array([s in _RETRY for s in res.status]) & np.all(P.f_star > 0, axis=-1)
     if retry.any():
@@ -1065,8 +1097,22 @@ def _cascade(
                 _merge(res, rows, again, ok)
                 won = np.flatnonzero(rows)[ok]
                 continued[won], damped[won], barrier[won], shifted[won] = True, False, False, False
+    filled = np.zeros(jammed.shape, dtype=bool)
+    if continuation:
+        rest = np.array([s == Status.NOT_CERTIFIED for s in res.status], dtype=bool) | _nonconvex_not_stationary(
+            res, opts.tol
+        )
+        rest &= np.all(P.f_star > 0, axis=-1)
+        if rest.any():
+            Pr = P.rows(rest)
+            again = _attempt(Pr, _filled_start(Pr), opts, _Attempt(False, False, barrier=True))
+            ok = again.status == Status.CONVERGED
+            _merge(res, rest, again, ok)
+            won = np.flatnonzero(rest)[ok]
+            filled[won], barrier[won] = True, True
+            damped[won], shifted[won], continued[won] = False, False, False
     res.info.update(jammed=jammed, interior_damping=damped, barrier=barrier, lower_minimum=lower, row_shift=shifted,
-                    continued=continued)  # fmt: skip
+                    continued=continued, filled_start=filled)  # fmt: skip
     return res
 
 
@@ -1163,7 +1209,8 @@ def _compiled_single(P: CollisionProblem, opts: NewtonOptions, t0: float) -> Col
     if cert.status is not Status.CONVERGED:  # the cascade goes on from such a first attempt: solve it all there
         return None
     info = {"warm_started": warm, "jammed": False, "interior_damping": False, "barrier": False,
-            "lower_minimum": False, "row_shift": False, "continued": False, "compiled": True}  # fmt: skip
+            "lower_minimum": False, "row_shift": False, "continued": False, "filled_start": False,
+            "compiled": True}  # fmt: skip
     return CollisionResult.from_certificate(P, f, m, cert, "newton", iterations, time.perf_counter() - t0, info)
 
 
@@ -1224,7 +1271,7 @@ def _compiled_batch(P: CollisionProblem, opts: NewtonOptions, t0: float) -> Coll
     done[done] = accepted
     if not done.any():
         return None
-    flags = ("jammed", "interior_damping", "barrier", "lower_minimum", "row_shift", "continued")
+    flags = ("jammed", "interior_damping", "barrier", "lower_minimum", "row_shift", "continued", "filled_start")
     info = {"warm_started": warm & done, **{name: np.zeros(B, dtype=bool) for name in flags}, "compiled": done}
     if done.all():  # every slice compiled and certified (so every was True): the result as it stands
         return CollisionResult(f, m, cert.status, "newton", its, phi, kkt, mass_error, time.perf_counter() - t0, info)
@@ -1344,7 +1391,8 @@ def solve_newton(
         local minimiser with a lower J than the one first certified, beyond rounding, and that is
         returned: another minimiser, or the same one reached more accurately), ``row_shift`` (it comes
         from the attempt whose modified-Newton shifts have each row's own size), ``continued`` (it comes
-        from the continuation in dt, the cascade's last resort) and ``compiled`` (the
+        from the continuation in dt), ``filled_start`` (it comes from the barrier attempt started at f* with a
+        floor spread over the interval, the cascade's last resort; ``barrier`` is then set too) and ``compiled`` (the
         point comes from the compiled iteration); per slice when batched.  ``iterations`` counts every
         attempt (the compiled one only where its point is returned).
         A single problem is solved as a batch of one.
@@ -1368,8 +1416,8 @@ def solve_newton(
         # no stationary point: the modified directions found no descent there (not a saddle point it reached)
         res.info["hint"] = (
             f"at a point that is not stationary (KKT {res.kkt_residual:.1e}): no shifted Newton direction "
-            "descended there, and no retry (barrier, row-sized shifts, continuation in dt) reached a minimiser; "
-            "method='nlp' is the reference for such steps"
+            "descended there, and no retry (barrier, row-sized shifts, continuation in dt, filled start) reached a "
+            "minimiser; method='nlp' is the reference for such steps"
         )
     return res
 

@@ -5,7 +5,8 @@ Two failures of an independent review's held-out families (``studies/newton_cert
 seeds ``review``): at the explicit start the reduced Hessian had diagonal entries <= 0, so no
 modified-Newton shift was tried and the point was called NONCONVEX after no iteration (KKT 4e-2);
 a step whose shifted iteration crawls, which the continuation in dt solves; a step whose shifts, floored
-by an emptied cell's curvature, froze the iteration; and a barrier attempt that stalled from one start.
+by an emptied cell's curvature, froze the iteration; a barrier attempt that stalled from one start;
+and steps whose minimiser fills an emptied interval, which no start of the iterates at f* reaches.
 """
 
 import numpy as np
@@ -80,6 +81,48 @@ def test_a_barrier_attempt_that_stalls_above_tol_starts_again_from_the_other_sta
     warm = solve_collision(P, method="newton", tol=1e-8, m0=m0)
     _certified_minimiser(P, warm)
     assert warm.info["warm_started"] and warm.info["row_shift"] and warm.info["barrier"]
+
+
+@pytest.mark.parametrize("index", [70, 95])
+def test_a_step_that_must_fill_a_vacuum_is_solved_from_the_filled_start(index):
+    """Gamma ~ 1 at CFL 142 and 469 with tails at 1e-22 of the maximum: the minimiser spreads mass over the
+    whole interval (its tails at about 1e-10 of its maximum), but every attempt from the explicit or the zero
+    start stalled where it began (f equal to f* to 3 digits, NOT_CERTIFIED at KKT 6e-2, J 3 to 6 times nlp's):
+    a step into an emptied cell is bounded by the cell's own content.  The barrier attempt from f* with a floor
+    of 1e-8 of the mass spread over the interval reaches a certified local minimiser."""
+    study = load_study_script("newton_certification.py")
+    P, par = study.review_problem("vacuum", index)
+    assert par["gamma"] < 1.1 and par["cfl"] > 100 and P.f_star.min() < 1e-20 * P.f_star.max()
+    res = solve_collision(P, method="newton")
+    _certified_minimiser(P, res)
+    assert res.info["filled_start"] and not res.info["warm_started"]
+    if nlp_available():  # the independent reference: a certified point with J no lower than Newton's
+        ref = solve_collision(P, method="nlp", kkt_tol=1e-8)
+        assert ref.status is Status.CONVERGED
+        assert res.objective <= ref.objective * (1 + 1e-9)
+
+
+def test_the_filled_start_touches_only_the_slices_it_serves_in_a_batch(monkeypatch):
+    """In a batch, the filled start runs on the slice every earlier stage left stalled and certifies it; the
+    other slice (certified by the first attempt) is the same, bit for bit, with the stage taken away."""
+    from jko_cvx.collision import newton
+
+    study = load_study_script("newton_certification.py")
+    P1, _ = study.review_problem("vacuum", 70)
+    easy = 10 * np.exp(-2 * (P1.grid.points - 0.3) ** 2) + 1e-2  # explicit CFL number 4.5
+    P = P1.with_f_star(np.stack([easy, P1.f_star]))
+    batch = solve_collision(P, method="newton")
+    assert batch.info["filled_start"].tolist() == [False, True]
+    assert list(batch.status) == [Status.CONVERGED, Status.CONVERGED]
+    assert not batch.info["barrier"][0] and batch.iterations[0] < batch.iterations[1]
+    alone = solve_collision(P1, method="newton")  # the same minimiser as the slice solved alone
+    assert alone.info["filled_start"]
+    assert abs(batch.objective[1] - alone.objective) <= 1e-12 * abs(alone.objective)
+    # without the stage (its start replaced by NaN: _start then starts cold) the stalled slice stays stalled
+    monkeypatch.setattr(newton, "_filled_start", lambda Pr: np.full((Pr.batch_size, Pr.n - 1), np.nan))
+    without = solve_collision(P, method="newton")
+    assert without.status[0] is Status.CONVERGED and without.status[1] is not Status.CONVERGED
+    assert np.array_equal(without.f[0], batch.f[0]) and np.array_equal(without.m[0], batch.m[0])
 
 
 def test_a_slice_that_leaves_the_continuation_early_is_never_returned_as_a_solution_of_its_smaller_step(monkeypatch):
