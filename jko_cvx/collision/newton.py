@@ -997,10 +997,11 @@ def _cascade(
     6. Slices ``NONCONVEX`` at a point that is not stationary, on a step of explicit CFL number above one: a
        continuation in dt (:func:`_continuation`), kept where it certifies.
     7. Slices still ``NOT_CERTIFIED`` or ``NONCONVEX`` at a point that is not stationary: the barrier attempt
-       from the filled start (:func:`_filled_start`, ``info["filled_start"]``), kept where it certifies.  Every
-       start before it begins at f* or moves from f* by one explicit step, and where the minimiser fills an
-       emptied interval (tails at 1e-22 of the maximum, the minimiser's at 1e-10) a step into an emptied cell is
-       bounded by that cell's content: the iterates stall where they began.
+       from the filled start (:func:`_filled_start`, ``info["filled_start"]``), kept where it certifies; then
+       the slices it leaves without a solution, the same with the row-sized shifts (``info["row_shift"]``
+       too).  Every start before it begins at f* or moves from f* by one explicit step, and where the
+       minimiser fills an emptied interval (tails at 1e-22 of the maximum, the minimiser's at 1e-10) a step
+       into an emptied cell is bounded by that cell's content: the iterates stall where they began.
 
     Stages 5 to 7 run only on slices that every stage before left without a solution, so the results of
     slices certified before them do not depend on them; ``continuation=False`` (the continuation's own
@@ -1104,13 +1105,24 @@ def _cascade(
         )
         rest &= np.all(P.f_star > 0, axis=-1)
         if rest.any():
-            Pr = P.rows(rest)
-            again = _attempt(Pr, _filled_start(Pr), opts, _Attempt(False, False, barrier=True))
+            Pr, idx = P.rows(rest), np.flatnonzero(rest)
+            m_fill = _filled_start(Pr)
+            again = _attempt(Pr, m_fill, opts, _Attempt(False, False, barrier=True))
             ok = again.status == Status.CONVERGED
             _merge(res, rest, again, ok)
-            won = np.flatnonzero(rest)[ok]
-            filled[won], barrier[won] = True, True
-            damped[won], shifted[won], continued[won] = False, False, False
+            filled[idx[ok]], barrier[idx[ok]] = True, True
+            damped[idx[ok]], shifted[idx[ok]], continued[idx[ok]] = False, False, False
+            # the same start with each row's own shifts: where a concave energy beside a cell the step empties
+            # froze the globally shifted step (stage 5's mechanism, met on the way from this start)
+            if not ok.all():
+                left = np.zeros(rest.shape, dtype=bool)
+                left[idx[~ok]] = True
+                again = _attempt(P.rows(left), m_fill[~ok], opts, _Attempt(False, False, barrier=True, row_shift=True))
+                ok = again.status == Status.CONVERGED
+                _merge(res, left, again, ok)
+                won = np.flatnonzero(left)[ok]
+                filled[won], barrier[won], shifted[won] = True, True, True
+                damped[won], continued[won] = False, False
     res.info.update(jammed=jammed, interior_damping=damped, barrier=barrier, lower_minimum=lower, row_shift=shifted,
                     continued=continued, filled_start=filled)  # fmt: skip
     return res
@@ -1392,7 +1404,8 @@ def solve_newton(
         returned: another minimiser, or the same one reached more accurately), ``row_shift`` (it comes
         from the attempt whose modified-Newton shifts have each row's own size), ``continued`` (it comes
         from the continuation in dt), ``filled_start`` (it comes from the barrier attempt started at f* with a
-        floor spread over the interval, the cascade's last resort; ``barrier`` is then set too) and ``compiled`` (the
+        floor spread over the interval, the cascade's last resort; ``barrier`` is then set too, and ``row_shift``
+        where that attempt took the row-sized shifts) and ``compiled`` (the
         point comes from the compiled iteration); per slice when batched.  ``iterations`` counts every
         attempt (the compiled one only where its point is returned).
         A single problem is solved as a batch of one.
