@@ -29,7 +29,8 @@ of f* from 1e-3 to 1e3): ``offcentre`` (one to three asymmetric bumps off v = 0)
 (tails down to 1e-30 of the peak), ``nonuniform`` (spacing ratios 10-50: random, clustered or
 one jump), ``bigcfl`` (no Fisher term, explicit CFL numbers 10-1000), ``special_gamma``
 (gamma at 1, 2 or 3, shifted by 0, 1e-6, 1e-3 or 0.05) and ``extreme_dt`` (dt in
-[1e-4, 5e-4] or [0.4, 1]).
+[1e-4, 5e-4] or [0.4, 1]); ``review_b`` and ``review_c``: the same generators under other seeds
+(``REVIEW_SEED_SETS``).
 """
 
 from __future__ import annotations
@@ -110,6 +111,10 @@ def problems(family: str, count: int, seeds: dict[str, int] = SEEDS) -> list[tup
 
 
 REVIEW_SEED = 515000
+REVIEW_SEED_SETS = {"review": REVIEW_SEED, "review_b": 616161, "review_c": 727272}
+"""The review's generators under three seeds: ``review`` (the review's draw), ``review_b`` (drawn at a later stop to
+measure a change, Newton alone; one of its steps is now a test) and ``review_c`` (drawn after the filled start was
+built, used for nothing else)."""
 REVIEW_FAMILIES = ("offcentre", "vacuum", "nonuniform", "bigcfl", "special_gamma", "extreme_dt")
 
 
@@ -147,9 +152,10 @@ def _review_bumps(rng: np.random.Generator, v: np.ndarray, half_width: float) ->
     return f
 
 
-def review_problem(family: str, i: int) -> tuple[CollisionProblem, dict]:
-    """Problem ``i`` of the review's ``family`` (see the module docstring) with its parameters."""
-    rng = np.random.default_rng([REVIEW_SEED, REVIEW_FAMILIES.index(family), i])
+def review_problem(family: str, i: int, seed: int | None = None) -> tuple[CollisionProblem, dict]:
+    """Problem ``i`` of the review's ``family`` (see the module docstring) with its parameters; ``seed`` defaults to
+    ``REVIEW_SEED``."""
+    rng = np.random.default_rng([REVIEW_SEED if seed is None else seed, REVIEW_FAMILIES.index(family), i])
     n, L = int(rng.integers(20, 251)), float(rng.uniform(1.5, 3.0))
     gamma, dt = float(rng.uniform(0.5, 5.0)), float(10 ** rng.uniform(-4, 0))
     if rng.uniform() < 0.25:
@@ -203,8 +209,8 @@ def study_args(count: int, seed_set: str) -> tuple[str, int, str]:
     label = sys.argv[1] if len(sys.argv) > 1 else "current"
     count = int(sys.argv[2]) if len(sys.argv) > 2 else count
     seed_set = sys.argv[3] if len(sys.argv) > 3 else seed_set
-    if seed_set not in ("development", "held_out", "review"):
-        raise SystemExit(f"SEEDS must be 'development', 'held_out' or 'review', got {seed_set!r}")
+    if seed_set not in ("development", "held_out", *REVIEW_SEED_SETS):
+        raise SystemExit(f"SEEDS must be one of {('development', 'held_out', *REVIEW_SEED_SETS)}, got {seed_set!r}")
     return label, count, seed_set
 
 
@@ -215,7 +221,7 @@ def main() -> None:
 
     def family_problems(family: str) -> list[tuple[CollisionProblem, dict]]:
         if seeds is None:
-            return [review_problem(family, i) for i in range(count)]
+            return [review_problem(family, i, REVIEW_SEED_SETS[seed_set]) for i in range(count)]
         return problems(family, count, seeds)
 
     commit = subprocess.run(
