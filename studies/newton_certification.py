@@ -29,7 +29,7 @@ of f* from 1e-3 to 1e3): ``offcentre`` (one to three asymmetric bumps off v = 0)
 (tails down to 1e-30 of the peak), ``nonuniform`` (spacing ratios 10-50: random, clustered or
 one jump), ``bigcfl`` (no Fisher term, explicit CFL numbers 10-1000), ``special_gamma``
 (gamma at 1, 2 or 3, shifted by 0, 1e-6, 1e-3 or 0.05) and ``extreme_dt`` (dt in
-[1e-4, 5e-4] or [0.4, 1]); ``review_b`` and ``review_c``: the same generators under other seeds
+[1e-4, 5e-4] or [0.4, 1]); ``review_b`` to ``review_d``: the same generators under other seeds
 (``REVIEW_SEED_SETS``).
 """
 
@@ -111,10 +111,11 @@ def problems(family: str, count: int, seeds: dict[str, int] = SEEDS) -> list[tup
 
 
 REVIEW_SEED = 515000
-REVIEW_SEED_SETS = {"review": REVIEW_SEED, "review_b": 616161, "review_c": 727272}
-"""The review's generators under three seeds: ``review`` (the review's draw), ``review_b`` (drawn at a later stop to
-measure a change, Newton alone; one of its steps is now a test) and ``review_c`` (drawn after the filled start was
-built, used for nothing else)."""
+REVIEW_SEED_SETS = {"review": REVIEW_SEED, "review_b": 616161, "review_c": 727272, "review_d": 838383}
+"""The review's generators under four seeds: ``review`` (the review's draw), ``review_b`` (drawn at a later stop to
+measure a change, Newton alone; one of its steps is now a test), ``review_c`` (drawn after the filled start was
+built; one of its steps is now a test of the extended barrier) and ``review_d`` (drawn after the extended barrier
+was built, used for nothing else)."""
 REVIEW_FAMILIES = ("offcentre", "vacuum", "nonuniform", "bigcfl", "special_gamma", "extreme_dt")
 
 

@@ -171,3 +171,22 @@ def test_a_slice_that_leaves_the_continuation_early_is_never_returned_as_a_solut
     whole = solve_collision(P, method="newton")  # the batch: every certified slice certified for the step as posed
     for i in range(2):
         assert certify(P1, whole.f[i], whole.m[i], kkt_tol=1e-8).status is whole.status[i] is Status.CONVERGED
+
+
+@pytest.mark.parametrize(("seeds", "family", "index"), [("review", "offcentre", 30), ("review_c", "extreme_dt", 89)])
+def test_a_step_every_attempt_leaves_at_the_iteration_limit_gets_a_longer_barrier_path(seeds, family, index):
+    """CFL 109 (gamma 0.82, beta 2016) and CFL 6.8e5 (gamma 2.9, beta 12): every attempt stopped at 100 iterations
+    (MAX_ITERATIONS at KKT 1.8e-4 and 4.1e-8, where the nonlinear reference certifies); the barrier attempt reaches
+    the minimiser in 176 and 108 iterations, and the last stage gives it three times max_iter."""
+    study = load_study_script("newton_certification.py")
+    P, par = study.review_problem(family, index, study.REVIEW_SEED_SETS[seeds])
+    assert par["cfl"] > 100
+    res = solve_collision(P, method="newton")
+    assert res.info["extended"] and res.info["barrier"]
+    assert res.status in (Status.CONVERGED, Status.NOT_CERTIFIED)  # at tol 1e-10, or stalled at its floor above it
+    assert certify(P, res.f, res.m, kkt_tol=1e-8).status is Status.CONVERGED  # at the run's threshold
+    assert P.is_local_minimiser(res.f, res.m)
+    if nlp_available():
+        ref = solve_collision(P, method="nlp", kkt_tol=1e-8)
+        assert ref.status is Status.CONVERGED
+        assert res.objective <= ref.objective * (1 + 1e-9)
