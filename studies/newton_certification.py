@@ -114,8 +114,7 @@ REVIEW_SEED = 515000
 REVIEW_SEED_SETS = {"review": REVIEW_SEED, "review_b": 616161, "review_c": 727272, "review_d": 838383}
 """The review's generators under four seeds: ``review`` (the review's draw), ``review_b`` (drawn at a later stop to
 measure a change, Newton alone; one of its steps is now a test), ``review_c`` (drawn after the filled start was
-built; one of its steps is now a test of the extended barrier) and ``review_d`` (drawn after the extended barrier
-was built, used for nothing else)."""
+built; one of its steps is now a test of ``max_iter``) and ``review_d`` (drawn after that, used for nothing else)."""
 REVIEW_FAMILIES = ("offcentre", "vacuum", "nonuniform", "bigcfl", "special_gamma", "extreme_dt")
 
 

@@ -32,11 +32,9 @@ then certified is also solved with the barrier attempt, and the certified point 
 is returned (``info["lower_minimum"]``; :func:`_cascade`).  A slice left stalled or without a
 descending direction is solved again with shifts of each row's own size and the barrier from the
 other start (``info["row_shift"]``), at large CFL numbers by a continuation in dt
-(``info["continued"]``), with the barrier from f* with a small share of its mass spread over
+(``info["continued"]``), and last with the barrier from f* with a small share of its mass spread over
 the interval (``info["filled_start"]``: a minimiser that fills an emptied interval is out of reach of
-iterates that start at f*, whose steps into an emptied cell are bounded by its content), and a slice
-every attempt left at the iteration limit with the barrier for three times ``max_iter`` iterations
-(``info["extended"]``).  The
+iterates that start at f*, whose steps into an emptied cell are bounded by its content).  The
 solver stops on the KKT residual of
 :class:`~jko_cvx.collision.problem.CollisionProblem` (``tol``), never on step length
 alone, and :func:`~jko_cvx.collision.certify.certify` judges the point (``kkt_tol``).
@@ -145,11 +143,6 @@ _LOWER = 1e-12
 # to 1e-5, not from 1e-14 (the step into an emptied cell is still bounded by its content) nor from 1e-3 (the
 # filled mass itself is far from the minimiser); 1e-8 lies in the middle of that range.
 _FILL = 1e-8
-# The last stage's budget (_cascade, stage 8): the barrier attempt with this many times max_iter, for slices that
-# every attempt left at its iteration limit.  Measured on the two review steps it serves: the barrier from the
-# explicit start reaches the minimiser in 176 and 108 iterations (offcentre #30 of the review, extreme_dt #89
-# of review_c), where every attempt stops at 100 (KKT 1.8e-4 and 4.1e-8).
-_EXTENDED = 3
 
 
 def _fused(
@@ -1010,14 +1003,9 @@ def _cascade(
        minimiser fills an emptied interval (tails at 1e-22 of the maximum, the minimiser's at 1e-10) a step
        into an emptied cell is bounded by that cell's content: the iterates stall where they began.
 
-    8. Slices every attempt left at its iteration limit (``MAX_ITERATIONS``): the barrier attempt from the
-       start of stage 4 with ``_EXTENDED`` times ``max_iter`` iterations (``info["extended"]``), kept where it
-       certifies or stalls (``NOT_CERTIFIED``) at a smaller residual.  The barrier's path lowers its weight by a
-       factor 10 at a time, and at large CFL numbers each factor can take ten iterations or more.
-
-    Stages 5 to 8 run only on slices that every stage before left without a solution, so the results of
+    Stages 5 to 7 run only on slices that every stage before left without a solution, so the results of
     slices certified before them do not depend on them; ``continuation=False`` (the continuation's own
-    stages) leaves out stages 6 to 8.
+    stages) leaves out stages 6 and 7.
     """
     res = _attempt(P, m0, opts, _Attempt(damping=False, jam_exit=True))
     jammed = res.info["jammed"]
@@ -1026,7 +1014,7 @@ def _cascade(
     if all(s is Status.CONVERGED for s in res.status):  # the common case (a jam ends a slice unconverged): no retry
         res.info.update(jammed=jammed, interior_damping=damped, barrier=barrier, lower_minimum=np.zeros_like(jammed),
                         row_shift=np.zeros_like(jammed), continued=np.zeros_like(jammed),
-                        filled_start=np.zeros_like(jammed), extended=np.zeros_like(jammed))  # fmt: skip
+                        filled_start=np.zeros_like(jammed))  # fmt: skip
         return res
     retry = np.array([s in _RETRY for s in res.status]) & np.all(P.f_star > 0, axis=-1)
     if retry.any():
@@ -1135,22 +1123,8 @@ def _cascade(
                 won = np.flatnonzero(left)[ok]
                 filled[won], barrier[won], shifted[won] = True, True, True
                 damped[won], continued[won] = False, False
-    extended = np.zeros(jammed.shape, dtype=bool)
-    if continuation:
-        limited = np.array([s == Status.MAX_ITERATIONS for s in res.status], dtype=bool) & np.all(P.f_star > 0, axis=-1)
-        if limited.any():
-            longer = replace(opts, max_iter=_EXTENDED * opts.max_iter)
-            again = _attempt(P.rows(limited), _m0_rows(m0, limited), longer, _Attempt(False, False, barrier=True))
-            # kept where it certifies, or stalls at its rounding floor below the residual at the limit (a looser
-            # kkt_tol, a run's, may accept that point)
-            stall = np.array([s == Status.NOT_CERTIFIED for s in again.status], dtype=bool)
-            ok = (again.status == Status.CONVERGED) | (stall & (again.kkt_residual < res.kkt_residual[limited]))
-            _merge(res, limited, again, ok)
-            won = np.flatnonzero(limited)[ok]
-            extended[won], barrier[won] = True, True
-            damped[won], shifted[won], continued[won], filled[won] = False, False, False, False
     res.info.update(jammed=jammed, interior_damping=damped, barrier=barrier, lower_minimum=lower, row_shift=shifted,
-                    continued=continued, filled_start=filled, extended=extended)  # fmt: skip
+                    continued=continued, filled_start=filled)  # fmt: skip
     return res
 
 
@@ -1248,7 +1222,7 @@ def _compiled_single(P: CollisionProblem, opts: NewtonOptions, t0: float) -> Col
         return None
     info = {"warm_started": warm, "jammed": False, "interior_damping": False, "barrier": False,
             "lower_minimum": False, "row_shift": False, "continued": False, "filled_start": False,
-            "extended": False, "compiled": True}  # fmt: skip
+            "compiled": True}  # fmt: skip
     return CollisionResult.from_certificate(P, f, m, cert, "newton", iterations, time.perf_counter() - t0, info)
 
 
@@ -1309,8 +1283,7 @@ def _compiled_batch(P: CollisionProblem, opts: NewtonOptions, t0: float) -> Coll
     done[done] = accepted
     if not done.any():
         return None
-    flags = ("jammed", "interior_damping", "barrier", "lower_minimum", "row_shift", "continued", "filled_start",
-             "extended")
+    flags = ("jammed", "interior_damping", "barrier", "lower_minimum", "row_shift", "continued", "filled_start")
     info = {"warm_started": warm & done, **{name: np.zeros(B, dtype=bool) for name in flags}, "compiled": done}
     if done.all():  # every slice compiled and certified (so every was True): the result as it stands
         return CollisionResult(f, m, cert.status, "newton", its, phi, kkt, mass_error, time.perf_counter() - t0, info)
@@ -1388,8 +1361,7 @@ def solve_newton(
         ``tol``: its iterations reach ``tol`` quadratically, so a looser threshold would
         only relabel slices that stalled at their rounding floor above ``tol``.
     max_iter : int, default 100
-        Newton iterations per attempt (status ``MAX_ITERATIONS`` beyond); the cascade's last attempt, on
-        slices every attempt left at this limit, has three times as many (``info["extended"]``).
+        Newton iterations per attempt (status ``MAX_ITERATIONS`` beyond).
     m0 : array_like, optional
         Warm start: fluxes of shape ``(N-1,)`` or ``(B, N-1)`` (e.g. the previous
         solution's ``m``), used only where it keeps ``f(m0) > 0`` (else ``start``).  With
@@ -1432,10 +1404,8 @@ def solve_newton(
         returned: another minimiser, or the same one reached more accurately), ``row_shift`` (it comes
         from the attempt whose modified-Newton shifts have each row's own size), ``continued`` (it comes
         from the continuation in dt), ``filled_start`` (it comes from the barrier attempt started at f* with a
-        floor spread over the interval; ``barrier`` is then set too, and ``row_shift`` where that attempt took
-        the row-sized shifts), ``extended`` (it comes from the barrier attempt with three times ``max_iter``
-        iterations, the cascade's last resort for slices every attempt left at the iteration limit; ``barrier``
-        too) and ``compiled`` (the
+        floor spread over the interval, the cascade's last resort; ``barrier`` is then set too, and ``row_shift``
+        where that attempt took the row-sized shifts) and ``compiled`` (the
         point comes from the compiled iteration); per slice when batched.  ``iterations`` counts every
         attempt (the compiled one only where its point is returned).
         A single problem is solved as a batch of one.

@@ -157,7 +157,7 @@ def test_a_batch_is_its_slices_compiled_one_by_one_and_the_cascade_solves_the_re
                 assert np.array_equal(getattr(a, name)[rest], getattr(cascade, name), equal_nan=name != "iterations")
             assert list(a.status[rest]) == list(cascade.status)
             flags = ("warm_started", "jammed", "interior_damping", "barrier", "lower_minimum", "row_shift", "continued",
-                     "filled_start", "extended")
+                     "filled_start")
             for name in flags:
                 assert np.array_equal(a.info[name][rest], cascade.info[name])
         handled += int(mine.sum())
