@@ -139,9 +139,9 @@ _MU_CENTRED = 1e-3  # mu is lowered after a full step whose decrement is at most
 # first point is kept bit for bit.
 _LOWER = 1e-12
 # The filled start (_filled_start): f* with this share of its mass spread over the interval.  Measured on the
-# two review steps it serves (gamma ~ 1, CFL 142 and 469, tails at 1e-22 of the maximum): certified from 1e-11
-# to 1e-5, not from 1e-14 (the step into an emptied cell is still bounded by its content) nor from 1e-3 (the
-# filled mass itself is far from the minimiser); 1e-8 lies in the middle of that range.
+# two review steps it serves (gamma ~ 1, CFL 142 and 469, tails at 1e-22 of the maximum): both certified from
+# 1e-11 to 1e-5; at 1e-14 one is not (a step into an emptied cell is still bounded by its content), at 1e-3
+# neither (the filled mass itself is far from the minimiser); 1e-8 lies in the middle of that range.
 _FILL = 1e-8
 
 
@@ -914,8 +914,9 @@ def _filled_start(P: CollisionProblem) -> NDArray:
     """Fluxes to the filled start :math:`f_0 = (1 - \\epsilon) f^* + \\epsilon u` (``_FILL``), per slice.
 
     ``u`` spreads f*'s mass over the whole interval with f*'s momentum (the uniform density tilted by
-    :func:`~jko_cvx.mesh.moments.restore_moments`), so :math:`f_0` has f*'s mass and momentum and every
-    cell holds at least about :math:`\\epsilon` times the mean density.  The fluxes solve the constraint
+    :func:`~jko_cvx.mesh.moments.restore_moments`), so :math:`f_0` has f*'s mass and momentum, and every
+    cell holds at least :math:`\\epsilon u_j > 0` (about :math:`\\epsilon` times the mean density where f*'s mean
+    velocity is near the interval's centre, less at one end where it is not).  The fluxes solve the constraint
     :math:`h (f_0 - f^*) + D m = 0`: :math:`m_k = -\\sum_{j \\le k} h_j (f_{0,j} - f^*_j)`.
     """
     h = band_coefficients(P.grid, 2)[0]
