@@ -899,6 +899,14 @@ def _nonconvex_not_stationary(res: CollisionResult, tol: float) -> NDArray[np.bo
     return np.array([s == Status.NONCONVEX and not k <= tol for s, k in zip(status, kkt, strict=True)], dtype=bool)
 
 
+def _unsolved(res: CollisionResult, P: CollisionProblem, tol: float) -> NDArray[np.bool_]:
+    """Per slice: stalled (``NOT_CERTIFIED``) or ``NONCONVEX`` at a point that is not stationary, on data an
+    interior attempt can start from (f* > 0): the slices the cascade's stages 5 and 7 solve again.  (Statuses
+    are enum members in an object array: ``==`` compares them element by element.)"""
+    stalled = res.status == Status.NOT_CERTIFIED
+    return (stalled | _nonconvex_not_stationary(res, tol)) & np.all(P.f_star > 0, axis=-1)
+
+
 def _merge(res: CollisionResult, rows: NDArray[np.bool_], again: CollisionResult, take: NDArray[np.bool_]) -> None:
     """Overwrite the batch rows ``rows`` of ``res`` with the rows ``take`` of a later attempt.
 
@@ -1062,10 +1070,7 @@ def _cascade(
     # reduced Hessian was not positive, the global floor of the shifts may have frozen the step (_shift);
     # once more with each row's own shift, kept where it certifies
     shifted = np.zeros(jammed.shape, dtype=bool)
-    stuck = np.array([s == Status.NOT_CERTIFIED for s in res.status], dtype=bool) | _nonconvex_not_stationary(
-        res, opts.tol
-    )
-    stuck &= np.all(P.f_star > 0, axis=-1)
+    stuck = _unsolved(res, P, opts.tol)
     if stuck.any():
         again = _attempt(P.rows(stuck), _m0_rows(m0, stuck), opts, _Attempt(False, False, row_shift=True))
         ok = again.status == Status.CONVERGED
@@ -1074,11 +1079,11 @@ def _cascade(
         shifted[won], damped[won], barrier[won] = True, False, False
         # a slice still stalled above tol (the barrier's path met the vacuum boundary where the minimiser is not):
         # the barrier again from the cold start other than `start`, kept where it certifies or stalls lower
-        stalled = stuck & np.array([s == Status.NOT_CERTIFIED for s in res.status], dtype=bool)
+        stalled = stuck & (res.status == Status.NOT_CERTIFIED)
         if stalled.any():
             other = replace(opts, start="zero" if opts.start == "explicit" else "explicit", m0=None)
             again = _attempt(P.rows(stalled), None, other, _Attempt(False, False, barrier=True, row_shift=True))
-            stall = np.array([s == Status.NOT_CERTIFIED for s in again.status], dtype=bool)
+            stall = again.status == Status.NOT_CERTIFIED
             better = (again.status == Status.CONVERGED) | (stall & (again.kkt_residual < res.kkt_residual[stalled]))
             _merge(res, stalled, again, better)
             won = np.flatnonzero(stalled)[better]
@@ -1101,10 +1106,7 @@ def _cascade(
                 continued[won], damped[won], barrier[won], shifted[won] = True, False, False, False
     filled = np.zeros(jammed.shape, dtype=bool)
     if continuation:
-        rest = np.array([s == Status.NOT_CERTIFIED for s in res.status], dtype=bool) | _nonconvex_not_stationary(
-            res, opts.tol
-        )
-        rest &= np.all(P.f_star > 0, axis=-1)
+        rest = _unsolved(res, P, opts.tol)
         if rest.any():
             Pr, idx = P.rows(rest), np.flatnonzero(rest)
             m_fill = _filled_start(Pr)
