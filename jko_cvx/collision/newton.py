@@ -32,9 +32,12 @@ then certified is also solved with the barrier attempt, and the certified point 
 is returned (``info["lower_minimum"]``; :func:`_cascade`).  A slice left stalled or without a
 descending direction is solved again with shifts of each row's own size and the barrier from the
 other start (``info["row_shift"]``), at large CFL numbers by a continuation in dt
-(``info["continued"]``), and last with the barrier from f* with a small share of its mass spread over
+(``info["continued"]``), with the barrier from f* with a small share of its mass spread over
 the interval (``info["filled_start"]``: a minimiser that fills an emptied interval is out of reach of
-iterates that start at f*, whose steps into an emptied cell are bounded by its content).  The
+iterates that start at f*, whose steps into an emptied cell are bounded by its content), and last by
+trust-region iterations on the barrier function, which follow negative curvature through the non-convex
+region (exact subproblem on an eigendecomposition, :mod:`jko_cvx.collision._trust_region`), handing over to
+the barrier attempt in its Newton region (``info["trust_region"]``).  The
 solver stops on the KKT residual of
 :class:`~jko_cvx.collision.problem.CollisionProblem` (``tol``), never on step length
 alone, and :func:`~jko_cvx.collision.certify.certify` judges the point (``kkt_tol``).
@@ -81,6 +84,7 @@ from jko_cvx.collision._linalg import (
     pentadiagonal_solve_batch,
 )
 from jko_cvx.collision._structured import Semiseparable3, dense_kernel_direction, semiseparable3
+from jko_cvx.collision._trust_region import Eigensystem
 from jko_cvx.collision.certify import certify_validated
 from jko_cvx.collision.options import Options, Spec, option
 from jko_cvx.collision.problem import CollisionProblem, TermParts, add_pentadiagonal
@@ -936,6 +940,100 @@ def _filled_start(P: CollisionProblem) -> NDArray:
     return -np.cumsum(h * (f0 - P.f_star), axis=-1)[:, :-1]
 
 
+# The trust-region phase (_trust_region_phase): it hands over to the barrier attempt after this many consecutive
+# full, interior Newton steps of the barrier function (the iterate is in that function's Newton region); a step
+# is taken where the actual decrease is at least _TR_ACCEPT of the model's; the first radius (Jacobi-scaled
+# units) is at most _TR_FIRST_RADIUS; _TR_SHRINKS radius reductions at one point end the phase (rounding).
+_TR_HANDOVER = 2
+_TR_ACCEPT = 1e-4
+_TR_FIRST_RADIUS = 10.0
+_TR_SHRINKS = 60
+
+
+def _trust_region_phase(P: CollisionProblem, opts: NewtonOptions, handover: bool = True) -> tuple[NDArray, int]:
+    """Trust-region iterations on the barrier function of one slice (a batch of one), from the cold start.
+
+    Where the step problem is not convex (a concave energy, gamma < 2, at a large CFL number) the modified-Newton
+    directions of the line-search attempts are shifted towards the gradient and can crawl for hundreds of
+    iterations through the non-convex region, or find no descent there.  The trust-region step
+    (:func:`~jko_cvx.collision._trust_region.trust_region_step`) is the global minimiser of the quadratic model of
+    :math:`J - \\mu \\sum_j h_j \\log f_j` (:func:`_with_barrier`) on a ball in the Jacobi-scaled fluxes
+    (:math:`\\|D^{1/2} p\\| \\le \\Delta`, D the reduced Hessian's diagonal, on the momentum plane with
+    ``conserve_momentum``): it follows negative curvature where the Hessian has it.  A step that would leave
+    f > 0 is cut by the fraction to the boundary, and taken where J - mu sum h log f falls by at least
+    ``_TR_ACCEPT`` of the model's decrease; the radius grows or shrinks with that ratio (Nocedal and Wright,
+    Algorithm 4.1).  mu starts as in the barrier attempt and is lowered tenfold after a full interior step of
+    small decrement (``_MU_CENTRED``).  The phase ends after ``_TR_HANDOVER`` consecutive full interior
+    Newton steps, at a point within ``tol``, after ``max_iter`` iterations, or where the radius collapses.
+
+    Returns the fluxes where it ended (a row) and its iteration count.
+    """
+    st, _ = _start(P, None, replace(opts, m0=None))
+    m, f = st.m, st.f
+    h = band_coefficients(P.grid, 2)[0]
+    with np.errstate(all="ignore"):
+        mu = _MU_START * np.abs(st.phi) / P.grid.length
+        phi = _merit(P, f, m, mu)
+    block = 2 * P.energy_coef * P.energy.flux_block()
+    normal = P.grid.dv if P.conserve_momentum else None
+    radius, run, it = np.nan, 0, 0
+    with np.errstate(all="ignore"):
+        while it < opts.max_iter and np.isfinite(phi).all():
+            g, bands, parts = _fused(P, f, m)
+            if not P.kkt_residual(f, m, parts).total[0] > opts.tol:  # within tol (or not finite: stop)
+                break
+            g, bands = _with_barrier(P, f, mu, g, bands)
+            H = add_pentadiagonal(block, *bands)[0]
+            d = np.sqrt(np.abs(np.diag(H)))
+            if not (np.isfinite(H).all() and np.isfinite(g).all() and (d > 0).all()):
+                break
+            Hs, gs = H / np.outer(d, d), g[0] / d
+            Z = None
+            if normal is not None:  # the momentum plane a'm = 0 in the scaled fluxes: a Householder basis
+                u = normal / d
+                u = u / np.linalg.norm(u)
+                u[0] += 1.0 if u[0] >= 0 else -1.0
+                Z = (np.eye(u.size) - np.outer(u, u) * (2.0 / (u @ u)))[:, 1:]
+                Hs, gs = Z.T @ Hs @ Z, Z.T @ gs
+            try:
+                eig = Eigensystem(Hs, gs)
+            except np.linalg.LinAlgError:
+                break
+            if not np.isfinite(radius):
+                lam = np.abs(eig.lam)
+                radius = min(float(np.linalg.norm(eig.c / np.maximum(lam, _TINY))), _TR_FIRST_RADIUS)
+            for _ in range(_TR_SHRINKS):
+                step = eig.step(radius)
+                q = step.q if Z is None else Z @ step.q
+                p = (q / d)[None, :]
+                alpha = float(_boundary_step(f, -divergence(p) / h)[0])
+                predicted = step.predicted(alpha)
+                mt = m + alpha * p
+                ft = P.f_star - divergence(mt) / h
+                phit = _merit(P, ft, mt, mu) if (ft > 0).all() else np.full(1, np.inf)
+                ratio = float((phi - phit)[0]) / predicted if predicted > 0 else -np.inf
+                if ratio >= _TR_ACCEPT:
+                    break
+                radius = 0.25 * alpha * float(np.linalg.norm(step.q))
+            else:
+                break  # the radius collapsed: the model's decrease is below J's rounding
+            it += 1
+            size = alpha * float(np.linalg.norm(step.q))
+            m, f, phi = mt, ft, phit
+            if ratio > 0.75 and size >= 0.99 * radius:
+                radius *= 2.0
+            elif ratio < 0.25:
+                radius = 0.25 * size
+            newton = step.interior and alpha == 1.0
+            run = run + 1 if newton else 0
+            if handover and run >= _TR_HANDOVER:
+                break
+            if newton and predicted <= _MU_CENTRED * abs(float(phi[0])):
+                mu = _MU_SHRINK * mu
+                phi = _merit(P, f, m, mu)
+    return m, it
+
+
 _CONTINUATION_STAGES = 12
 """At most this many halvings of dt in the continuation (:func:`_continuation`): an explicit CFL number up to 4096
 starts below 1."""
@@ -1012,9 +1110,19 @@ def _cascade(
        minimiser fills an emptied interval (tails at 1e-22 of the maximum, the minimiser's at 1e-10) a step
        into an emptied cell is bounded by that cell's content: the iterates stall where they began.
 
-    Stages 5 to 7 run only on slices that every stage before left without a solution, so the results of
+    8. Slices still without a solution (``NOT_CERTIFIED``, ``MAX_ITERATIONS``, ``NUMERICAL_ERROR``, or
+       ``NONCONVEX`` at a point that is not stationary; f* > 0): the trust-region phase
+       (:func:`_trust_region_phase`) from the cold start to the barrier function's Newton region, then the
+       barrier attempt from its point, kept where it certifies (``info["trust_region"]``, with ``barrier``);
+       where that fails, the phase without the hand-over (to ``tol`` or ``max_iter``) and the barrier attempt
+       from its point.  A line-search attempt whose modified-Newton directions cross a non-convex region
+       (gamma < 2 at CFL numbers above 100) takes shifted, gradient-like steps there: it crawls for a hundred
+       iterations or more, or finds no descent; the trust-region step minimises the model on a ball and follows
+       its negative curvature.  Each phase and attempt has the budget ``max_iter``.
+
+    Stages 5 to 8 run only on slices that every stage before left without a solution, so the results of
     slices certified before them do not depend on them; ``continuation=False`` (the continuation's own
-    stages) leaves out stages 6 and 7.
+    stages) leaves out stages 6, 7 and 8.
     """
     res = _attempt(P, m0, opts, _Attempt(damping=False, jam_exit=True))
     jammed = res.info["jammed"]
@@ -1023,7 +1131,7 @@ def _cascade(
     if all(s is Status.CONVERGED for s in res.status):  # the common case (a jam ends a slice unconverged): no retry
         res.info.update(jammed=jammed, interior_damping=damped, barrier=barrier, lower_minimum=np.zeros_like(jammed),
                         row_shift=np.zeros_like(jammed), continued=np.zeros_like(jammed),
-                        filled_start=np.zeros_like(jammed))  # fmt: skip
+                        filled_start=np.zeros_like(jammed), trust_region=np.zeros_like(jammed))  # fmt: skip
         return res
     retry = np.array([s in _RETRY for s in res.status]) & np.all(P.f_star > 0, axis=-1)
     if retry.any():
@@ -1126,8 +1234,28 @@ def _cascade(
                 won = np.flatnonzero(left)[ok]
                 filled[won], barrier[won], shifted[won] = True, True, True
                 damped[won], continued[won] = False, False
+    trusted = np.zeros(jammed.shape, dtype=bool)
+    if continuation:
+        # every slice still without a solution (the iteration limit included: each attempt keeps its budget)
+        stopped = (res.status == Status.MAX_ITERATIONS) | (res.status == Status.NUMERICAL_ERROR)
+        rest = _unsolved(res, P, opts.tol) | (stopped & np.all(P.f_star > 0, axis=-1))
+        if rest.any():
+            for handover in (True, False):
+                idx = np.flatnonzero(rest)
+                phases = [_trust_region_phase(P.rows(idx[k : k + 1]), opts, handover) for k in range(idx.size)]
+                start = np.concatenate([m for m, _ in phases])
+                again = _attempt(P.rows(rest), start, opts, _Attempt(False, False, barrier=True))
+                again.iterations = again.iterations + np.array([count for _, count in phases])
+                ok = again.status == Status.CONVERGED
+                _merge(res, rest, again, ok)
+                won = idx[ok]
+                trusted[won], barrier[won] = True, True
+                damped[won], shifted[won], continued[won], filled[won] = False, False, False, False
+                rest[won] = False
+                if not rest.any():
+                    break
     res.info.update(jammed=jammed, interior_damping=damped, barrier=barrier, lower_minimum=lower, row_shift=shifted,
-                    continued=continued, filled_start=filled)  # fmt: skip
+                    continued=continued, filled_start=filled, trust_region=trusted)  # fmt: skip
     return res
 
 
@@ -1225,7 +1353,7 @@ def _compiled_single(P: CollisionProblem, opts: NewtonOptions, t0: float) -> Col
         return None
     info = {"warm_started": warm, "jammed": False, "interior_damping": False, "barrier": False,
             "lower_minimum": False, "row_shift": False, "continued": False, "filled_start": False,
-            "compiled": True}  # fmt: skip
+            "trust_region": False, "compiled": True}  # fmt: skip
     return CollisionResult.from_certificate(P, f, m, cert, "newton", iterations, time.perf_counter() - t0, info)
 
 
@@ -1286,7 +1414,10 @@ def _compiled_batch(P: CollisionProblem, opts: NewtonOptions, t0: float) -> Coll
     done[done] = accepted
     if not done.any():
         return None
-    flags = ("jammed", "interior_damping", "barrier", "lower_minimum", "row_shift", "continued", "filled_start")
+    flags = (
+        "jammed", "interior_damping", "barrier", "lower_minimum", "row_shift", "continued", "filled_start",
+        "trust_region",
+    )  # fmt: skip
     info = {"warm_started": warm & done, **{name: np.zeros(B, dtype=bool) for name in flags}, "compiled": done}
     if done.all():  # every slice compiled and certified (so every was True): the result as it stands
         return CollisionResult(f, m, cert.status, "newton", its, phi, kkt, mass_error, time.perf_counter() - t0, info)
@@ -1407,8 +1538,9 @@ def solve_newton(
         returned: another minimiser, or the same one reached more accurately), ``row_shift`` (it comes
         from the attempt whose modified-Newton shifts have each row's own size), ``continued`` (it comes
         from the continuation in dt), ``filled_start`` (it comes from the barrier attempt started at f* with a
-        floor spread over the interval, the cascade's last resort; ``barrier`` is then set too, and ``row_shift``
-        where that attempt took the row-sized shifts) and ``compiled`` (the
+        floor spread over the interval; ``barrier`` is then set too, and ``row_shift`` where that attempt took
+        the row-sized shifts), ``trust_region`` (it comes from the barrier attempt started where the
+        trust-region phase ended, the cascade's last resort; ``barrier`` is then set too) and ``compiled`` (the
         point comes from the compiled iteration); per slice when batched.  ``iterations`` counts every
         attempt (the compiled one only where its point is returned).
         A single problem is solved as a batch of one.
@@ -1432,8 +1564,8 @@ def solve_newton(
         # no stationary point: the modified directions found no descent there (not a saddle point it reached)
         res.info["hint"] = (
             f"at a point that is not stationary (KKT {res.kkt_residual:.1e}): no shifted Newton direction "
-            "descended there, and no retry (barrier, row-sized shifts, continuation in dt, filled start) reached a "
-            "minimiser; method='nlp' is the reference for such steps"
+            "descended there, and no retry (barrier, row-sized shifts, continuation in dt, filled start, trust region) "
+            "reached a minimiser; method='nlp' is the reference for such steps"
         )
     return res
 
