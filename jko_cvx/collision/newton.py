@@ -940,7 +940,7 @@ def _filled_start(P: CollisionProblem) -> NDArray:
     return -np.cumsum(h * (f0 - P.f_star), axis=-1)[:, :-1]
 
 
-# The trust-region phase (_trust_region_phase): it hands over to the barrier attempt after this many consecutive
+# The trust-region phase (_TrustRegionPhase): it hands over to the barrier attempt after this many consecutive
 # full, interior Newton steps of the barrier function (the iterate is in that function's Newton region); a step
 # is taken where the actual decrease is at least _TR_ACCEPT of the model's; the first radius (Jacobi-scaled
 # units) is at most _TR_FIRST_RADIUS; _TR_SHRINKS radius reductions at one point end the phase (rounding).
@@ -950,88 +950,105 @@ _TR_FIRST_RADIUS = 10.0
 _TR_SHRINKS = 60
 
 
-def _trust_region_phase(P: CollisionProblem, opts: NewtonOptions, handover: bool = True) -> tuple[NDArray, int]:
+class _TrustRegionPhase:
     """Trust-region iterations on the barrier function of one slice (a batch of one), from the cold start.
 
     Where the step problem is not convex (a concave energy, gamma < 2, at a large CFL number) the modified-Newton
     directions of the line-search attempts are shifted towards the gradient and can crawl for hundreds of
     iterations through the non-convex region, or find no descent there.  The trust-region step
-    (:func:`~jko_cvx.collision._trust_region.trust_region_step`) is the global minimiser of the quadratic model of
+    (:class:`~jko_cvx.collision._trust_region.Eigensystem`) is the global minimiser of the quadratic model of
     :math:`J - \\mu \\sum_j h_j \\log f_j` (:func:`_with_barrier`) on a ball in the Jacobi-scaled fluxes
     (:math:`\\|D^{1/2} p\\| \\le \\Delta`, D the reduced Hessian's diagonal, on the momentum plane with
     ``conserve_momentum``): it follows negative curvature where the Hessian has it.  A step that would leave
     f > 0 is cut by the fraction to the boundary, and taken where J - mu sum h log f falls by at least
     ``_TR_ACCEPT`` of the model's decrease; the radius grows or shrinks with that ratio (Nocedal and Wright,
     Algorithm 4.1).  mu starts as in the barrier attempt and is lowered tenfold after a full interior step of
-    small decrement (``_MU_CENTRED``).  The phase ends after ``_TR_HANDOVER`` consecutive full interior
-    Newton steps, at a point within ``tol``, after ``max_iter`` iterations, or where the radius collapses.
+    small decrement (``_MU_CENTRED``).
 
-    Returns the fluxes where it ended (a row) and its iteration count.
+    :meth:`run` iterates from where the last call stopped: with ``handover`` until ``_TR_HANDOVER`` consecutive
+    full interior Newton steps, and in any case until the point is within ``tol``, ``max_iter`` iterations in
+    all, or the radius collapses (``ended``).  ``m`` is the current point (a row), ``iterations`` the count.
     """
-    st, _ = _start(P, None, replace(opts, m0=None))
-    m, f = st.m, st.f
-    h = band_coefficients(P.grid, 2)[0]
-    with np.errstate(all="ignore"):
-        mu = _MU_START * np.abs(st.phi) / P.grid.length
-        phi = _merit(P, f, m, mu)
-    block = 2 * P.energy_coef * P.energy.flux_block()
-    normal = P.grid.dv if P.conserve_momentum else None
-    radius, run, it = np.nan, 0, 0
-    with np.errstate(all="ignore"):
-        while it < opts.max_iter and np.isfinite(phi).all():
-            g, bands, parts = _fused(P, f, m)
-            if not P.kkt_residual(f, m, parts).total[0] > opts.tol:  # within tol (or not finite: stop)
+
+    def __init__(self, P: CollisionProblem, opts: NewtonOptions) -> None:
+        st, _ = _start(P, None, replace(opts, m0=None))
+        self.P, self.opts = P, opts
+        self.m, self.f = st.m, st.f
+        self.h = band_coefficients(P.grid, 2)[0]
+        with np.errstate(all="ignore"):
+            self.mu = _MU_START * np.abs(st.phi) / P.grid.length
+            self.phi = _merit(P, self.f, self.m, self.mu)
+        self.block = 2 * P.energy_coef * P.energy.flux_block()
+        self.radius = np.nan
+        self.iterations = 0
+        self.ended = not np.isfinite(self.phi).all()
+
+    def run(self, handover: bool) -> None:
+        """Iterate (see the class docstring)."""
+        newton_steps = 0
+        with np.errstate(all="ignore"):
+            while not self.ended:
+                newton = self._iterate()
+                newton_steps = newton_steps + 1 if newton else 0
+                if handover and newton_steps >= _TR_HANDOVER:
+                    return
+
+    def _iterate(self) -> bool:
+        """One iteration; returns whether it was a full interior Newton step.  Sets ``ended`` where it stops."""
+        P, m, f, mu = self.P, self.m, self.f, self.mu
+        g, bands, parts = _fused(P, f, m)
+        if self.iterations >= self.opts.max_iter or not P.kkt_residual(f, m, parts).total[0] > self.opts.tol:
+            self.ended = True  # the budget, or within tol (a residual that is not finite stops too)
+            return False
+        g, bands = _with_barrier(P, f, mu, g, bands)
+        H = add_pentadiagonal(self.block, *bands)[0]
+        d = np.sqrt(np.abs(np.diag(H)))
+        if not (np.isfinite(H).all() and np.isfinite(g).all() and (d > 0).all()):
+            self.ended = True
+            return False
+        Hs, gs = H / np.outer(d, d), g[0] / d
+        Z = None
+        if P.conserve_momentum:  # the momentum plane a'm = 0 in the scaled fluxes: a Householder basis
+            u = P.grid.dv / d
+            u = u / np.linalg.norm(u)
+            u[0] += 1.0 if u[0] >= 0 else -1.0
+            Z = (np.eye(u.size) - np.outer(u, u) * (2.0 / (u @ u)))[:, 1:]
+            Hs, gs = Z.T @ Hs @ Z, Z.T @ gs
+        try:
+            eig = Eigensystem(Hs, gs)
+        except np.linalg.LinAlgError:
+            self.ended = True
+            return False
+        if not np.isfinite(self.radius):
+            self.radius = min(float(np.linalg.norm(eig.c / np.maximum(np.abs(eig.lam), _TINY))), _TR_FIRST_RADIUS)
+        for _ in range(_TR_SHRINKS):
+            step = eig.step(self.radius)
+            q = step.q if Z is None else Z @ step.q
+            p = (q / d)[None, :]
+            alpha = float(_boundary_step(f, -divergence(p) / self.h)[0])
+            predicted = step.predicted(alpha)
+            mt = m + alpha * p
+            ft = P.f_star - divergence(mt) / self.h
+            phit = _merit(P, ft, mt, mu) if (ft > 0).all() else np.full(1, np.inf)
+            ratio = float((self.phi - phit)[0]) / predicted if predicted > 0 else -np.inf
+            if ratio >= _TR_ACCEPT:
                 break
-            g, bands = _with_barrier(P, f, mu, g, bands)
-            H = add_pentadiagonal(block, *bands)[0]
-            d = np.sqrt(np.abs(np.diag(H)))
-            if not (np.isfinite(H).all() and np.isfinite(g).all() and (d > 0).all()):
-                break
-            Hs, gs = H / np.outer(d, d), g[0] / d
-            Z = None
-            if normal is not None:  # the momentum plane a'm = 0 in the scaled fluxes: a Householder basis
-                u = normal / d
-                u = u / np.linalg.norm(u)
-                u[0] += 1.0 if u[0] >= 0 else -1.0
-                Z = (np.eye(u.size) - np.outer(u, u) * (2.0 / (u @ u)))[:, 1:]
-                Hs, gs = Z.T @ Hs @ Z, Z.T @ gs
-            try:
-                eig = Eigensystem(Hs, gs)
-            except np.linalg.LinAlgError:
-                break
-            if not np.isfinite(radius):
-                lam = np.abs(eig.lam)
-                radius = min(float(np.linalg.norm(eig.c / np.maximum(lam, _TINY))), _TR_FIRST_RADIUS)
-            for _ in range(_TR_SHRINKS):
-                step = eig.step(radius)
-                q = step.q if Z is None else Z @ step.q
-                p = (q / d)[None, :]
-                alpha = float(_boundary_step(f, -divergence(p) / h)[0])
-                predicted = step.predicted(alpha)
-                mt = m + alpha * p
-                ft = P.f_star - divergence(mt) / h
-                phit = _merit(P, ft, mt, mu) if (ft > 0).all() else np.full(1, np.inf)
-                ratio = float((phi - phit)[0]) / predicted if predicted > 0 else -np.inf
-                if ratio >= _TR_ACCEPT:
-                    break
-                radius = 0.25 * alpha * float(np.linalg.norm(step.q))
-            else:
-                break  # the radius collapsed: the model's decrease is below J's rounding
-            it += 1
-            size = alpha * float(np.linalg.norm(step.q))
-            m, f, phi = mt, ft, phit
-            if ratio > 0.75 and size >= 0.99 * radius:
-                radius *= 2.0
-            elif ratio < 0.25:
-                radius = 0.25 * size
-            newton = step.interior and alpha == 1.0
-            run = run + 1 if newton else 0
-            if handover and run >= _TR_HANDOVER:
-                break
-            if newton and predicted <= _MU_CENTRED * abs(float(phi[0])):
-                mu = _MU_SHRINK * mu
-                phi = _merit(P, f, m, mu)
-    return m, it
+            self.radius = 0.25 * alpha * float(np.linalg.norm(step.q))
+        else:
+            self.ended = True  # the radius collapsed: the model's decrease is below J's rounding
+            return False
+        self.iterations += 1
+        size = alpha * float(np.linalg.norm(step.q))
+        self.m, self.f, self.phi = mt, ft, phit
+        if ratio > 0.75 and size >= 0.99 * self.radius:
+            self.radius *= 2.0
+        elif ratio < 0.25:
+            self.radius = 0.25 * size
+        newton = step.interior and alpha == 1.0
+        if newton and predicted <= _MU_CENTRED * abs(float(phit[0])):
+            self.mu = _MU_SHRINK * mu
+            self.phi = _merit(P, ft, mt, self.mu)
+        return newton
 
 
 _CONTINUATION_STAGES = 12
@@ -1112,13 +1129,14 @@ def _cascade(
 
     8. Slices still without a solution (``NOT_CERTIFIED``, ``MAX_ITERATIONS``, ``NUMERICAL_ERROR``, or
        ``NONCONVEX`` at a point that is not stationary; f* > 0): the trust-region phase
-       (:func:`_trust_region_phase`) from the cold start to the barrier function's Newton region, then the
+       (:class:`_TrustRegionPhase`) from the cold start to the barrier function's Newton region, then the
        barrier attempt from its point, kept where it certifies (``info["trust_region"]``, with ``barrier``);
-       where that fails, the phase without the hand-over (to ``tol`` or ``max_iter``) and the barrier attempt
-       from its point.  A line-search attempt whose modified-Newton directions cross a non-convex region
-       (gamma < 2 at CFL numbers above 100) takes shifted, gradient-like steps there: it crawls for a hundred
-       iterations or more, or finds no descent; the trust-region step minimises the model on a ball and follows
-       its negative curvature.  Each phase and attempt has the budget ``max_iter``.
+       where that fails, the phase on from that point without the hand-over (to ``tol``, or ``max_iter``
+       iterations in all) and the barrier attempt from where it ends.  A line-search attempt whose
+       modified-Newton directions cross a non-convex region (gamma < 2 at CFL numbers above 100) takes shifted,
+       gradient-like steps there: it crawls for a hundred iterations or more, or finds no descent; the
+       trust-region step minimises the model on a ball and follows its negative curvature.  The phase and each
+       attempt have the budget ``max_iter``.
 
     Stages 5 to 8 run only on slices that every stage before left without a solution, so the results of
     slices certified before them do not depend on them; ``continuation=False`` (the continuation's own
@@ -1240,20 +1258,26 @@ def _cascade(
         stopped = (res.status == Status.MAX_ITERATIONS) | (res.status == Status.NUMERICAL_ERROR)
         rest = _unsolved(res, P, opts.tol) | (stopped & np.all(P.f_star > 0, axis=-1))
         if rest.any():
+            phases = {k: _TrustRegionPhase(P.rows(slice(k, k + 1)), opts) for k in np.flatnonzero(rest)}
             for handover in (True, False):
-                idx = np.flatnonzero(rest)
-                phases = [_trust_region_phase(P.rows(idx[k : k + 1]), opts, handover) for k in range(idx.size)]
-                start = np.concatenate([m for m, _ in phases])
-                again = _attempt(P.rows(rest), start, opts, _Attempt(False, False, barrier=True))
-                again.iterations = again.iterations + np.array([count for _, count in phases])
+                # the phase to the Newton region, then (where the attempt from there fails) on from that point
+                idx = np.array([k for k in np.flatnonzero(rest) if handover or not phases[k].ended], dtype=int)
+                if idx.size == 0:
+                    break
+                counted = np.array([phases[k].iterations for k in idx])
+                for k in idx:
+                    phases[k].run(handover)
+                rows = np.zeros(rest.shape, dtype=bool)
+                rows[idx] = True
+                start = np.concatenate([phases[k].m for k in idx])
+                again = _attempt(P.rows(rows), start, opts, _Attempt(False, False, barrier=True))
+                again.iterations = again.iterations + np.array([phases[k].iterations for k in idx]) - counted
                 ok = again.status == Status.CONVERGED
-                _merge(res, rest, again, ok)
+                _merge(res, rows, again, ok)
                 won = idx[ok]
                 trusted[won], barrier[won] = True, True
                 damped[won], shifted[won], continued[won], filled[won] = False, False, False, False
                 rest[won] = False
-                if not rest.any():
-                    break
     res.info.update(jammed=jammed, interior_damping=damped, barrier=barrier, lower_minimum=lower, row_shift=shifted,
                     continued=continued, filled_start=filled, trust_region=trusted)  # fmt: skip
     return res

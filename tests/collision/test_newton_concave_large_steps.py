@@ -137,7 +137,7 @@ def test_the_filled_start_touches_only_the_slices_it_serves_in_a_batch(monkeypat
     # without the stage (its start replaced by NaN: _start then starts cold), and without the trust-region stage
     # after it (its start likewise), the stalled slice stays stalled
     monkeypatch.setattr(newton, "_filled_start", lambda Pr: np.full((Pr.batch_size, Pr.n - 1), np.nan))
-    monkeypatch.setattr(newton, "_trust_region_phase", _without_trust_region)
+    monkeypatch.setattr(newton, "_TrustRegionPhase", _WithoutTrustRegion)
     without = solve_collision(P, method="newton")
     assert without.status[0] is Status.CONVERGED and without.status[1] is not Status.CONVERGED
     assert np.array_equal(without.f[0], batch.f[0]) and np.array_equal(without.m[0], batch.m[0])
@@ -187,9 +187,14 @@ TRUST_REGION_STEPS = [
 ]
 
 
-def _without_trust_region(Pr, opts, handover=True):
-    """The trust-region phase taken away: its start is NaN, so the barrier attempt after it starts cold."""
-    return np.full((1, Pr.n - 1), np.nan), 0
+class _WithoutTrustRegion:
+    """The trust-region phase taken away: its point is NaN, so the barrier attempt after it starts cold."""
+
+    def __init__(self, P, opts):
+        self.m, self.iterations, self.ended = np.full((1, P.n - 1), np.nan), 0, False
+
+    def run(self, handover):
+        self.ended = True
 
 
 @pytest.mark.parametrize(("seeds", "family", "index"), TRUST_REGION_STEPS)
@@ -208,7 +213,7 @@ def test_the_trust_region_stage_certifies_steps_every_line_search_attempt_left_u
     res = solve_collision(P, method="newton")
     _certified_minimiser(P, res)
     assert res.info["trust_region"] and res.info["barrier"] and not res.info["filled_start"]
-    monkeypatch.setattr(newton, "_trust_region_phase", _without_trust_region)
+    monkeypatch.setattr(newton, "_TrustRegionPhase", _WithoutTrustRegion)
     without = solve_collision(P, method="newton")
     assert not without.success and certify(P, without.f, without.m, kkt_tol=1e-8).status is not Status.CONVERGED
     if nlp_available():  # the reference certifies these steps too (a local minimiser each, not always the same)
