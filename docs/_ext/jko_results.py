@@ -90,6 +90,7 @@ PAGES: tuple[Page, ...] = (
             Entry("newton_single_call.md", data=("newton_single_call.csv",)),
             Entry("bench_cost_model.md", data=("bench_cost_model.csv",)),
             Entry("bench_cli_run.md", data=("bench_cli_run.csv",)),
+            Entry("bench_newton_cascade.md", data=("bench_newton_cascade.csv",)),
             Entry("conic_defaults.md", data=("conic_defaults.csv",)),
             Entry("extremes.md", data=("extremes.csv",)),
             Entry("reference_certification.md", data=("reference_certification.csv",)),
