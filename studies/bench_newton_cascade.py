@@ -109,6 +109,7 @@ def main(argv: list[str] | None = None) -> int:
     summary.insert(3, "tree/base", summary.tree_cpu_s / summary.base_cpu_s)
     section = (
         f"## Seeds {args.seeds}: baseline {args.base}, tree {tree_label()}; {now} UTC\n\n"
+        f"{environment_line()}\n\n"
         f"Threads: {thread_environment()}.  {len(df)} steps, CPU time per group (sums, and the median of the per-step "
         "ratios), `same_bits`: steps whose f and m are equal bit for bit between the versions; `trust_region`: "
         "steps whose returned point comes from the trust-region stage.\n\n"
@@ -118,10 +119,10 @@ def main(argv: list[str] | None = None) -> int:
     md = RESULTS / "bench_newton_cascade.md"
     head = (
         "# Newton's retry cascade: baseline against this tree on the review families\n\n"
-        f"*{environment_line()}*\n\n"
         "`OPENBLAS_NUM_THREADS=1 python studies/bench_newton_cascade.py --base COMMIT --seeds SEEDS`: every step of "
         "the seed set solved by both versions at Newton's defaults, interleaved in one process; certified: "
-        f"`certify` at {ACCEPT_KKT:g} on each returned point.  Sections are appended per run.\n\n"
+        f"`certify` at {ACCEPT_KKT:g} on each returned point.  Sections are appended per run, each with its "
+        "environment.\n\n"
     )
     text = md.read_text() if md.exists() else head
     md.write_text(text.rstrip("\n") + "\n\n" + section if md.exists() else head + section)
