@@ -228,3 +228,16 @@ def test_max_iter_bounds_the_trust_region_phase_like_every_attempt():
     short = solve_collision(P, method="newton", max_iter=20)
     assert not short.success and short.status is not Status.CONVERGED
     assert certify(P, short.f, short.m, kkt_tol=1e-8).status is not Status.CONVERGED
+
+
+def test_the_trust_region_phase_keeps_the_momentum_constraint():
+    """With ``conserve_momentum`` the phase steps on the plane sum_k m_k dv_k = 0 (a Householder basis of it in the
+    scaled fluxes): review_c special_gamma #58 (gamma 0.95, CFL 168) is certified there by the stage, with f*'s
+    momentum to rounding."""
+    study = load_study_script("newton_certification.py")
+    P0, _ = study.review_problem("special_gamma", 58, study.REVIEW_SEED_SETS["review_c"])
+    P = CollisionProblem(P0.grid, P0.kernel, P0.f_star, P0.dt, P0.strength, P0.beta, P0.fisher, conserve_momentum=True)
+    res = solve_collision(P, method="newton")
+    _certified_minimiser(P, res)
+    assert res.info["trust_region"]
+    assert abs(P.momentum_change(res.f)) <= 1e-14 * P.grid.mass(np.abs(P.grid.points) * P.f_star)
