@@ -55,11 +55,12 @@ def pyplot() -> _Headless:
 
 
 def finish_figure(fig, axes, path: Path, **legend) -> None:
-    """Grid and legend on every axis (``legend``: keyword arguments of ``Axes.legend``, default
-    ``fontsize=7``), tight layout, save at 120 dpi, close."""
+    """Grid on every axis and a legend on every axis with labelled artists (``legend``: keyword arguments of
+    ``Axes.legend``, default ``fontsize=7``), tight layout, save at 120 dpi, close."""
     for ax in axes:
         ax.grid(True, which="both", alpha=0.2)
-        ax.legend(**{"fontsize": 7, **legend})
+        if ax.get_legend_handles_labels()[0]:  # an axis with nothing labelled gets no (empty) legend
+            ax.legend(**{"fontsize": 7, **legend})
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     pyplot().close(fig)
