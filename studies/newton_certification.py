@@ -29,8 +29,9 @@ of f* from 1e-3 to 1e3): ``offcentre`` (one to three asymmetric bumps off v = 0)
 (tails down to 1e-30 of the peak), ``nonuniform`` (spacing ratios 10-50: random, clustered or
 one jump), ``bigcfl`` (no Fisher term, explicit CFL numbers 10-1000), ``special_gamma``
 (gamma at 1, 2 or 3, shifted by 0, 1e-6, 1e-3 or 0.05) and ``extreme_dt`` (dt in
-[1e-4, 5e-4] or [0.4, 1]); ``review_b`` to ``review_e``: the same generators under other seeds
-(``REVIEW_SEED_SETS``; ``review_e`` drawn after Newton's trust-region stage was built, to measure it).
+[1e-4, 5e-4] or [0.4, 1]); ``review_b`` to ``review_f``: the same generators under other seeds
+(``REVIEW_SEED_SETS``; ``review_e`` and ``review_f`` drawn after Newton's trust-region stage was built, to
+measure it).
 """
 
 from __future__ import annotations
@@ -113,6 +114,7 @@ def problems(family: str, count: int, seeds: dict[str, int] = SEEDS) -> list[tup
 REVIEW_SEED = 515000
 REVIEW_SEED_SETS = {
     "review": REVIEW_SEED, "review_b": 616161, "review_c": 727272, "review_d": 838383, "review_e": 949494,
+    "review_f": 105105,
 }  # fmt: skip
 """The review's generators under four seeds: ``review`` (the review's draw), ``review_b`` (drawn at a later stop to
 measure a change, Newton alone; one of its steps is now a test), ``review_c`` (drawn after the filled start was
