@@ -57,7 +57,9 @@ class Eigensystem:
         self.c = self.Q.T @ g
 
     def step(self, radius: float) -> TrustRegionStep:
-        """The subproblem's global minimiser for ``radius`` > 0."""
+        """The subproblem's global minimiser for ``radius`` > 0 (finite)."""
+        if not 0.0 < radius < np.inf:
+            raise ValueError(f"radius must be positive and finite, got {radius!r}")
         lam, c = self.lam, self.c
         lowest = float(lam[0])
         if lowest > 0.0:

@@ -1022,6 +1022,8 @@ class _TrustRegionPhase:
         if not np.isfinite(self.radius):
             self.radius = min(float(np.linalg.norm(eig.c / np.maximum(np.abs(eig.lam), _TINY))), _TR_FIRST_RADIUS)
         for _ in range(_TR_SHRINKS):
+            if not self.radius > 0.0:  # shrunk to underflow: no step the model can measure
+                break
             step = eig.step(self.radius)
             q = step.q if Z is None else Z @ step.q
             p = (q / d)[None, :]
@@ -1036,6 +1038,9 @@ class _TrustRegionPhase:
             self.radius = 0.25 * alpha * float(np.linalg.norm(step.q))
         else:
             self.ended = True  # the radius collapsed: the model's decrease is below J's rounding
+            return False
+        if not self.radius > 0.0:
+            self.ended = True
             return False
         self.iterations += 1
         size = alpha * float(np.linalg.norm(step.q))

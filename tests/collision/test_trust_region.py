@@ -76,3 +76,9 @@ def test_a_negative_definite_model_steps_to_the_boundary():
     step = Eigensystem(H, g).step(0.5)
     assert not step.interior and np.linalg.norm(step.q) == pytest.approx(0.5, rel=1e-10)
     assert step.q[0] < 0  # downhill along -g
+
+
+@pytest.mark.parametrize("radius", [0.0, -1.0, np.inf, np.nan])
+def test_a_radius_that_is_not_positive_and_finite_is_refused(radius):
+    with pytest.raises(ValueError, match="radius must be positive and finite"):
+        trust_region_step(np.eye(2), np.ones(2), radius)
