@@ -70,17 +70,39 @@ class Eigensystem:
         # the hard case: c has no component along lam_1's eigenspace, and the step at sigma = -lam_1 is short
         tie = lam <= lowest + 1e-12 * max(1.0, float(np.abs(lam).max()))
         if lowest <= 0.0 and np.abs(c[tie]).max() <= 1e-14 * max(float(np.linalg.norm(c)), np.finfo(float).tiny):
-            rest = ~tie
             w = np.zeros_like(c)
-            w[rest] = -c[rest] / (lam[rest] - lowest)
-            gap = radius * radius - w @ w
-            if gap >= 0.0:
-                w[np.flatnonzero(tie)[0]] += np.sqrt(gap)
-                return self._result(w, interior=False)
-        return self._result(-c / (lam + self._sigma(floor, radius)), interior=False)
+            w[~tie] = -c[~tie] / (lam[~tie] - lowest)
+            if np.linalg.norm(w) <= radius:
+                return self._result(self._to_boundary(w, radius), interior=False)
+        w = -c / (lam + self._sigma(floor, radius))
+        if lowest <= 0.0 and np.linalg.norm(w) < (1.0 - 1e-8) * radius:
+            # near the hard case sigma + lam_1 falls below sigma's rounding (c_1 tiny, or lam_1 clustered with
+            # eigenvalues whose c is not): the root is not representable, and the step at the nearest sigma
+            # that is stops short of the boundary; the lowest eigenvector takes it there
+            w = self._to_boundary(w, radius)
+        return self._result(w, interior=False)
+
+    def _to_boundary(self, w: NDArray[np.float64], radius: float) -> NDArray[np.float64]:
+        """``w + tau e_1`` (the lowest eigenvector) with norm ``radius``, of the two such tau the one with the lower
+        model value."""
+        rest = float(np.linalg.norm(w[1:]))
+        reach = np.sqrt(max(radius - rest, 0.0)) * np.sqrt(radius + rest)  # no radius^2 to overflow
+        best = None
+        for tau in (-w[0] + reach, -w[0] - reach):
+            trial = w.copy()
+            trial[0] += tau
+            t = trial / radius  # the model over radius^2, compared in units that cannot overflow
+            value = float((self.c / radius) @ t + 0.5 * (self.lam * t) @ t)
+            if best is None or value < best[0]:
+                best = (value, trial)
+        return best[1]
 
     def _sigma(self, floor: float, radius: float) -> float:
-        """The root sigma > floor of 1/||q(sigma)|| = 1/radius (safeguarded Newton in a bracket)."""
+        """The root sigma > floor of 1/||q(sigma)|| = 1/radius (safeguarded Newton in a bracket).
+
+        Newton's step on 1/||q|| is :math:`(1 - \\|q\\| / \\Delta) / \\sum_i u_i^2 / (\\lambda_i + \\sigma)` with
+        :math:`u = q / \\|q\\|`: no power of ``||q||`` that could underflow at a tiny radius or gradient.
+        """
         lam, c = self.lam, self.c
         lo = floor
         hi = floor + float(np.linalg.norm(c)) / radius + 1.0
@@ -96,11 +118,14 @@ class Eigensystem:
                 lo = sigma
             else:
                 hi = sigma
-            # d(1/||q||)/d sigma = (sum_i w_i^2 / (lam_i + sigma)) / ||q||^3
-            slope = float(np.sum(w * w / (lam + sigma))) / size**3
-            trial = sigma - (1.0 / size - 1.0 / radius) / slope
+            u = w / size if size > 0.0 else w
+            curve = float(np.sum(u * u / (lam + sigma)))
+            trial = sigma - (1.0 - size / radius) / curve if curve > 0.0 else np.nan
             sigma = trial if lo < trial < hi else 0.5 * (lo + hi)
-        return sigma
+        else:
+            return hi
+        # converged, or the bracket is one rounding wide: its upper end, where the step is finite and inside
+        return sigma if abs(size - radius) <= 1e-10 * radius else hi
 
     def _result(self, w: NDArray[np.float64], interior: bool) -> TrustRegionStep:
         slope, curvature = -float(self.c @ w), float((self.lam * w) @ w)

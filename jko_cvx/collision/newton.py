@@ -1021,8 +1021,9 @@ class _TrustRegionPhase:
             return False
         if not np.isfinite(self.radius):
             self.radius = min(float(np.linalg.norm(eig.c / np.maximum(np.abs(eig.lam), _TINY))), _TR_FIRST_RADIUS)
+        rounding = 1e-15 * float(np.linalg.norm(d * m[0]))  # a scaled step below this leaves m as it is
         for _ in range(_TR_SHRINKS):
-            if not self.radius > 0.0:  # shrunk to underflow: no step the model can measure
+            if not self.radius > rounding:
                 break
             step = eig.step(self.radius)
             q = step.q if Z is None else Z @ step.q
@@ -1039,7 +1040,7 @@ class _TrustRegionPhase:
         else:
             self.ended = True  # the radius collapsed: the model's decrease is below J's rounding
             return False
-        if not self.radius > 0.0:
+        if not self.radius > rounding:  # ... or the steps it allows are below m's
             self.ended = True
             return False
         self.iterations += 1
@@ -1137,11 +1138,12 @@ def _cascade(
        (:class:`_TrustRegionPhase`) from the cold start to the barrier function's Newton region, then the
        barrier attempt from its point, kept where it certifies (``info["trust_region"]``, with ``barrier``);
        where that fails, the phase on from that point without the hand-over (to ``tol``, or ``max_iter``
-       iterations in all) and the barrier attempt from where it ends.  A line-search attempt whose
-       modified-Newton directions cross a non-convex region (gamma < 2 at CFL numbers above 100) takes shifted,
-       gradient-like steps there: it crawls for a hundred iterations or more, or finds no descent; the
-       trust-region step minimises the model on a ball and follows its negative curvature.  The phase and each
-       attempt have the budget ``max_iter``.
+       iterations in all) and the barrier attempt from where it ends.  A stationary point that is not a
+       minimiser (``NONCONVEX`` within ``tol``) is kept too where the slice's point is not stationary.  A
+       line-search attempt whose modified-Newton directions cross a non-convex region (gamma < 2 at CFL numbers
+       above 100) takes shifted, gradient-like steps there: it crawls for a hundred iterations or more, or finds
+       no descent; the trust-region step minimises the model on a ball and follows its negative curvature.  The
+       phase and each attempt have the budget ``max_iter``.
 
     Stages 5 to 8 run only on slices that every stage before left without a solution, so the results of
     slices certified before them do not depend on them; ``continuation=False`` (the continuation's own
@@ -1278,11 +1280,16 @@ def _cascade(
                 again = _attempt(P.rows(rows), start, opts, _Attempt(False, False, barrier=True))
                 again.iterations = again.iterations + np.array([phases[k].iterations for k in idx]) - counted
                 ok = again.status == Status.CONVERGED
-                _merge(res, rows, again, ok)
-                won = idx[ok]
+                # a stationary point that is not a minimiser (NONCONVEX within tol) is an answer, as elsewhere in the
+                # cascade: it replaces a point that is not stationary (the slice stays in for the second pass)
+                with np.errstate(invalid="ignore"):
+                    stationary = (again.status == Status.NONCONVEX) & (again.kkt_residual <= opts.tol)
+                    take = ok | (stationary & ~(res.kkt_residual[idx] <= opts.tol))
+                _merge(res, rows, again, take)
+                won = idx[take]
                 trusted[won], barrier[won] = True, True
                 damped[won], shifted[won], continued[won], filled[won] = False, False, False, False
-                rest[won] = False
+                rest[idx[ok]] = False
     res.info.update(jammed=jammed, interior_damping=damped, barrier=barrier, lower_minimum=lower, row_shift=shifted,
                     continued=continued, filled_start=filled, trust_region=trusted)  # fmt: skip
     return res

@@ -241,3 +241,19 @@ def test_the_trust_region_phase_keeps_the_momentum_constraint():
     _certified_minimiser(P, res)
     assert res.info["trust_region"]
     assert abs(P.momentum_change(res.f)) <= 1e-14 * P.grid.mass(np.abs(P.grid.points) * P.f_star)
+
+
+def test_the_trust_region_stage_keeps_a_stationary_point_it_finds_where_nothing_was_stationary():
+    """review bigcfl #14 (gamma 1.27, CFL 156, no Fisher term): no attempt finds a minimiser (nor does nlp, which
+    stops at a stationary non-minimiser); the barrier attempt after the trust-region phase reaches a stationary
+    point, NONCONVEX within tol, which replaces a point that is not stationary (KKT 2.4e-5) as the cascade's other
+    stages do: the answer and its status then agree with nlp's."""
+    study = load_study_script("newton_certification.py")
+    P, _ = study.review_problem("bigcfl", 14)
+    res = solve_collision(P, method="newton")
+    assert res.status is Status.NONCONVEX and res.kkt_residual <= 1e-10 and not P.is_local_minimiser(res.f, res.m)
+    assert res.info["trust_region"] and "hint" not in res.info  # the hint names points that are not stationary
+    if nlp_available():
+        ref = solve_collision(P, method="nlp", kkt_tol=1e-8)
+        assert ref.status is Status.NONCONVEX
+        assert abs(res.objective - ref.objective) <= 1e-9 * abs(ref.objective)

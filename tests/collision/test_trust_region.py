@@ -82,3 +82,49 @@ def test_a_negative_definite_model_steps_to_the_boundary():
 def test_a_radius_that_is_not_positive_and_finite_is_refused(radius):
     with pytest.raises(ValueError, match="radius must be positive and finite"):
         trust_region_step(np.eye(2), np.ones(2), radius)
+
+
+@pytest.mark.parametrize(
+    ("lam", "c1", "radius"),
+    [
+        ([-1.0, 0.5, 1.0, 2.0, 3.0], 1e-12, 1e3),
+        ([-1.0, 0.5, 1.0, 2.0, 3.0], 1e-13, 1e3),
+        ([-1.0, 0.5, 1.0, 2.0, 3.0], 1e-13, 10.0),
+        ([-1e5, 2.0, 3.0], 1e-13, 10.0),
+    ],
+)
+def test_near_the_hard_case_the_step_still_reaches_the_boundary_and_the_minimum(lam, c1, radius):
+    """g with a component along the lowest eigenvector just above the hard-case test: sigma + lam_1 is then below
+    sigma's rounding, and a secular solve alone returned steps of 0.2 to 1.1 times the radius (outside the region,
+    or short of the minimum by a fifth of the model's value)."""
+    H = np.diag(lam)
+    g = np.ones(len(lam))
+    g[0] = c1
+    step = trust_region_step(H, g, radius)
+    assert np.linalg.norm(step.q) == pytest.approx(radius, rel=1e-8)
+    _check_global_minimiser(H, g, radius, step, np.random.default_rng(1))
+
+
+def test_a_lowest_eigenvalue_clustered_with_one_that_g_reaches_is_handled():
+    """lam_2 = lam_1 + 1e-13 with c_2 != 0 and c_1 = 0: within the hard case's tie, so the tie's test fails, and no
+    secular root lies above -lam_1; the step at -lam_1 plus the lowest eigenvector is the minimiser."""
+    H = np.diag([-1.0, -1.0 + 1e-13, 1.0])
+    g = np.array([0.0, 1e-9, 1.0])
+    step = trust_region_step(H, g, 1e6)
+    assert np.linalg.norm(step.q) == pytest.approx(1e6, rel=1e-8)
+    assert -step.predicted() <= _model(H, g, np.array([1e6, 0.0, 0.0])) + 1e-6 * 1e12  # at least the lowest ray's
+
+
+@pytest.mark.parametrize(
+    ("lam", "scale", "radius"),
+    [([-1.0, 1.0, 2.0], 1.0, 1e-160), ([1e-3, 1.0, 2.0], 1.0, 1e-160), ([-1.0, 1.0, 2.0], 1e-160, 1.0),
+     ([-1.0, 1.0, 2.0], 0.0, 1e150)],
+)  # fmt: skip
+def test_extreme_radii_and_gradients_give_a_finite_step_on_the_boundary(lam, scale, radius):
+    """No power of ||q|| in the secular Newton step (its cube underflowed at radius 1e-160: a ZeroDivisionError),
+    and the hard case's step to the boundary formed without the radius squared (1e300 here)."""
+    H = np.diag(lam)
+    g = scale * np.ones(3)
+    step = trust_region_step(H, g, radius)
+    assert np.isfinite(step.q).all()
+    assert np.linalg.norm(step.q) == pytest.approx(radius, rel=1e-8)
